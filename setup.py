@@ -1,0 +1,51 @@
+"""ament_python package for robodyn_ros (see package.xml for ROS metadata)."""
+import os
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'robodyn_ros'
+
+
+def _read_version():
+    import re
+    with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), 'package.xml')) as f:
+        return re.search(r'<version>([^<]+)</version>', f.read()).group(1)
+
+
+def _config_files():
+    out = {}
+    for path in glob('config/**/*', recursive=True):
+        if os.path.isfile(path):
+            dest = os.path.join('share', package_name, os.path.dirname(path))
+            out.setdefault(dest, []).append(path)
+    return sorted(out.items())
+
+
+setup(
+    name=package_name,
+    version=_read_version(),
+    packages=find_packages(exclude=['test']),
+    package_data={package_name: ['data/*']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ] + _config_files(),
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap'],
+    extras_require={
+        'test': ['pytest', 'pin', 'mujoco', 'mcap-ros2-support', 'rosbags',
+                 'colcon-common-extensions', 'matplotlib'],
+    },
+    zip_safe=True,
+    maintainer='robodyn_ros developers',
+    maintainer_email='robodyn@example.com',
+    description='Accurate, fast, self-measuring robot dynamics simulation for ROS 2',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'sim = robodyn_ros.nodes.sim:main',
+            'robodyn = robodyn_ros.cli:main',
+        ],
+    },
+)
