@@ -1,0 +1,392 @@
+"""The kinematic tree as plain arrays, built from link specs, DH tables or explicit origins.
+
+A :class:`Model` is immutable data (Featherstone's model structure, spatial_v2 style): a parent
+array with ``-1`` for the fixed root frame, joint-type codes, joint axes, tree transforms
+``Xtree`` and spatial inertias. State ``(q, v)`` lives outside the model.
+
+Frames. Every body ``i`` has one frame, the *joint frame after the joint's motion*: its origin is
+on the joint axis. ``Xtree[i]`` transforms from the parent body's frame (or the root frame) to
+body ``i``'s frame at ``q_i = 0``; the joint then moves it by ``XJ(q_i)`` (see :func:`jcalc`), so
+``Xup[i] = XJ(q_i) @ Xtree[i]``. URDF export uses exactly these frames, so link names, joint
+names and frames agree between the simulator, ``joint_states`` and ``robot_description``.
+
+Joint codes: ``FIXED`` (no DOF), ``REVOLUTE`` and ``PRISMATIC`` (1 DOF about/along ``axis`` in
+the joint frame), ``FREE`` (a 6-DOF floating joint: ``q = [p (3, parent coords), quat (x, y, z,
+w)]``, ``v = body twist [w; v] in body coordinates``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .spatial import (R_to_rpy, mcI, plux, quat_to_R, rot_axis, rotx, rotz, rpy_to_R, skew)
+
+FIXED, REVOLUTE, PRISMATIC, FREE = 0, 1, 2, 3
+JOINT_TYPES = {'fixed': FIXED, 'revolute': REVOLUTE, 'prismatic': PRISMATIC, 'free': FREE}
+JOINT_NAMES = {v: k for k, v in JOINT_TYPES.items()}
+_NQ = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 7}
+_NV = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 6}
+
+
+class ModelError(ValueError):
+    """A kinematic tree that cannot be built; the message names the link/joint and the reason."""
+
+
+@dataclass
+class LinkSpec:
+    """One body and the joint that connects it to its parent.
+
+    name: link name; joint: joint name; parent: parent link name (``None`` = the fixed root
+    frame); joint_type: 'revolute' | 'prismatic' | 'fixed' | 'free'; origin_xyz, origin_rpy:
+    joint frame in the parent link frame at q = 0 (URDF convention); axis: (3,) joint axis in
+    the joint frame; mass (kg), com (3,) in the link frame, inertia (3, 3) about the com in link
+    axes; damping: viscous joint damping (N·m·s/rad or N·s/m); limits: optional (lower, upper).
+    """
+
+    name: str
+    joint: str
+    parent: str | None
+    joint_type: str = 'revolute'
+    origin_xyz: Sequence[float] = (0.0, 0.0, 0.0)
+    origin_rpy: Sequence[float] = (0.0, 0.0, 0.0)
+    axis: Sequence[float] = (0.0, 0.0, 1.0)
+    mass: float = 0.0
+    com: Sequence[float] = (0.0, 0.0, 0.0)
+    inertia: Sequence[Sequence[float]] = field(default_factory=lambda: np.zeros((3, 3)))
+    damping: float = 0.0
+    limits: tuple | None = None
+    origin_R: np.ndarray | None = None  # exact rotation, overrides origin_rpy when given
+
+
+@dataclass(frozen=True)
+class Model:
+    """A kinematic tree in plain arrays (bodies in topological order: parent[i] < i).
+
+    name: robot name; root: name of the fixed root frame; link_names, joint_names: (nb,)
+    tuples; parent: (nb,) int, -1 = root; jtype: (nb,) int joint codes; axis: (nb, 3) unit axes
+    in joint frames; Xtree: (nb, 6, 6) parent->joint transforms at q = 0; I: (nb, 6, 6) spatial
+    inertias in body frames; q_idx, v_idx: (nb,) first index of each joint in q and v; nq_j,
+    nv_j: (nb,) sizes; damping: (nv,) viscous damping; gravity: (3,) in the root frame (m/s²);
+    q_lower, q_upper: (nq,) joint limits (inf when none); specs: the LinkSpecs it was built from.
+    """
+
+    name: str
+    root: str
+    link_names: tuple
+    joint_names: tuple
+    parent: np.ndarray
+    jtype: np.ndarray
+    axis: np.ndarray
+    Xtree: np.ndarray
+    I: np.ndarray
+    q_idx: np.ndarray
+    v_idx: np.ndarray
+    nq_j: np.ndarray
+    nv_j: np.ndarray
+    damping: np.ndarray
+    gravity: np.ndarray
+    specs: tuple
+
+    @property
+    def nb(self) -> int:
+        """Number of bodies."""
+        return len(self.parent)
+
+    @property
+    def nq(self) -> int:
+        """Size of the configuration vector q."""
+        return int(self.nq_j.sum())
+
+    @property
+    def nv(self) -> int:
+        """Size of the velocity vector v (= number of degrees of freedom)."""
+        return int(self.nv_j.sum())
+
+    @property
+    def dof_joint_names(self) -> list:
+        """Names of the joints that carry a DOF, in q/v order (1-DOF joints only)."""
+        return [self.joint_names[i] for i in range(self.nb) if self.jtype[i] in (REVOLUTE, PRISMATIC)]
+
+    def body(self, link_name: str) -> int:
+        """Index of the body called ``link_name``."""
+        try:
+            return self.link_names.index(link_name)
+        except ValueError:
+            raise ModelError(f'no link named {link_name!r}; links are {list(self.link_names)}') from None
+
+    def neutral(self) -> np.ndarray:
+        """The zero configuration (identity quaternions for free joints), shape (nq,)."""
+        q = np.zeros(self.nq)
+        for i in range(self.nb):
+            if self.jtype[i] == FREE:
+                q[self.q_idx[i] + 6] = 1.0
+        return q
+
+    def with_gravity(self, gravity) -> 'Model':
+        """A copy of the model with another gravity vector (3,) in the root frame."""
+        from dataclasses import replace
+        return replace(self, gravity=np.asarray(gravity, dtype=float))
+
+    def total_mass(self) -> float:
+        """Sum of link masses (kg)."""
+        return float(self.I[:, 5, 5].sum())
+
+
+def jcalc(jtype, axis, qj):
+    """Joint transform and motion subspace (spatial_v2 ``jcalc``).
+
+    jtype: joint code; axis: (3,) unit axis in the joint frame; qj: the joint's slice of q.
+    Returns ``(XJ (6, 6), S (6, nv_j))`` with S in body coordinates.
+    """
+    if jtype == REVOLUTE:
+        XJ = plux(rot_axis(axis, qj[0]).T, np.zeros(3))
+        S = np.zeros((6, 1))
+        S[:3, 0] = axis
+        return XJ, S
+    if jtype == PRISMATIC:
+        XJ = plux(np.eye(3), axis * qj[0])
+        S = np.zeros((6, 1))
+        S[3:, 0] = axis
+        return XJ, S
+    if jtype == FREE:
+        R = quat_to_R(qj[3:7])
+        return plux(R.T, qj[:3]), np.eye(6)
+    return np.eye(6), np.zeros((6, 0))
+
+
+def _check_inertia(spec: LinkSpec, where: str):
+    """Refuse negative masses and inertias that are not symmetric positive semi-definite."""
+    if not np.isfinite(spec.mass) or spec.mass < 0.0:
+        raise ModelError(f'{where}: mass must be a finite number >= 0, got {spec.mass!r}')
+    Ic = np.asarray(spec.inertia, dtype=float)
+    if Ic.shape != (3, 3) or not np.all(np.isfinite(Ic)):
+        raise ModelError(f'{where}: inertia must be a finite 3x3 matrix, got shape {Ic.shape}')
+    if not np.allclose(Ic, Ic.T, atol=1e-12 * max(1.0, np.abs(Ic).max())):
+        raise ModelError(f'{where}: inertia must be symmetric, got {Ic.tolist()}')
+    ev = np.linalg.eigvalsh(Ic)
+    tol = 1e-12 * max(1.0, ev.max())
+    if ev.min() < -tol:
+        raise ModelError(f'{where}: inertia is not positive semi-definite (eigenvalues {ev.tolist()})')
+    # principal moments must satisfy the triangle inequality of a real body
+    if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()):
+        raise ModelError(f'{where}: principal moments {ev.tolist()} violate the triangle inequality '
+                         '(no physical body has them)')
+
+
+def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robot',
+                root='base_link') -> Model:
+    """Build a :class:`Model` from link specs, sorting them so that parents come first.
+
+    links: the bodies; a parent of ``None`` or ``root`` attaches to the fixed root frame.
+    gravity: (3,) in the root frame (zero allowed). name: robot name; root: root frame name.
+    Raises :class:`ModelError` naming the offending link for unknown parents, cycles, duplicate
+    names, bad joint types, non-unit axes and non-physical inertias.
+    """
+    by_name = {}
+    for s in links:
+        if s.name in by_name or s.name == root:
+            raise ModelError(f'link {s.name!r}: duplicate link name')
+        by_name[s.name] = s
+    jnames = [s.joint for s in links]
+    dup = {j for j in jnames if jnames.count(j) > 1}
+    if dup:
+        raise ModelError(f'duplicate joint names {sorted(dup)}')
+    # topological order with cycle detection
+    order, state = [], {}
+
+    def visit(n, path):
+        if state.get(n) == 2:
+            return
+        if state.get(n) == 1:
+            raise ModelError(f'link {n!r}: parent cycle {" -> ".join(path + [n])}')
+        state[n] = 1
+        p = by_name[n].parent
+        if p is not None and p != root:
+            if p not in by_name:
+                raise ModelError(f'link {n!r}: unknown parent {p!r}')
+            visit(p, path + [n])
+        state[n] = 2
+        order.append(n)
+
+    for s in links:
+        visit(s.name, [])
+    index = {n: i for i, n in enumerate(order)}
+    nb = len(order)
+    parent = np.full(nb, -1, dtype=np.int64)
+    jtype = np.zeros(nb, dtype=np.int64)
+    axis = np.zeros((nb, 3))
+    Xtree = np.zeros((nb, 6, 6))
+    I = np.zeros((nb, 6, 6))
+    nq_j = np.zeros(nb, dtype=np.int64)
+    nv_j = np.zeros(nb, dtype=np.int64)
+    damping = []
+    specs = []
+    for i, n in enumerate(order):
+        s = by_name[n]
+        where = f'link {n!r} (joint {s.joint!r})'
+        if s.joint_type not in JOINT_TYPES:
+            raise ModelError(f'{where}: unknown joint type {s.joint_type!r}; '
+                             f'valid types are {sorted(JOINT_TYPES)}')
+        jt = JOINT_TYPES[s.joint_type]
+        if jt == FREE and s.parent not in (None, root):
+            raise ModelError(f'{where}: a free joint must attach to the root frame {root!r}')
+        parent[i] = -1 if s.parent in (None, root) else index[s.parent]
+        jtype[i] = jt
+        a = np.asarray(s.axis, dtype=float)
+        if jt in (REVOLUTE, PRISMATIC):
+            na = np.linalg.norm(a)
+            if a.shape != (3,) or not np.isfinite(na) or na < 1e-9:
+                raise ModelError(f'{where}: axis must be a non-zero 3-vector, got {s.axis!r}')
+            a = a / na
+        axis[i] = a if a.shape == (3,) else (0.0, 0.0, 1.0)
+        Rj = np.asarray(s.origin_R, dtype=float) if s.origin_R is not None else rpy_to_R(s.origin_rpy)
+        xyz = np.asarray(s.origin_xyz, dtype=float)
+        if xyz.shape != (3,) or not np.all(np.isfinite(xyz)) or not np.all(np.isfinite(Rj)):
+            raise ModelError(f'{where}: origin must be finite xyz (3,) and rpy (3,)')
+        Xtree[i] = plux(Rj.T, xyz)
+        _check_inertia(s, where)
+        I[i] = mcI(float(s.mass), np.asarray(s.com, dtype=float), np.asarray(s.inertia, dtype=float))
+        nq_j[i], nv_j[i] = _NQ[jt], _NV[jt]
+        if s.damping < 0 or not np.isfinite(s.damping):
+            raise ModelError(f'{where}: damping must be finite and >= 0, got {s.damping!r}')
+        damping += [float(s.damping)] * int(nv_j[i])
+        specs.append(s)
+    q_idx = np.concatenate([[0], np.cumsum(nq_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
+    v_idx = np.concatenate([[0], np.cumsum(nv_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
+    g = np.asarray(gravity, dtype=float)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise ModelError(f'gravity must be a finite 3-vector, got {gravity!r}')
+    return Model(name=name, root=root, link_names=tuple(order), joint_names=tuple(by_name[n].joint for n in order),
+                 parent=parent, jtype=jtype, axis=axis, Xtree=Xtree, I=I, q_idx=q_idx, v_idx=v_idx,
+                 nq_j=nq_j, nv_j=nv_j, damping=np.asarray(damping), gravity=g, specs=tuple(specs))
+
+
+def _homog(R, p):
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    return T
+
+
+def dh_links(rows, convention='standard', names=None, root='base_link', tool=True):
+    """Link specs for a serial chain from a Denavit–Hartenberg table.
+
+    rows: sequence of dicts with keys ``type`` ('revolute'|'prismatic'), ``a``, ``alpha``, ``d``,
+    ``theta`` (the constant part; the joint variable adds to theta or d), ``mass``, ``com`` (3,)
+    and ``inertia`` (3x3 about the com) expressed in the DH frame of that link (frame i for
+    standard DH, as in Corke's toolbox; frame i for modified DH, Craig), optional ``damping``,
+    ``limits``. convention: 'standard' (Rz(θ) Tz(d) Tx(a) Rx(α)) or 'modified'
+    (Rx(α_{i-1}) Tx(a_{i-1}) Rz(θ_i) Tz(d_i)). names: optional list of (link, joint) names.
+    tool: for standard DH, append a massless fixed ``tool`` link at DH frame n.
+
+    Standard DH puts link i's frame at its distal end, but our body frames sit on the joint
+    axis; so body i's frame is DH frame i-1 moved by the joint (Rz(θ)Tz(d), which commute), the
+    link's remaining Tx(a_i)Rx(α_i) goes into the next joint's origin, and the inertial data is
+    transformed from DH frame i into body frame i here.
+    """
+    if convention not in ('standard', 'modified'):
+        raise ModelError(f'DH convention must be standard or modified, got {convention!r}')
+    specs = []
+    n = len(rows)
+    names = names or [(f'link{i + 1}', f'joint{i + 1}') for i in range(n)]
+    prev = root
+    tail = np.eye(4)  # standard DH: Tx(a_{i-1}) Rx(α_{i-1}) left over from the previous link
+    for i, r in enumerate(rows):
+        jt = r.get('type', 'revolute')
+        a, alpha, d, theta = (float(r.get(k, 0.0)) for k in ('a', 'alpha', 'd', 'theta'))
+        com = np.asarray(r.get('com', (0.0, 0.0, 0.0)), dtype=float)
+        Ic = np.asarray(r.get('inertia', np.zeros((3, 3))), dtype=float)
+        if convention == 'modified':
+            # Rz(θ) and Tz(d) commute, so both joint kinds are Tz(d) Rz(θ) followed by the motion
+            T = _homog(rotx(alpha), np.zeros(3)) @ _homog(np.eye(3), (a, 0, 0)) @ _homog(rotz(theta), (0, 0, d))
+            com_b, Ic_b = com, Ic
+        else:
+            T = tail @ _homog(rotz(theta), (0, 0, d))
+            # DH frame i = body frame i * Tx(a) Rx(α): move com and inertia into body frame i
+            Rb = rotx(alpha)
+            com_b = np.array([a, 0.0, 0.0]) + Rb @ com
+            Ic_b = Rb @ Ic @ Rb.T
+            tail = _homog(np.eye(3), (a, 0, 0)) @ _homog(rotx(alpha), np.zeros(3))
+        ln, jn = names[i]
+        specs.append(LinkSpec(name=ln, joint=jn, parent=prev, joint_type=jt, origin_xyz=tuple(T[:3, 3]),
+                              origin_R=T[:3, :3], origin_rpy=tuple(R_to_rpy(T[:3, :3])), axis=(0.0, 0.0, 1.0),
+                              mass=float(r.get('mass', 0.0)), com=tuple(com_b), inertia=Ic_b,
+                              damping=float(r.get('damping', 0.0)), limits=r.get('limits')))
+        prev = ln
+    if convention == 'standard' and tool and n:
+        specs.append(LinkSpec(name='tool', joint='tool_joint', parent=prev, joint_type='fixed',
+                              origin_xyz=tuple(tail[:3, 3]), origin_R=tail[:3, :3],
+                              origin_rpy=tuple(R_to_rpy(tail[:3, :3]))))
+    return specs
+
+
+def to_urdf(model: Model) -> str:
+    """URDF text of the model; link/joint names and frames equal the simulator's.
+
+    Revolute joints without limits are exported as ``revolute`` with wide limits (not
+    ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
+    written as ``floating``.
+    """
+    def f(x):
+        return ' '.join(repr(float(v)) for v in x)
+
+    out = [f'<?xml version="1.0"?>', f'<robot name="{model.name}">', f'  <link name="{model.root}"/>']
+    for i, s in enumerate(model.specs):
+        Ic = np.asarray(s.inertia, dtype=float)
+        out.append(f'  <link name="{s.name}">')
+        if s.mass > 0.0:
+            out.append('    <inertial>')
+            out.append(f'      <origin xyz="{f(s.com)}" rpy="0 0 0"/>')
+            out.append(f'      <mass value="{float(s.mass)!r}"/>')
+            out.append('      <inertia ixx="{!r}" ixy="{!r}" ixz="{!r}" iyy="{!r}" iyz="{!r}" izz="{!r}"/>'.format(
+                *(float(Ic[j, k]) for j, k in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))))
+            out.append('    </inertial>')
+        out.append('  </link>')
+        jt = int(model.jtype[i])
+        kind = {FIXED: 'fixed', REVOLUTE: 'revolute', PRISMATIC: 'prismatic', FREE: 'floating'}[jt]
+        parent = model.root if model.parent[i] < 0 else model.link_names[model.parent[i]]
+        E = model.Xtree[i][:3, :3]
+        R = E.T
+        p = -(E.T @ model.Xtree[i][3:, :3])  # skew(r) = -E^T X[3:, :3]
+        r = np.array([p[2, 1], p[0, 2], p[1, 0]])
+        out.append(f'  <joint name="{s.joint}" type="{kind}">')
+        out.append(f'    <parent link="{parent}"/>')
+        out.append(f'    <child link="{s.name}"/>')
+        out.append(f'    <origin xyz="{f(r)}" rpy="{f(R_to_rpy(R))}"/>')
+        if jt in (REVOLUTE, PRISMATIC):
+            out.append(f'    <axis xyz="{f(model.axis[i])}"/>')
+            lo, hi = s.limits if s.limits is not None else (-1e4, 1e4)
+            out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/>')
+            if s.damping:
+                out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="0"/>')
+        out.append('  </joint>')
+    out.append('</robot>')
+    return '\n'.join(out) + '\n'
+
+
+def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0, -9.81)):
+    """A random tree of ``nb`` 1-DOF bodies with physical inertias, for tests and benchmarks.
+
+    nb: number of bodies; rng: ``numpy.random.Generator`` (seeded by the caller);
+    prismatic_fraction: share of prismatic joints; chain: a serial chain instead of a tree.
+    """
+    specs = []
+    for i in range(nb):
+        p = None if i == 0 else (f'l{i - 1}' if chain else f'l{rng.integers(0, i)}')
+        ax = rng.normal(size=3)
+        ev = np.sort(rng.uniform(0.01, 0.2, size=3))
+        ev[2] = min(ev[2], ev[0] + ev[1] - 1e-3)  # triangle inequality of principal moments
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        specs.append(LinkSpec(
+            name=f'l{i}', joint=f'j{i}', parent=p,
+            joint_type='prismatic' if rng.random() < prismatic_fraction else 'revolute',
+            origin_xyz=tuple(rng.uniform(-0.5, 0.5, size=3)), origin_rpy=tuple(rng.uniform(-np.pi, np.pi, size=3)),
+            axis=tuple(ax / np.linalg.norm(ax)), mass=float(rng.uniform(0.5, 3.0)),
+            com=tuple(rng.uniform(-0.2, 0.2, size=3)), inertia=Q @ np.diag(ev) @ Q.T))
+    return build_model(specs, gravity=gravity, name=f'random{nb}')
+
+
+__all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
+           'jcalc', 'build_model', 'dh_links', 'to_urdf', 'random_tree', 'skew']
