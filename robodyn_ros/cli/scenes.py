@@ -1,0 +1,15 @@
+"""``robodyn scenes``: list the bundled scenes."""
+from __future__ import annotations
+
+
+def add_parser(sub):
+    """Register the subcommand."""
+    return sub.add_parser('scenes', help='list the bundled scenes')
+
+
+def main(args) -> int:
+    """Print one line per bundled scene: name and description."""
+    from ..scene import list_scenes
+    for name, description in list_scenes():
+        print(f'{name:28s} {description.strip().splitlines()[0] if description.strip() else ""}')
+    return 0

@@ -1,0 +1,277 @@
+"""The Simulator: advance(t) as a short pipeline of stages, with invariants and diagnostics.
+
+One control period is::
+
+    u  = held_inputs(commands, t)            # zero-order hold, timeout to zero
+    y  = integrate(system, y, u, t -> t1)    # the chosen integrator, energy-work quadrature
+    guard_finite(y)                          # never keep a non-finite state
+    out = system.outputs(t1, y, u)           # joint states, wrenches, odometry, energies
+    sinks(out, diagnostics)                  # recorder, ROS publishers
+
+No ROS here: nodes and the recorder are sinks the simulator calls, stamped with simulation time.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .integrators import INTEGRATORS, IntegrationError, make_integrator
+from .systems.base import System, SystemOutputs
+
+
+class CommandError(ValueError):
+    """A command that was refused; the message says what was expected. The state is unchanged."""
+
+
+class SimulationError(RuntimeError):
+    """The simulation cannot continue (non-finite state, failed integrator); the last good state is kept."""
+
+
+@dataclass
+class CommandPort:
+    """Zero-order-hold storage of one input port.
+
+    value: (size,) last accepted command; stamp: simulation time (s) it arrived (None = never);
+    rejected: count of refused commands; timed_out: True while the timeout holds it at zero.
+    """
+
+    value: np.ndarray
+    stamp: float | None = None
+    rejected: int = 0
+    timed_out: bool = False
+
+
+@dataclass
+class Diagnostics:
+    """Running figures of a simulation, published on ``diagnostics`` and printed in summaries.
+
+    energy0: total energy at start (J); work: ∫ (input power − dissipation) dt (J), integrated
+    with the state; steps, rhs_evals, rejected_steps: integrator statistics; wall: wall time
+    spent in advance() (s); sim_time: simulated time (s).
+    """
+
+    energy0: float = 0.0
+    work: float = 0.0
+    steps: int = 0
+    rhs_evals: int = 0
+    rejected_steps: int = 0
+    wall: float = 0.0
+    sim_time: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def build_integrator(system: System, name: str, dt=None, rtol=None, atol=None):
+    """An integrator for ``system``: dt for fixed-step methods, rtol/atol for adaptive ones.
+
+    system: supplies ``nq`` and ``config_rate`` for the symplectic Euler split; name: registry
+    name; the arguments that do not apply to the chosen kind are ignored (scene defaults may
+    carry both).
+    """
+    spec = INTEGRATORS.get(str(name).lower())
+    if spec is None:
+        raise ValueError(f'unknown integrator {name!r}; valid names: {", ".join(INTEGRATORS)}')
+    if spec.kind == 'fixed':
+        kw = {'dt': dt}
+        if spec.name == 'semi_implicit_euler':
+            kw.update(nq=system.nq, qdot=system.config_rate)
+        return make_integrator(spec.name, **kw)
+    return make_integrator(spec.name, rtol=rtol, atol=atol)
+
+
+class Simulator:
+    """Integrates a :class:`System` in control periods, holding commands between them.
+
+    system: what to simulate; y0: initial state (ny,); integrator: name ('rk4', 'dop853', ...);
+    dt, rtol, atol: step or tolerances for that integrator; command_timeout: seconds of
+    simulation time after which an unrefreshed command goes to zero (None = hold forever);
+    t0: start time (s).
+    """
+
+    def __init__(self, system: System, y0, integrator='rk4', dt=1e-3, rtol=None, atol=None,
+                 command_timeout=None, t0=0.0):
+        self.system = system
+        self.settings = {'integrator': integrator, 'dt': dt, 'rtol': rtol, 'atol': atol,
+                         'command_timeout': command_timeout}
+        self.integrator = build_integrator(system, integrator, dt=dt, rtol=rtol, atol=atol)
+        self.command_timeout = command_timeout
+        self._y0 = np.array(y0, dtype=float)
+        self._t0 = float(t0)
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------
+    def reset(self):
+        """Back to the initial state and time; commands cleared, diagnostics restarted."""
+        if self._y0.shape != (self.system.ny,) or not np.all(np.isfinite(self._y0)):
+            raise SimulationError(f'initial state must be {self.system.ny} finite numbers, got {self._y0!r}')
+        self.t = self._t0
+        self.y = self.system.project(self._y0.copy())
+        self.ports = {k: CommandPort(np.zeros(p.size)) for k, p in self.system.inputs.items()}
+        self.diag = Diagnostics(energy0=self.system.total_energy(self.y))
+        self.failed: str | None = None
+
+    # -- commands ------------------------------------------------------------------------
+    def set_command(self, port: str, values, t: float | None = None):
+        """Accept a command for ``port`` (held until the next one) or raise :class:`CommandError`.
+
+        port: input name; values: sequence of floats of the port's size; t: arrival time
+        (simulation seconds, default now). A refused command is counted and changes nothing.
+        """
+        if port not in self.ports:
+            raise CommandError(f'unknown input {port!r}; this system takes {sorted(self.ports)}')
+        spec = self.system.inputs[port]
+        try:
+            arr = np.asarray(values, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            self.ports[port].rejected += 1
+            raise CommandError(f'{port}: expected {spec.size} numbers ({", ".join(spec.labels)}) in '
+                               f'{spec.unit}, got {values!r}') from None
+        if arr.shape != (spec.size,):
+            self.ports[port].rejected += 1
+            raise CommandError(f'{port}: expected {spec.size} values ({", ".join(spec.labels)}) in {spec.unit}, '
+                               f'got {arr.size}')
+        if not np.all(np.isfinite(arr)):
+            self.ports[port].rejected += 1
+            bad = [spec.labels[k] for k in np.flatnonzero(~np.isfinite(arr))]
+            raise CommandError(f'{port}: non-finite value for {bad}; expected {spec.size} finite values '
+                               f'({", ".join(spec.labels)}) in {spec.unit}')
+        p = self.ports[port]
+        p.value = arr
+        p.stamp = self.t if t is None else float(t)
+        p.timed_out = False
+
+    def held_inputs(self) -> dict:
+        """Stage 1: the inputs in force now (zero-order hold; zero after the timeout)."""
+        u = {}
+        for k, p in self.ports.items():
+            stale = (self.command_timeout is not None and p.stamp is not None
+                     and self.t - p.stamp > self.command_timeout + 1e-12)
+            if stale and not p.timed_out:
+                p.timed_out = True
+            u[k] = np.zeros_like(p.value) if p.timed_out else p.value
+        return u
+
+    @property
+    def rejected_commands(self) -> int:
+        """Total refused commands over all ports."""
+        return sum(p.rejected for p in self.ports.values())
+
+    # -- stepping ------------------------------------------------------------------------
+    def _integrate(self, u, t1):
+        """Stage 2: integrate ``[y; W]`` from self.t to t1 with u held (W = work done on the system)."""
+        sys_ = self.system
+        ny = sys_.ny
+
+        def f(t, z):
+            y = z[:ny]
+            dz = np.empty(ny + 1)
+            dz[:ny] = sys_.rhs(t, y, u)
+            dz[ny] = sys_.input_power(t, y, u)
+            return dz
+
+        def project(z):
+            z[:ny] = sys_.project(z[:ny])
+            return z
+
+        z0 = np.append(self.y, self.diag.work)
+        z1, st = self.integrator.advance(f, self.t, z0, t1, project=project)
+        return z1[:ny], z1[ny], st
+
+    def advance(self, t1: float):
+        """Advance to simulation time ``t1`` (s) holding the current inputs; returns the state.
+
+        Raises :class:`SimulationError` (and keeps the last good state) if the integrator fails
+        or the state becomes non-finite; afterwards the simulator refuses to advance until reset.
+        """
+        if self.failed:
+            raise SimulationError(self.failed)
+        if t1 < self.t - 1e-12:
+            raise ValueError(f'cannot advance backwards from t={self.t} to t={t1}')
+        if t1 <= self.t:
+            return self.y
+        u = self.held_inputs()
+        w0 = time.perf_counter()
+        try:
+            y1, work, st = self._integrate(u, t1)
+        except IntegrationError as e:
+            self.failed = f'integration failed at t={self.t:.6f} s: {e}'
+            raise SimulationError(self.failed) from e
+        self.diag.wall += time.perf_counter() - w0
+        if not (np.all(np.isfinite(y1)) and math.isfinite(work)):
+            self.failed = (f'state became non-finite between t={self.t:.6f} and {t1:.6f} s with '
+                           f'{self.settings["integrator"]} (dt={self.settings["dt"]}); last good state kept')
+            raise SimulationError(self.failed)
+        self.diag.steps += st.steps
+        self.diag.rhs_evals += st.rhs_evals
+        if st.rejected_steps is None or self.diag.rejected_steps is None:
+            self.diag.rejected_steps = None  # implicit scipy solvers do not report rejections
+        else:
+            self.diag.rejected_steps += st.rejected_steps
+        self.t, self.y, self.diag.work = float(t1), y1, float(work)
+        self.diag.sim_time = self.t - self._t0
+        return self.y
+
+    def outputs(self, wrenches: bool = True) -> SystemOutputs:
+        """Stage 4: what the system reports at the current state (wrench solve optional)."""
+        return self.system.outputs(self.t, self.y, self.held_inputs(), wrenches=wrenches)
+
+    def energy_report(self) -> dict:
+        """Total energy, work done by inputs/dissipation and the drift ``E − E0 − W`` (J)."""
+        E = self.system.total_energy(self.y)
+        drift = E - self.diag.energy0 - self.diag.work
+        scale = max(abs(self.diag.energy0), abs(E), abs(self.diag.work), 1e-12)
+        return {'energy': E, 'energy0': self.diag.energy0, 'work': self.diag.work, 'drift': drift,
+                'relative_drift': drift / scale}
+
+    def diagnostics_values(self) -> dict:
+        """Flat name -> value map for the ``diagnostics`` topic."""
+        e = self.energy_report()
+        d = self.diag
+        rtf = d.sim_time / d.wall if d.wall > 0 else float('nan')
+        vals = {'sim_time': self.t, 'energy': e['energy'], 'energy_drift': e['drift'],
+                'energy_drift_relative': e['relative_drift'], 'work_in': e['work'],
+                'steps': d.steps, 'rhs_evals': d.rhs_evals, 'rejected_steps': d.rejected_steps,
+                'real_time_factor_compute': rtf, 'rejected_commands': self.rejected_commands,
+                'integrator': self.settings['integrator']}
+        for k, p in self.ports.items():
+            vals[f'{k}_timed_out'] = p.timed_out
+        vals.update(d.extra)
+        return vals
+
+
+def run_headless(sim: Simulator, duration: float, rate: float, script=None, sinks=(), wrenches=None):
+    """Run ``duration`` s at ``rate`` Hz publications, feeding scripted commands, calling sinks.
+
+    sim: the simulator; duration: seconds of simulation time; rate: publication (and scripted
+    command) rate in Hz; script: optional ``script(t, y) -> {port: values}`` evaluated at the
+    start of each period and held (zero-order); sinks: objects with ``on_start(sim)``,
+    ``on_command(t, port, values)``, ``on_output(t, outputs, sim)`` (a sink asks ``sim`` for
+    diagnostics only when it publishes them), ``close()``;
+    wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``).
+    Returns the number of periods run. The final state stays in ``sim``.
+    """
+    if rate <= 0 or not math.isfinite(rate):
+        raise ValueError(f'rate must be a positive number of Hz, got {rate!r}')
+    if wrenches is None:
+        wrenches = any(getattr(s, 'wants_wrenches', False) for s in sinks)
+    n = int(round(duration * rate))
+    for s in sinks:
+        s.on_start(sim)
+    # publish the initial state at t0 so a recording starts where the run starts
+    out = sim.outputs(wrenches=wrenches)
+    for s in sinks:
+        s.on_output(sim.t, out, sim)
+    t_start = sim.t
+    for k in range(n):
+        if script is not None:
+            for port, values in script(sim.t, sim.y).items():
+                sim.set_command(port, values)
+                for s in sinks:
+                    s.on_command(sim.t, port, sim.ports[port].value)
+        sim.advance(t_start + (k + 1) / rate)
+        out = sim.outputs(wrenches=wrenches)
+        for s in sinks:
+            s.on_output(sim.t, out, sim)
+    return n
