@@ -1,0 +1,339 @@
+"""Canonical little-endian CDR (XCDR1 plain) encoding of ROS 2 messages, driven by .msg files.
+
+Why not ``rclpy.serialization``: Fast DDS pads the buffer with uninitialised bytes and appends
+trailing bytes, so the output is neither accepted by rosbags nor byte-identical between runs. This
+encoder writes exactly what rosbags' ``serialize_cdr`` and mcap-ros2-support's serializer write:
+
+- a 4-byte encapsulation header ``00 01 00 00`` (CDR_LE, options 0);
+- every primitive aligned to its own size (1, 2, 4, 8), alignment counted from the first byte
+  after the header; padding bytes are zero;
+- strings as uint32 length (including the terminating NUL), the UTF-8 bytes, then NUL;
+- sequences (unbounded or bounded) as a uint32 count, then the elements; the elements of an empty
+  sequence are not aligned (nothing is written after the count);
+- fixed arrays as their elements only;
+- nothing after the last field (no trailing padding to a multiple of 4);
+- an empty message as one zero byte (``structure_needs_at_least_one_member``).
+
+A message may be a dict (missing keys take the field's default, else zero/empty), or any object
+with attributes named like the fields (rclpy message instances, dataclasses, ...). Nested values
+may themselves be dicts or objects; arrays may be lists, tuples, ``array.array`` or numpy arrays.
+"""
+import struct
+
+import numpy as np
+
+from .msgdefs import PRIMITIVES, STRING_TYPES, Field, get_msgdef
+
+ENCAPSULATION_HEADER = b'\x00\x01\x00\x00'
+_MISSING = object()
+_PACKERS = {t: struct.Struct('<' + fmt) for t, (fmt, _) in PRIMITIVES.items()}
+_NUMPY_FLOATS = {'float32': '<f4', 'float64': '<f8'}
+
+
+def _get(msg, name: str):
+    """Return field ``name`` of a dict or attribute object, or ``_MISSING``.
+
+    Args:
+        msg: a dict, an object with attributes, or None (all fields missing).
+        name: the field name.
+    """
+    if msg is None:
+        return _MISSING
+    if isinstance(msg, dict):
+        return msg.get(name, _MISSING)
+    return getattr(msg, name, _MISSING)
+
+
+def _zero(type_: str):
+    """Return the zero value of an element type (a nested type's zero is an empty message).
+
+    Args:
+        type_: primitive name, string type, or nested type name.
+    """
+    if type_ in STRING_TYPES:
+        return ''
+    if type_ == 'bool':
+        return False
+    if type_ in ('float32', 'float64'):
+        return 0.0
+    if type_ in PRIMITIVES:
+        return 0
+    return None
+
+
+def _default(field: Field):
+    """Return the value encoded for a missing field: its declared default, else zero/empty.
+
+    Args:
+        field: the field definition.
+    """
+    if field.default is not None:
+        return field.default
+    if field.array == 'fixed':
+        return [_zero(field.type)] * field.length
+    if field.array is not None:
+        return ()
+    return _zero(field.type)
+
+
+def _primitive_value(type_: str, value):
+    """Convert one primitive value as rclpy/numpy/Python may hold it to what struct expects.
+
+    Args:
+        type_: primitive type name.
+        value: bool, int, float, numpy scalar, 1-byte ``bytes`` (rclpy ``byte``) or 1-char
+            ``str`` (rclpy ``char``).
+    """
+    if isinstance(value, (bytes, bytearray)):
+        if len(value) != 1:
+            raise ValueError(f'{type_} value must be one byte, got {value!r}')
+        return value[0]
+    if isinstance(value, str):
+        if len(value) != 1:
+            raise ValueError(f'{type_} value must be one character, got {value!r}')
+        return ord(value)
+    if type_ == 'bool':
+        return bool(value)
+    if type_ in ('float32', 'float64'):
+        return float(value)
+    return int(value)
+
+
+class _Encoder:
+    """Append CDR bytes for one message to a bytearray (the header is written by the caller)."""
+
+    __slots__ = ('buf',)
+
+    def __init__(self):
+        self.buf = bytearray(ENCAPSULATION_HEADER)
+
+    def align(self, size: int):
+        """Pad with zeros so the next byte's offset (after the header) is a multiple of size.
+
+        Args:
+            size: alignment in bytes (1, 2, 4 or 8).
+        """
+        pad = -(len(self.buf) - 4) % size
+        if pad:
+            self.buf += bytes(pad)
+
+    def string(self, value, bound):
+        """Write a length-prefixed NUL-terminated UTF-8 string.
+
+        Args:
+            value: str (or bytes, written as is).
+            bound: maximum length in characters (bytes) from ``string<=N``, or None.
+        """
+        data = value if isinstance(value, (bytes, bytearray)) else str(value).encode('utf-8')
+        if bound is not None and len(data) > bound:
+            raise ValueError(f'string of {len(data)} bytes exceeds bound {bound}')
+        self.align(4)
+        self.buf += struct.pack('<I', len(data) + 1)
+        self.buf += data
+        self.buf += b'\x00'
+
+    def primitive_array(self, type_: str, values, count: int):
+        """Write ``count`` primitive elements, aligned if there is at least one.
+
+        Args:
+            type_: primitive type name.
+            values: the elements (list, tuple, array.array, numpy array, or bytes for 8-bit types).
+            count: number of elements (already validated).
+        """
+        if count == 0:
+            return
+        fmt, size = PRIMITIVES[type_]
+        self.align(size)
+        if type_ in _NUMPY_FLOATS:
+            # Fast path: one conversion and one copy (float64[] dominates our traffic).
+            self.buf += np.asarray(values, dtype=_NUMPY_FLOATS[type_]).tobytes()
+        elif size == 1 and isinstance(values, (bytes, bytearray)):
+            self.buf += values
+        else:
+            self.buf += struct.pack(f'<{count}{fmt}',
+                                    *[_primitive_value(type_, v) for v in values])
+
+    def field(self, field: Field, value):
+        """Write one field (scalar, string, nested, or any array of them).
+
+        Args:
+            field: the field definition.
+            value: the field's value; ``_MISSING`` or None selects the default.
+        """
+        if value is _MISSING or value is None:
+            value = _default(field)
+        if field.array is None:
+            self.element(field, value)
+            return
+        count = len(value)
+        if field.array == 'fixed':
+            if count != field.length:
+                raise ValueError(
+                    f'field {field.name!r} needs exactly {field.length} elements, got {count}')
+        else:
+            if field.array == 'bounded' and count > field.length:
+                raise ValueError(
+                    f'field {field.name!r} allows at most {field.length} elements, got {count}')
+            self.align(4)
+            self.buf += struct.pack('<I', count)
+        if field.is_primitive:
+            self.primitive_array(field.type, value, count)
+        else:
+            for item in value:
+                self.element(field, item)
+
+    def element(self, field: Field, value):
+        """Write one element of a field's type.
+
+        Args:
+            field: the field definition (its element type is used).
+            value: the element value.
+        """
+        type_ = field.type
+        if type_ in _PACKERS:
+            fmt, size = PRIMITIVES[type_]
+            self.align(size)
+            self.buf += _PACKERS[type_].pack(_primitive_value(type_, value))
+        elif type_ == 'string':
+            self.string(value, field.string_bound)
+        elif type_ == 'wstring':
+            raise NotImplementedError('wstring fields are not supported')
+        else:
+            self.message(type_, value)
+
+    def message(self, type_name: str, msg):
+        """Write all fields of a (nested) message.
+
+        Args:
+            type_name: canonical or short type name.
+            msg: dict, attribute object, or None for an all-default message.
+        """
+        fields = get_msgdef(type_name).fields
+        if not fields:
+            # An empty .msg becomes an IDL struct with `uint8 structure_needs_at_least_one_member`
+            # (ROS 2 legacy interface mapping): one zero byte on the wire.
+            self.buf += b'\x00'
+        for f in fields:
+            self.field(f, _get(msg, f.name))
+
+
+def encode(type_name: str, msg) -> bytes:
+    """Serialize a message to canonical CDR bytes (with the 4-byte encapsulation header).
+
+    Args:
+        type_name: ``pkg/msg/Type`` or ``pkg/Type``, e.g. ``sensor_msgs/msg/JointState``.
+        msg: a dict (nested dicts/lists/numpy arrays; missing keys take defaults) or any object
+            with attributes named like the fields (e.g. an rclpy message instance).
+
+    Raises:
+        ValueError: a fixed array has the wrong length, a bounded one is too long, or a value
+            does not fit its type. struct.error: an integer is out of range for its type.
+    """
+    enc = _Encoder()
+    enc.message(type_name, msg)
+    return bytes(enc.buf)
+
+
+class _Decoder:
+    """Read CDR bytes back into plain dicts (the inverse of :class:`_Encoder`)."""
+
+    __slots__ = ('data', 'pos')
+
+    def __init__(self, data: bytes):
+        if bytes(data[:2]) != ENCAPSULATION_HEADER[:2]:
+            raise ValueError(f'not little-endian plain CDR: header {bytes(data[:4]).hex()}')
+        self.data = memoryview(data)
+        self.pos = 4
+
+    def align(self, size: int):
+        """Skip padding up to the next multiple of size (counted after the header).
+
+        Args:
+            size: alignment in bytes.
+        """
+        self.pos += -(self.pos - 4) % size
+
+    def take(self, n: int) -> memoryview:
+        """Return the next n bytes and advance.
+
+        Args:
+            n: byte count.
+        """
+        if self.pos + n > len(self.data):
+            raise ValueError(
+                f'CDR data too short: need {self.pos + n} bytes, have {len(self.data)}')
+        out = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+    def count(self) -> int:
+        """Read a uint32 sequence length or string length."""
+        self.align(4)
+        return struct.unpack('<I', self.take(4))[0]
+
+    def field(self, field: Field):
+        """Read one field.
+
+        Args:
+            field: the field definition.
+        """
+        if field.array is None:
+            return self.element(field)
+        n = field.length if field.array == 'fixed' else self.count()
+        if field.is_primitive:
+            if n == 0:
+                return np.zeros(0) if field.type in _NUMPY_FLOATS else []
+            fmt, size = PRIMITIVES[field.type]
+            self.align(size)
+            raw = self.take(n * size)
+            if field.type in _NUMPY_FLOATS:
+                return np.frombuffer(raw, dtype=_NUMPY_FLOATS[field.type]).copy()
+            return list(struct.unpack(f'<{n}{fmt}', raw))
+        return [self.element(field) for _ in range(n)]
+
+    def element(self, field: Field):
+        """Read one element of a field's type.
+
+        Args:
+            field: the field definition.
+        """
+        type_ = field.type
+        if type_ in _PACKERS:
+            size = PRIMITIVES[type_][1]
+            self.align(size)
+            return _PACKERS[type_].unpack(self.take(size))[0]
+        if type_ == 'string':
+            n = self.count()
+            return bytes(self.take(n)[:max(n - 1, 0)]).decode('utf-8')
+        if type_ == 'wstring':
+            raise NotImplementedError('wstring fields are not supported')
+        return self.message(type_)
+
+    def message(self, type_name: str) -> dict:
+        """Read all fields of a (nested) message into a dict.
+
+        Args:
+            type_name: canonical or short type name.
+        """
+        fields = get_msgdef(type_name).fields
+        if not fields:
+            self.take(1)  # structure_needs_at_least_one_member
+        return {f.name: self.field(f) for f in fields}
+
+
+def decode(type_name: str, data: bytes) -> dict:
+    """Deserialize canonical little-endian CDR bytes into nested dicts (float arrays as numpy).
+
+    Args:
+        type_name: ``pkg/msg/Type`` or ``pkg/Type``.
+        data: CDR bytes including the encapsulation header.
+
+    Raises:
+        ValueError: wrong header, data too short, or bytes left over after the last field beyond
+            the at most 3 bytes of trailing padding other serializers may add.
+    """
+    dec = _Decoder(data)
+    out = dec.message(type_name)
+    if len(dec.data) - dec.pos > 3:
+        raise ValueError(f'{len(dec.data) - dec.pos} bytes left after decoding {type_name}')
+    return out
