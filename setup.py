@@ -7,10 +7,11 @@ from setuptools import find_packages, setup
 package_name = 'robodyn_ros'
 
 
-def _read_version():
+def _package_xml(tag):
+    """One field of package.xml, the single source of the version and description."""
     import re
     with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), 'package.xml')) as f:
-        return re.search(r'<version>([^<]+)</version>', f.read()).group(1)
+        return re.search(rf'<{tag}>([^<]+)</{tag}>', f.read()).group(1).strip()
 
 
 def _config_files():
@@ -24,7 +25,7 @@ def _config_files():
 
 setup(
     name=package_name,
-    version=_read_version(),
+    version=_package_xml('version'),
     packages=find_packages(exclude=['test']),
     package_data={package_name: ['data/*']},
     data_files=[
@@ -39,9 +40,8 @@ setup(
     zip_safe=True,
     maintainer='robodyn_ros developers',
     maintainer_email='robodyn@example.com',
-    description='Accurate, fast, self-measuring robot dynamics simulation for ROS 2',
+    description=_package_xml('description'),
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'sim = robodyn_ros.nodes.sim:main',
