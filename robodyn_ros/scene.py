@@ -1,0 +1,817 @@
+"""Scene files: YAML -> validated system, initial state, scripted commands and run settings.
+
+A scene is one YAML mapping (unknown keys anywhere are errors, so typos never pass silently)::
+
+    name: stanford_arm                    # required, str
+    description: one paragraph            # optional, str ('robodyn scenes' lists it)
+    source: where the parameters come from  # optional, str
+    gravity: [0, 0, -9.81]                # optional, (3,) m/s² in the world frame (z up)
+    parts:                                # required, non-empty list; each entry has a 'kind'
+      - kind: arm                         # a key of PART_KINDS
+        name: arm                         # unique part name
+        mount: world                      # 'world' (later: the name of a platform / free-base part)
+        origin: {xyz: [..], rpy: [..]}    # optional pose of the arm's base frame in the mount frame
+        root: base_link                   # optional name of the arm's base frame (URDF root)
+        dh:                               # either a DH table ...
+          convention: standard            # 'standard' (Corke/Paul) or 'modified' (Craig)
+          links: [{type, a, alpha, d, theta, mass, com, inertia, damping, limits}, ...]
+        tool: true                        # standard DH only: add a fixed 'tool' link at DH frame n
+        link_names: [...]                 # optional names for the DH links / joints
+        joint_names: [...]
+        links: [{name, joint, parent, type, origin: {xyz, rpy}, axis, mass, com, inertia,
+                 damping, limits}, ...]   # ... or explicit links (URDF-like), not both
+        actuated: [joint, ...]            # optional, default every 1-DOF joint; [] = passive
+    initial_state: {q: [...], v: [...]}   # optional, defaults neutral / zero
+    commands:                             # optional scripted commands, per input port
+      effort: {profile: <COMMAND_PROFILES key>, <profile parameters>}
+    simulation: {integrator: rk4, dt: 0.001, rtol: .., atol: .., publish_rate: 100, duration: 10}
+
+Link data: ``type`` revolute | prismatic (| fixed for explicit links); ``mass`` kg (>= 0);
+``com`` (3,) m; ``inertia`` about the centre of mass, either ``[[ixx, ixy, ixz], [..], [..]]``
+or ``[ixx, iyy, izz, ixy, ixz, iyz]`` (kg·m²), symmetric positive semi-definite with principal
+moments obeying the triangle inequality (a slender bar's zero axial moment is allowed).
+For DH links com/inertia are expressed in DH frame i (Corke's toolbox convention, see
+:func:`robodyn_ros.model.dh_links`); for explicit links in the link (joint) frame.
+``damping`` is viscous (N·m·s/rad or N·s/m); ``limits`` ``[lo, hi]`` (rad or m) are recorded in
+the URDF and checked against the initial state, but the dynamics does not enforce them.
+
+Errors: every defect raises :class:`SceneError` (a ValueError) with the message
+``<file>: <key path>: <reason>``, e.g. ``arm.yaml: parts[0].dh.links[2].mass: missing key``;
+YAML syntax errors use ``line L, column C`` as the key path.
+
+Extension: a new part kind registers ``PART_KINDS[kind] = builder`` with
+``builder(spec, path, ctx) -> Part``; a new command profile registers
+``COMMAND_PROFILES[name] = builder`` with ``builder(params, path, ctx, system, port) ->
+f(t, y) -> (size,) array``. Both validate their own keys through the ``ctx`` helpers so their
+errors carry the file and the key path. Scenes of several parts (an arm on a platform) are put
+together in :func:`_assemble`.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from . import dynamics as dyn
+from .model import JOINT_TYPES, PRISMATIC, REVOLUTE, LinkSpec, ModelError, build_model, dh_links
+from .spatial import R_to_rpy, rpy_to_R
+from .systems.arm import ArmSystem
+
+__all__ = ['SceneError', 'Scene', 'Part', 'SceneContext', 'PART_KINDS', 'COMMAND_PROFILES',
+           'DEFAULT_SETTINGS', 'load_scene', 'parse_scene', 'list_scenes', 'scene_dirs', 'find_scene',
+           'build_arm_part']
+
+#: run settings a scene's ``simulation`` section may override (the CLI/node may override again)
+DEFAULT_SETTINGS = {'integrator': 'rk4', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
+_SETTING_KEYS = ('integrator', 'dt', 'rtol', 'atol', 'publish_rate', 'duration')
+_TOP_KEYS_REQUIRED = ('name', 'parts')
+_TOP_KEYS_OPTIONAL = ('description', 'source', 'gravity', 'initial_state', 'commands', 'simulation')
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message is ``<file>: <key path>: <reason>``."""
+
+
+@dataclass
+class Part:
+    """One built part of a scene.
+
+    name: part name; kind: its PART_KINDS key; mount: 'world' or the part it sits on;
+    system: the part's :class:`robodyn_ros.systems.System`; path: its key path in the file.
+    """
+
+    name: str
+    kind: str
+    mount: str
+    system: object
+    path: str
+
+
+@dataclass
+class Scene:
+    """A loaded scene: what to simulate, from where, with which commands and settings.
+
+    name: scene name; path: file it came from; text: the raw YAML (recorded in MCAP metadata);
+    data: the parsed mapping; system: the System to integrate (an ArmSystem for now);
+    y0: (ny,) initial state; script: ``script(t, y) -> {port: (size,) array}`` for the
+    commanded ports, or None; settings: simulation defaults (integrator, dt, publish_rate,
+    duration, and rtol/atol when given); parts: part names in file order.
+    """
+
+    name: str
+    path: str
+    text: str
+    data: dict
+    system: object
+    y0: np.ndarray
+    script: Callable | None
+    settings: dict
+    parts: list = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------
+# YAML: YAML 1.2 floats (1e-3 is a number, not a string) and duplicate keys refused
+# --------------------------------------------------------------------------------------------
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that reads ``1e-3`` as a float and refuses duplicate mapping keys."""
+
+
+_Loader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$'),
+    list('-+0123456789'))
+
+
+def _construct_mapping(loader, node, deep=False):
+    """Mapping constructor that raises on a repeated key (PyYAML silently keeps the last)."""
+    loader.flatten_mapping(node)
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f'duplicate key {key!r}', key_node.start_mark)
+        seen.add(key)
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+# --------------------------------------------------------------------------------------------
+# validation helpers: every failure names the file and the key path
+# --------------------------------------------------------------------------------------------
+def _key(path: str, key) -> str:
+    """Key path of ``key`` under ``path`` ('a.b', 'a[3]')."""
+    if isinstance(key, int):
+        return f'{path}[{key}]'
+    return f'{path}.{key}' if path else str(key)
+
+
+def _typename(v) -> str:
+    return type(v).__name__ if v is not None else 'null'
+
+
+class SceneContext:
+    """Validation context: the file name, the gravity vector and the parts built so far.
+
+    file: file name used in messages. Helpers raise :class:`SceneError` with the key path.
+    """
+
+    def __init__(self, file: str):
+        self.file = file
+        self.gravity = np.array([0.0, 0.0, -9.81])
+        self.parts: list[Part] = []
+
+    def fail(self, path: str, reason: str):
+        """Raise ``SceneError('<file>: <path>: <reason>')``."""
+        raise SceneError(f'{self.file}: {path or "(top level)"}: {reason}')
+
+    def mapping(self, v, path: str, required=(), optional=()) -> dict:
+        """Check that ``v`` is a mapping with all ``required`` keys and no keys outside both lists."""
+        if not isinstance(v, dict):
+            self.fail(path, f'expected a mapping, got {_typename(v)} {v!r}')
+        allowed = tuple(required) + tuple(optional)
+        for k in v:
+            if k not in allowed:
+                self.fail(_key(path, k), f'unknown key {k!r}; allowed keys here: {", ".join(allowed)}')
+        for k in required:
+            if k not in v:
+                self.fail(_key(path, k), 'missing required key')
+        return v
+
+    def number(self, v, path: str, minimum=None, positive=False) -> float:
+        """A finite real number (not a bool); ``minimum`` inclusive, ``positive`` strict."""
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(path, f'expected a number, got {_typename(v)} {v!r}')
+        x = float(v)
+        if not math.isfinite(x):
+            self.fail(path, f'expected a finite number, got {v!r}')
+        if positive and x <= 0.0:
+            self.fail(path, f'must be > 0, got {x!r}')
+        if minimum is not None and x < minimum:
+            self.fail(path, f'must be >= {minimum!r}, got {x!r}')
+        return x
+
+    def string(self, v, path: str) -> str:
+        """A non-empty string."""
+        if not isinstance(v, str) or not v:
+            self.fail(path, f'expected a non-empty string, got {_typename(v)} {v!r}')
+        return v
+
+    def boolean(self, v, path: str) -> bool:
+        """true or false."""
+        if not isinstance(v, bool):
+            self.fail(path, f'expected true or false, got {_typename(v)} {v!r}')
+        return v
+
+    def sequence(self, v, path: str, n: int | None = None, what: str = 'values') -> list:
+        """A list, of length ``n`` when given."""
+        if not isinstance(v, list):
+            self.fail(path, f'expected a list, got {_typename(v)} {v!r}')
+        if n is not None and len(v) != n:
+            self.fail(path, f'expected {n} {what}, got {len(v)}')
+        return v
+
+    def vector(self, v, path: str, n: int | None = None, what: str = 'values', minimum=None) -> np.ndarray:
+        """A list of ``n`` finite numbers as a float array."""
+        self.sequence(v, path, n, what)
+        return np.array([self.number(x, _key(path, i), minimum=minimum) for i, x in enumerate(v)], dtype=float)
+
+    def names(self, v, path: str, n: int | None = None) -> list:
+        """A list of distinct non-empty strings."""
+        self.sequence(v, path, n, 'names')
+        out = [self.string(x, _key(path, i)) for i, x in enumerate(v)]
+        for i, x in enumerate(out):
+            if x in out[:i]:
+                self.fail(_key(path, i), f'duplicate name {x!r}')
+        return out
+
+    def inertia(self, v, path: str) -> np.ndarray:
+        """Inertia (3, 3) from ``[[..],[..],[..]]`` or ``[ixx, iyy, izz, ixy, ixz, iyz]``.
+
+        Only the form is checked here; symmetry, positive semi-definiteness and the triangle
+        inequality are the model's checks (their errors are mapped back to this key path).
+        """
+        if isinstance(v, list) and len(v) == 6 and not any(isinstance(x, list) for x in v):
+            ixx, iyy, izz, ixy, ixz, iyz = self.vector(v, path, 6)
+            return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+        if isinstance(v, list) and len(v) == 3 and all(isinstance(r, list) for r in v):
+            return np.array([self.vector(r, _key(path, i), 3) for i, r in enumerate(v)])
+        self.fail(path, f'expected a 3x3 matrix or [ixx, iyy, izz, ixy, ixz, iyz], got {v!r}')
+
+    def pose(self, v, path: str) -> np.ndarray:
+        """Homogeneous transform (4, 4) from ``{xyz: (3,), rpy: (3,)}`` (URDF convention, both optional)."""
+        self.mapping(v, path, optional=('xyz', 'rpy'))
+        T = np.eye(4)
+        T[:3, 3] = self.vector(v.get('xyz', [0.0, 0.0, 0.0]), _key(path, 'xyz'), 3)
+        T[:3, :3] = rpy_to_R(self.vector(v.get('rpy', [0.0, 0.0, 0.0]), _key(path, 'rpy'), 3))
+        return T
+
+    def limits(self, v, path: str) -> tuple:
+        """Joint limits ``[lo, hi]`` with lo < hi."""
+        lo, hi = self.vector(v, path, 2, 'values [lower, upper]')
+        if not lo < hi:
+            self.fail(path, f'lower limit {lo!r} must be below upper limit {hi!r}')
+        return (lo, hi)
+
+
+# --------------------------------------------------------------------------------------------
+# parts
+# --------------------------------------------------------------------------------------------
+_DH_ROW_REQUIRED = ('type', 'a', 'alpha', 'd', 'theta', 'mass')
+_DH_ROW_OPTIONAL = ('com', 'inertia', 'damping', 'limits')
+_LINK_REQUIRED = ('name', 'joint', 'parent', 'type')
+_LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits')
+_ARM_REQUIRED = ('kind', 'name')
+_ARM_OPTIONAL = ('mount', 'origin', 'root', 'dh', 'tool', 'links', 'link_names', 'joint_names', 'actuated')
+#: ModelError wording -> the link key it is about (for mapping model errors to key paths)
+_MODEL_ERROR_KEYS = (('parent', 'parent'), ('mass', 'mass'), ('inertia', 'inertia'),
+                     ('principal moments', 'inertia'), ('axis', 'axis'), ('damping', 'damping'),
+                     ('origin', 'origin'), ('joint type', 'type'), ('duplicate link name', 'name'))
+
+
+def _inertial(ctx: SceneContext, row: dict, path: str) -> dict:
+    """Mass, com, inertia, damping, limits of a link mapping (shared by DH and explicit links)."""
+    out = {}
+    if 'mass' in row:
+        m = ctx.number(row['mass'], _key(path, 'mass'))
+        if m < 0.0:
+            ctx.fail(_key(path, 'mass'), f'negative mass {m!r} kg; a mass must be >= 0')
+        out['mass'] = m
+    if 'com' in row:
+        out['com'] = ctx.vector(row['com'], _key(path, 'com'), 3)
+    if 'inertia' in row:
+        out['inertia'] = ctx.inertia(row['inertia'], _key(path, 'inertia'))
+    if 'damping' in row:
+        out['damping'] = ctx.number(row['damping'], _key(path, 'damping'), minimum=0.0)
+    if 'limits' in row:
+        out['limits'] = ctx.limits(row['limits'], _key(path, 'limits'))
+    return out
+
+
+def _joint_type(ctx: SceneContext, v, path: str, allowed) -> str:
+    jt = ctx.string(v, path)
+    if jt not in allowed:
+        known = f'; the model also knows {sorted(set(JOINT_TYPES) - set(allowed))} but not in an arm part' \
+            if jt in JOINT_TYPES else ''
+        ctx.fail(path, f'unknown joint type {jt!r}; valid types here: {", ".join(allowed)}{known}')
+    return jt
+
+
+def _dh_specs(ctx: SceneContext, spec: dict, path: str, root: str):
+    """LinkSpecs and per-link key paths of an arm given by a DH table."""
+    dh = ctx.mapping(spec['dh'], _key(path, 'dh'), required=('convention', 'links'))
+    dpath = _key(path, 'dh')
+    convention = ctx.string(dh['convention'], _key(dpath, 'convention'))
+    if convention not in ('standard', 'modified'):
+        ctx.fail(_key(dpath, 'convention'), f'unknown DH convention {convention!r}; use standard or modified')
+    rows_in = ctx.sequence(dh['links'], _key(dpath, 'links'))
+    if not rows_in:
+        ctx.fail(_key(dpath, 'links'), 'a DH table needs at least one link')
+    rows, paths = [], []
+    for i, r in enumerate(rows_in):
+        rp = _key(_key(dpath, 'links'), i)
+        ctx.mapping(r, rp, required=_DH_ROW_REQUIRED, optional=_DH_ROW_OPTIONAL)
+        row = {'type': _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic'))}
+        for k in ('a', 'alpha', 'd', 'theta'):
+            row[k] = ctx.number(r[k], _key(rp, k))
+        row.update(_inertial(ctx, r, rp))
+        rows.append(row)
+        paths.append(rp)
+    n = len(rows)
+    lnames = ctx.names(spec['link_names'], _key(path, 'link_names'), n) if 'link_names' in spec else \
+        [f'link{i + 1}' for i in range(n)]
+    jnames = ctx.names(spec['joint_names'], _key(path, 'joint_names'), n) if 'joint_names' in spec else \
+        [f'joint{i + 1}' for i in range(n)]
+    tool = ctx.boolean(spec['tool'], _key(path, 'tool')) if 'tool' in spec else convention == 'standard'
+    if tool and convention != 'standard':
+        ctx.fail(_key(path, 'tool'), 'the tool frame is only defined for standard DH (it is DH frame n)')
+    specs = dh_links(rows, convention=convention, names=list(zip(lnames, jnames)), root=root, tool=tool)
+    if tool:
+        if 'tool' in lnames or 'tool_joint' in jnames:
+            ctx.fail(_key(path, 'link_names'), "'tool'/'tool_joint' are reserved for the standard-DH tool frame")
+        paths.append(_key(path, 'tool'))
+    return specs, paths
+
+
+def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
+    """LinkSpecs and per-link key paths of an arm given by explicit (URDF-like) links."""
+    for k in ('link_names', 'joint_names', 'tool'):
+        if k in spec:
+            ctx.fail(_key(path, k), f"'{k}' applies to a 'dh' table only; explicit links carry their names")
+    lpath = _key(path, 'links')
+    items = ctx.sequence(spec['links'], lpath)
+    if not items:
+        ctx.fail(lpath, 'an arm needs at least one link')
+    specs, paths = [], []
+    for i, r in enumerate(items):
+        rp = _key(lpath, i)
+        ctx.mapping(r, rp, required=_LINK_REQUIRED, optional=_LINK_OPTIONAL)
+        jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed'))
+        T = ctx.pose(r['origin'], _key(rp, 'origin')) if 'origin' in r else np.eye(4)
+        axis = ctx.vector(r['axis'], _key(rp, 'axis'), 3) if 'axis' in r else np.array([0.0, 0.0, 1.0])
+        if jt == 'fixed' and ('axis' in r or 'limits' in r or 'damping' in r):
+            ctx.fail(rp, 'a fixed joint takes no axis, limits or damping')
+        parent = ctx.string(r['parent'], _key(rp, 'parent'))
+        inert = _inertial(ctx, r, rp)
+        specs.append(LinkSpec(name=ctx.string(r['name'], _key(rp, 'name')),
+                              joint=ctx.string(r['joint'], _key(rp, 'joint')), parent=parent,
+                              joint_type=jt, origin_xyz=tuple(T[:3, 3]), origin_R=T[:3, :3],
+                              origin_rpy=tuple(R_to_rpy(T[:3, :3])), axis=tuple(axis),
+                              mass=inert.get('mass', 0.0), com=tuple(inert.get('com', np.zeros(3))),
+                              inertia=inert.get('inertia', np.zeros((3, 3))),
+                              damping=inert.get('damping', 0.0), limits=inert.get('limits')))
+        paths.append(rp)
+    return specs, paths
+
+
+def _model_error_path(err: ModelError, specs, paths, fallback: str) -> str:
+    """Key path a ModelError is about: the link it names plus the key its wording points to."""
+    m = re.match(r"link '([^']+)'", str(err))
+    if not m:
+        return fallback
+    index = {s.name: k for k, s in enumerate(specs)}
+    k = index.get(m.group(1))
+    if k is None:
+        return fallback
+    text = str(err)[m.end():]
+    for word, key in _MODEL_ERROR_KEYS:
+        if word in text:
+            return _key(paths[k], key)
+    return paths[k]
+
+
+def build_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build an ``arm`` part: a kinematic tree from a DH table or explicit links -> ArmSystem.
+
+    spec: the part mapping (see the module docstring for its keys); path: its key path
+    ('parts[0]'); ctx: validation context (file name, gravity). Model errors are re-raised as
+    :class:`SceneError` with the key path of the offending link.
+    """
+    ctx.mapping(spec, path, required=_ARM_REQUIRED, optional=_ARM_OPTIONAL)
+    name = ctx.string(spec['name'], _key(path, 'name'))
+    mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
+    root = ctx.string(spec.get('root', 'base_link'), _key(path, 'root'))
+    if ('dh' in spec) == ('links' in spec):
+        ctx.fail(path, "give exactly one of 'dh' (a DH table) or 'links' (explicit links)")
+    if 'dh' in spec:
+        specs, paths = _dh_specs(ctx, spec, path, root)
+    else:
+        specs, paths = _explicit_specs(ctx, spec, path, root)
+    if 'origin' in spec:  # the mount pose: compose it into the joints that hang from the root
+        T0 = ctx.pose(spec['origin'], _key(path, 'origin'))
+        for s in specs:
+            if s.parent in (None, root):
+                T = np.eye(4)
+                T[:3, :3] = s.origin_R if s.origin_R is not None else rpy_to_R(s.origin_rpy)
+                T[:3, 3] = s.origin_xyz
+                T = T0 @ T
+                s.origin_R, s.origin_xyz, s.origin_rpy = T[:3, :3], tuple(T[:3, 3]), tuple(R_to_rpy(T[:3, :3]))
+    try:
+        model = build_model(specs, gravity=ctx.gravity, name=name, root=root)
+    except ModelError as e:
+        ctx.fail(_model_error_path(e, specs, paths, path), str(e))
+    dof = model.dof_joint_names
+    if 'actuated' in spec:
+        apath = _key(path, 'actuated')
+        actuated = ctx.names(spec['actuated'], apath)
+        for i, j in enumerate(actuated):
+            if j not in dof:
+                ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}')
+    else:
+        actuated = None
+    return Part(name=name, kind='arm', mount=mount, system=ArmSystem(model, actuated=actuated), path=path)
+
+
+_PRESCRIBED_KEYS = ('end_effector', 'end_effector_path', 'formulation', 'baumgarte')
+
+
+def build_prescribed_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build a ``prescribed_arm`` part: an arm whose end point E is driven along a planar path.
+
+    Huston §19.16–19.18 (see :mod:`robodyn_ros.systems.prescribed`). The keys of an ``arm``
+    part plus: ``end_effector`` (link whose frame origin is E; default the last link),
+    ``end_effector_path: {kind: circle | line, plane: xy | xz | yz, <kind parameters>}``,
+    ``formulation: complement | kkt`` (default complement) and ``baumgarte: {alpha, beta}``
+    (1/s). ``actuated`` defaults to none here (free pins, problem P19.16.1).
+    """
+    from .systems import prescribed as pr
+    ctx.mapping(spec, path, required=_ARM_REQUIRED + ('end_effector_path',),
+                optional=_ARM_OPTIONAL + _PRESCRIBED_KEYS)
+    arm = build_arm_part({**{k: v for k, v in spec.items() if k not in _PRESCRIBED_KEYS},
+                          'kind': 'arm', 'actuated': spec.get('actuated', [])}, path, ctx)
+    model = arm.system.model
+    eff = ctx.string(spec.get('end_effector', model.link_names[-1]), _key(path, 'end_effector'))
+    if eff not in model.link_names:
+        ctx.fail(_key(path, 'end_effector'), f'no link {eff!r}; links are {list(model.link_names)}')
+    ppath = _key(path, 'end_effector_path')
+    ps = spec['end_effector_path']
+    if not isinstance(ps, dict) or 'kind' not in ps:
+        ctx.fail(_key(ppath, 'kind'), f'missing required key; kinds: {", ".join(pr.PATH_KINDS)}')
+    kind = ctx.string(ps['kind'], _key(ppath, 'kind'))
+    if kind not in pr.PATH_KINDS:
+        ctx.fail(_key(ppath, 'kind'), f'unknown path kind {kind!r}; kinds: {", ".join(pr.PATH_KINDS)}')
+    cls, req, opt = pr.PATH_KINDS[kind]
+    ctx.mapping(ps, ppath, required=('kind',) + tuple(req), optional=('plane',) + tuple(opt))
+    params = {k: (ctx.vector(ps[k], _key(ppath, k), n) if n else ctx.number(ps[k], _key(ppath, k)))
+              for k, n in {**req, **opt}.items() if k in ps}
+    plane = ctx.string(ps.get('plane', 'xy'), _key(ppath, 'plane'))
+    if plane not in pr.PLANES:
+        ctx.fail(_key(ppath, 'plane'), f'unknown plane {plane!r}; planes: {", ".join(pr.PLANES)}')
+    try:
+        curve = cls(**params)
+    except pr.PathError as e:
+        ctx.fail(_key(ppath, e.param), e.reason)
+    form = ctx.string(spec.get('formulation', 'complement'), _key(path, 'formulation'))
+    if form not in pr.FORMULATIONS:
+        ctx.fail(_key(path, 'formulation'), f'unknown formulation {form!r}; use {" or ".join(pr.FORMULATIONS)}')
+    bpath = _key(path, 'baumgarte')
+    gains = ctx.mapping(spec.get('baumgarte', {}), bpath, optional=('alpha', 'beta'))
+    gains = {k: ctx.number(x, _key(bpath, k), minimum=0.0) for k, x in gains.items()}
+    system = pr.PrescribedPathSystem(model, eff, curve, plane=plane, formulation=form,
+                                     actuated=arm.system.actuated, **gains)
+    return Part(name=arm.name, kind='prescribed_arm', mount=arm.mount, system=system, path=path)
+
+
+#: part kind -> builder(spec, path, ctx) -> Part
+PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': build_prescribed_arm_part}
+
+
+def _assemble(ctx: SceneContext, parts: list) -> object:
+    """The scene's System from its parts.
+
+    For now a scene is one part mounted on the world; composing parts (an arm on a
+    differential-drive platform or on a free-flying base) is added here by later work.
+    """
+    if len(parts) != 1:
+        ctx.fail('parts', f'a scene of {len(parts)} parts needs a composition of '
+                          f'{[p.kind for p in parts]} that is not available yet; use one part')
+    p = parts[0]
+    if p.mount != 'world':
+        ctx.fail(_key(p.path, 'mount'), f"mount {p.mount!r} is not available to part kind '{p.kind}' "
+                                        "in a one-part scene; use 'world'")
+    return p.system
+
+
+# --------------------------------------------------------------------------------------------
+# command profiles: builder(params, path, ctx, system, port) -> f(t, y) -> (size,) array
+# --------------------------------------------------------------------------------------------
+def _zero_profile(params, path, ctx, system, port):
+    """``zero``: no parameters; u = 0."""
+    ctx.mapping(params, path, required=('profile',))
+    u = np.zeros(system.inputs[port].size)
+    return lambda t, y: u.copy()
+
+
+def _constant_profile(params, path, ctx, system, port):
+    """``constant``: ``value`` (size,); u = value."""
+    ctx.mapping(params, path, required=('profile', 'value'))
+    n = system.inputs[port].size
+    u = ctx.vector(params['value'], _key(path, 'value'), n, f'values (one per {port} input)')
+    return lambda t, y: u.copy()
+
+
+def _piecewise_constant_profile(params, path, ctx, system, port):
+    """``piecewise_constant``: ``times`` (k,) increasing from >= 0, ``values`` (k, size).
+
+    u(t) = values[j] for times[j] <= t < times[j+1], the last value after times[-1], zero
+    before times[0].
+    """
+    ctx.mapping(params, path, required=('profile', 'times', 'values'))
+    n = system.inputs[port].size
+    times = ctx.vector(params['times'], _key(path, 'times'), minimum=0.0)
+    if times.size == 0:
+        ctx.fail(_key(path, 'times'), 'needs at least one switching time')
+    if np.any(np.diff(times) <= 0.0):
+        ctx.fail(_key(path, 'times'), f'times must be strictly increasing, got {times.tolist()}')
+    vpath = _key(path, 'values')
+    rows = ctx.sequence(params['values'], vpath, times.size, 'rows (one per switching time)')
+    values = np.array([ctx.vector(r, _key(vpath, i), n, f'values (one per {port} input)')
+                       for i, r in enumerate(rows)])
+    zero = np.zeros(n)
+
+    def f(t, y):
+        j = int(np.searchsorted(times, t, side='right')) - 1
+        return (zero if j < 0 else values[j]).copy()
+    return f
+
+
+def _sine_parts(params, path, ctx, n, port):
+    what = f'values (one per {port} input)'
+    A = ctx.vector(params['amplitude'], _key(path, 'amplitude'), n, what)
+    fhz = ctx.vector(params['frequency_hz'], _key(path, 'frequency_hz'), n, what, minimum=0.0)
+    phase = ctx.vector(params['phase'], _key(path, 'phase'), n, what) if 'phase' in params else np.zeros(n)
+    return A, 2.0 * np.pi * fhz, phase
+
+
+def _sine_profile(params, path, ctx, system, port):
+    """``sine``: u = offset + amplitude sin(2π frequency_hz t + phase), elementwise (size,)."""
+    ctx.mapping(params, path, required=('profile', 'amplitude', 'frequency_hz'), optional=('phase', 'offset'))
+    n = system.inputs[port].size
+    A, w, phase = _sine_parts(params, path, ctx, n, port)
+    offset = ctx.vector(params['offset'], _key(path, 'offset'), n) if 'offset' in params else np.zeros(n)
+    return lambda t, y: offset + A * np.sin(w * t + phase)
+
+
+def _gravity_compensation_sine_profile(params, path, ctx, system, port):
+    """``gravity_compensation_sine``: u = Bᵀ g(q) + K (center - Bᵀ q) + amplitude sin(2π f t + phase).
+
+    g(q) = RNEA(q, 0, 0) are the gravity torques of the current state, so the arm moves as if
+    weightless under the sine excitation. Optional ``stiffness`` K (per actuated joint, N·m/rad
+    or N/m, >= 0) with its required ``center`` posture adds soft joint springs: without them a
+    weightless chain under zero-mean torques still drifts (centrifugal forces push a prismatic
+    joint outwards, velocity offsets left by the start-up transient integrate). Needs an
+    arm's ``effort`` port (1-DOF joints, so q and v share indices).
+    """
+    ctx.mapping(params, path, required=('profile', 'amplitude', 'frequency_hz'),
+                optional=('phase', 'stiffness', 'center'))
+    model = getattr(system, 'model', None)
+    if port != 'effort' or model is None or not hasattr(system, 'B') or model.nq != model.nv:
+        ctx.fail(_key(path, 'profile'), "gravity_compensation_sine needs the 'effort' port of a fixed-base arm")
+    n = system.inputs[port].size
+    what = f'values (one per {port} input)'
+    A, w, phase = _sine_parts(params, path, ctx, n, port)
+    K = ctx.vector(params['stiffness'], _key(path, 'stiffness'), n, what, minimum=0.0) \
+        if 'stiffness' in params else np.zeros(n)
+    if 'center' in params:
+        center = ctx.vector(params['center'], _key(path, 'center'), n, what)
+    elif 'stiffness' in params:
+        ctx.fail(_key(path, 'center'), "missing required key (the posture the 'stiffness' springs pull to)")
+    else:
+        center = np.zeros(n)
+    zeros = np.zeros(model.nv)
+    BT = system.B.T
+
+    def f(t, y):
+        q, _ = system.split(y)
+        return BT @ dyn.rnea(model, q, zeros, zeros) + K * (center - BT @ q) + A * np.sin(w * t + phase)
+    return f
+
+
+#: command profile name -> builder(params, path, ctx, system, port) -> f(t, y)
+COMMAND_PROFILES: dict[str, Callable] = {
+    'zero': _zero_profile,
+    'constant': _constant_profile,
+    'piecewise_constant': _piecewise_constant_profile,
+    'sine': _sine_profile,
+    'gravity_compensation_sine': _gravity_compensation_sine_profile,
+}
+
+
+def _script(ctx: SceneContext, commands, system):
+    """``script(t, y) -> {port: array}`` from the ``commands`` section, or None if it is empty."""
+    if not isinstance(commands, dict):
+        ctx.fail('commands', f'expected a mapping of input ports, got {_typename(commands)} {commands!r}')
+    for port in commands:
+        if port not in system.inputs:
+            ctx.fail(_key('commands', port), f'unknown input port {port!r}; this scene\'s system has '
+                                             f'{", ".join(system.inputs) or "no inputs"}')
+    fns = {}
+    for port, params in commands.items():
+        path = _key('commands', port)
+        if not isinstance(params, dict):
+            ctx.fail(path, f'expected a mapping with a profile, got {_typename(params)} {params!r}')
+        if 'profile' not in params:
+            ctx.fail(_key(path, 'profile'), 'missing required key')
+        prof = ctx.string(params['profile'], _key(path, 'profile'))
+        builder = COMMAND_PROFILES.get(prof)
+        if builder is None:
+            ctx.fail(_key(path, 'profile'), f'unknown command profile {prof!r}; '
+                                            f'known profiles: {", ".join(COMMAND_PROFILES)}')
+        fns[port] = builder(params, path, ctx, system, port)
+    if not fns:
+        return None
+
+    def script(t, y):
+        """Scripted commands at time t (s) and state y: {port: (size,) array}."""
+        return {port: f(t, y) for port, f in fns.items()}
+    return script
+
+
+# --------------------------------------------------------------------------------------------
+# initial state and settings
+# --------------------------------------------------------------------------------------------
+def _initial_state(ctx: SceneContext, v, system) -> np.ndarray:
+    """State vector y0 from ``initial_state: {q, v}`` (defaults: neutral q, zero v)."""
+    ctx.mapping(v, 'initial_state', optional=('q', 'v'))
+    model = getattr(system, 'model', None)
+    names = getattr(system, 'joint_names', None)
+    what_q = f'values (one per joint: {", ".join(names)})' if names else 'values'
+    q0 = ctx.vector(v['q'], 'initial_state.q', system.nq, what_q) if 'q' in v else None
+    v0 = ctx.vector(v['v'], 'initial_state.v', system.nv, what_q) if 'v' in v else None
+    if q0 is not None and model is not None:
+        for i in range(model.nb):
+            s = model.specs[i]
+            if model.jtype[i] in (REVOLUTE, PRISMATIC) and s.limits is not None:
+                k = int(model.q_idx[i])
+                lo, hi = s.limits
+                if not lo <= q0[k] <= hi:
+                    ctx.fail(_key('initial_state.q', k), f'{float(q0[k])!r} is outside the limits [{lo}, {hi}] '
+                                                         f'of joint {s.joint!r}')
+    try:
+        return system.initial_state(q0, v0)
+    except ValueError as e:  # e.g. a prescribed end point that the initial configuration cannot reach
+        ctx.fail('initial_state', str(e))
+
+
+def _known_integrators():
+    """Integrator names the package registers (None when the registry is unavailable)."""
+    try:
+        from .integrators import INTEGRATORS
+    except ImportError:
+        return None
+    return tuple(INTEGRATORS)
+
+
+def _settings(ctx: SceneContext, v) -> dict:
+    """Simulation defaults from the ``simulation`` section, over :data:`DEFAULT_SETTINGS`."""
+    ctx.mapping(v, 'simulation', optional=_SETTING_KEYS)
+    out = dict(DEFAULT_SETTINGS)
+    if 'integrator' in v:
+        name = ctx.string(v['integrator'], 'simulation.integrator')
+        known = _known_integrators()
+        if known is not None and name not in known:
+            ctx.fail('simulation.integrator', f'unknown integrator {name!r}; known: {", ".join(known)}')
+        out['integrator'] = name
+    for k in ('dt', 'rtol', 'atol', 'publish_rate', 'duration'):
+        if k in v:
+            out[k] = ctx.number(v[k], _key('simulation', k), positive=True)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# loading
+# --------------------------------------------------------------------------------------------
+def parse_scene(text: str, file: str = '<string>', path: str | None = None) -> Scene:
+    """Validate scene YAML text and build its :class:`Scene`.
+
+    text: the YAML; file: name used in error messages; path: file path stored in the Scene
+    (default ``file``). Raises :class:`SceneError` ``<file>: <key path>: <reason>``.
+    """
+    ctx = SceneContext(file)
+    try:
+        data = yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as e:
+        mark = getattr(e, 'problem_mark', None)
+        where = f'line {mark.line + 1}, column {mark.column + 1}' if mark is not None else 'YAML'
+        ctx.fail(where, f'YAML syntax error: {getattr(e, "problem", None) or e}')
+    ctx.mapping(data, '', required=_TOP_KEYS_REQUIRED, optional=_TOP_KEYS_OPTIONAL)
+    name = ctx.string(data['name'], 'name')
+    for k in ('description', 'source'):
+        if k in data:
+            ctx.string(data[k], k)
+    if 'gravity' in data:
+        ctx.gravity = ctx.vector(data['gravity'], 'gravity', 3)
+    items = ctx.sequence(data['parts'], 'parts')
+    if not items:
+        ctx.fail('parts', 'a scene needs at least one part')
+    for i, spec in enumerate(items):
+        ppath = _key('parts', i)
+        if not isinstance(spec, dict):
+            ctx.fail(ppath, f'expected a mapping, got {_typename(spec)} {spec!r}')
+        if 'kind' not in spec:
+            ctx.fail(_key(ppath, 'kind'), 'missing required key')
+        kind = ctx.string(spec['kind'], _key(ppath, 'kind'))
+        builder = PART_KINDS.get(kind)
+        if builder is None:
+            ctx.fail(_key(ppath, 'kind'), f'unknown part kind {kind!r}; known kinds: {", ".join(PART_KINDS)}')
+        part = builder(spec, ppath, ctx)
+        if any(p.name == part.name for p in ctx.parts):
+            ctx.fail(_key(ppath, 'name'), f'duplicate part name {part.name!r}')
+        ctx.parts.append(part)
+    system = _assemble(ctx, ctx.parts)
+    y0 = _initial_state(ctx, data.get('initial_state', {}), system)
+    script = _script(ctx, data.get('commands', {}), system)
+    settings = _settings(ctx, data.get('simulation', {}))
+    return Scene(name=name, path=path or file, text=text, data=data, system=system, y0=y0, script=script,
+                 settings=settings, parts=[p.name for p in ctx.parts])
+
+
+def scene_dirs() -> list:
+    """Directories searched for bundled scenes, in order (existing ones only).
+
+    ``<package dir>/../config/scenes`` (source tree), the ament index share directory
+    ``robodyn_ros/config/scenes``, then ``<sys.prefix>/share/robodyn_ros/config/scenes``.
+    """
+    cands = [Path(__file__).resolve().parent.parent / 'config' / 'scenes']
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError:  # no ROS installation: the other two places remain
+        pass
+    else:
+        try:
+            cands.append(Path(get_package_share_directory('robodyn_ros')) / 'config' / 'scenes')
+        except (PackageNotFoundError, OSError):  # not installed, or AMENT_PREFIX_PATH unset
+            pass
+    cands.append(Path(sys.prefix) / 'share' / 'robodyn_ros' / 'config' / 'scenes')
+    out = []
+    for c in cands:
+        if c.is_dir() and all(c.resolve() != o.resolve() for o in out):
+            out.append(c)
+    return out
+
+
+def _bundled() -> dict:
+    """name -> path of every bundled scene (the first directory that has a name wins)."""
+    found = {}
+    for d in scene_dirs():
+        for p in sorted(d.glob('*.yaml')):
+            found.setdefault(p.stem, p)
+    return found
+
+
+def find_scene(name_or_path) -> Path:
+    """Path of a scene given a bundled name or a file path.
+
+    name_or_path: an existing file path, a path ending in .yaml/.yml, or a bundled name.
+    Raises :class:`SceneError` when nothing matches.
+    """
+    s = os.fspath(name_or_path)
+    p = Path(s)
+    if p.is_file():
+        return p
+    if p.suffix in ('.yaml', '.yml') or os.sep in s:
+        raise SceneError(f'{s}: (file): no such scene file')
+    bundled = _bundled()
+    if s in bundled:
+        return bundled[s]
+    raise SceneError(f'{s}: (name): no bundled scene of that name; bundled scenes: {", ".join(sorted(bundled))} '
+                     f'(searched {", ".join(str(d) for d in scene_dirs())})')
+
+
+def load_scene(name_or_path) -> Scene:
+    """Load a bundled scene by name (``stanford_arm``) or a scene file by path.
+
+    name_or_path: name or path (str or PathLike). Returns the validated :class:`Scene`;
+    raises :class:`SceneError` whose message is ``<file>: <key path>: <reason>``.
+    """
+    p = find_scene(name_or_path)
+    try:
+        text = p.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(f'{p}: (file): cannot read: {e}') from None
+    return parse_scene(text, file=str(p), path=str(p))
+
+
+def list_scenes() -> list:
+    """``[(name, description), ...]`` of the bundled scenes, sorted by name.
+
+    Only the ``description`` is read (quickly, without building the systems); an unreadable
+    file is listed with the parse error as its description.
+    """
+    out = []
+    for name, p in sorted(_bundled().items()):
+        try:
+            data = yaml.load(p.read_text(encoding='utf-8'), Loader=_Loader)
+            desc = data.get('description', '') if isinstance(data, dict) else ''
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+            desc = f'(unreadable: {e.__class__.__name__})'
+        out.append((name, ' '.join(str(desc).split())))
+    return out
