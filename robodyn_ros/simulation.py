@@ -81,6 +81,30 @@ def build_integrator(system: System, name: str, dt=None, rtol=None, atol=None):
     return make_integrator(spec.name, rtol=rtol, atol=atol)
 
 
+#: largest stable ``h/τ`` of the fixed-step explicit methods on a decaying mode ``ẏ = −y/τ`` (the
+#: real-axis extent of their stability regions: Euler 2, classical RK4 2.785)
+STABILITY_LIMIT = {'euler': 2.0, 'semi_implicit_euler': 2.0, 'rk4': 2.785}
+
+
+def check_step(system: System, integrator: str, dt, y):
+    """Refuse a fixed explicit step that the system's fastest time constant makes unstable.
+
+    system: supplies ``fastest_time_constant(y)`` (s); integrator: registry name; dt: its step
+    (s); y: the state it starts from. Error-controlled and implicit integrators always pass
+    (they adapt or are stable). Policy: refuse, do not sub-step silently — raises ValueError
+    naming the time constant, the largest stable step and the alternatives.
+    """
+    name = str(integrator).lower()
+    limit = STABILITY_LIMIT.get(name)
+    if limit is None or dt is None:
+        return
+    tau = float(system.fastest_time_constant(y))
+    if dt > limit * tau:
+        raise ValueError(f'{name} with dt={dt:g} s is unstable for this system: its fastest time constant is '
+                         f'{tau:.3g} s ({type(system).__name__}; e.g. motor electrics L/R), so a stable {name} step is '
+                         f'at most {limit * tau:.3g} s; use a smaller dt or an implicit integrator (radau, bdf)')
+
+
 class Simulator:
     """Integrates a :class:`System` in control periods, holding commands between them.
 
@@ -100,6 +124,7 @@ class Simulator:
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
         self.reset()
+        check_step(system, integrator, dt, self.y)
 
     # -- state ---------------------------------------------------------------------------
     def reset(self):
@@ -214,8 +239,14 @@ class Simulator:
         return self.y
 
     def outputs(self, wrenches: bool = True) -> SystemOutputs:
-        """Stage 4: what the system reports at the current state (wrench solve optional)."""
-        return self.system.outputs(self.t, self.y, self.held_inputs(), wrenches=wrenches)
+        """Stage 4: what the system reports at the current state (wrench solve optional).
+
+        The system's ``extra`` values (motor currents, constraint residuals, ...) are kept in
+        ``diag.extra`` so that every diagnostics sink (recorder, node) publishes them.
+        """
+        out = self.system.outputs(self.t, self.y, self.held_inputs(), wrenches=wrenches)
+        self.diag.extra.update(out.extra)
+        return out
 
     def energy_report(self) -> dict:
         """Total energy, work done by inputs/dissipation and the drift ``E − E0 − W`` (J)."""

@@ -1,0 +1,544 @@
+"""Voltage-driven differential-drive platform, alone or carrying an articulated arm (seed 001).
+
+Coordinates and frames
+----------------------
+Generalised coordinates (all in one flat vector; ``nq = nv``)::
+
+    q = [x, y, θ, φ_l, φ_r, q_arm...]        v = q̇                                (D1)
+
+``(x, y)`` is the origin of ``base_link`` in ``odom`` and ``θ`` its yaw; ``base_link`` sits on
+the ground at the midpoint between the two wheel contact points (x forward, y left, z up, REP
+103/105). The wheels turn about ``+y`` of ``base_link``: the left wheel centre is at
+``(0, +r_c, r_w)``, the right one at ``(0, −r_c, r_w)``; a positive wheel rate rolls forward
+(a wheel spinning at ``φ̇`` about +y has its contact point moving at ``−r_w φ̇`` relative to
+its centre along x). ``r_c`` is the half-track (the seed's "radius of the chassis"), ``r_w``
+the wheel radius.
+
+The dynamics tree (``self.model``, root frame ``odom``) is: two massless prismatic bodies
+(``base_x``, ``base_y``), the chassis ``base_link`` on a revolute yaw joint ``base_yaw``, a fixed
+``payload`` when one is given, the two wheels on revolute joints ``left_wheel_joint``,
+``right_wheel_joint`` about +y, and, for the mobile manipulator, the arm's links hanging from
+``base_link``. Gravity acts along −z: it loads the arm; the chassis–ground normal forces are not
+modelled (the motion is planar: the root holds the chassis in the plane, and the reaction it
+needs is reported as the ``base_plane`` wrench).
+
+Mass matrix from first principles (platform without an articulated arm)
+-----------------------------------------------------------------------
+Each rigid part k on the chassis (chassis, payload, wheel hubs) has mass ``m_k``, centre of mass
+``d_k`` (horizontal components, ``base_link`` coordinates) and yaw inertia ``I_k`` about its
+centre of mass. Its centre moves at ``ṗ + θ̇ R(θ) E d_k`` with ``E = [[0, −1], [1, 0]]``, so::
+
+    T = ½ m |ṗ|² + θ̇ ṗ·(R E S) + ½ J θ̇² + ½ I_s (φ̇_l² + φ̇_r²)                 (D2)
+
+    m = Σ m_k = m_c + m_a + 2 m_w,     S = Σ m_k d_k,
+    J = Σ (I_k + m_k |d_k|²) = I_c + m_c|d_c|² + I_a + m_a|d_a|² + 2 (I_d + m_w r_c²)
+
+with ``I_s`` the wheel spin inertia (plus the reflected rotor inertia ``N² J_m``) and ``I_d`` its
+diametral inertia (the wheel turns with the chassis about the vertical). The wheel's angular
+velocity ``θ̇ e_z + φ̇ e_y`` has no cross term because e_y and e_z are principal axes. Hence::
+
+    M = [[m I₂, R E S, 0], [(R E S)ᵀ, J, 0], [0, 0, I_s I₂]],
+    h = [−θ̇² R S; 0; 0; 0]                (Coriolis/centrifugal; zero when S = 0)  (D3)
+
+This is :meth:`DiffDriveSystem.planar_mass_matrix`; the tests check it against the CRBA of the
+tree, which is what the mobile manipulator uses (``M = crba``, ``h = rnea(q, v, 0)``).
+
+Where the seed has typos (corrected here from the derivation above)
+------------------------------------------------------------------
+* Eq. (49) ``ω_p = (v_l − v_r)/r_c``: the wheels are ``2 r_c`` apart and, with z up, a faster
+  right wheel turns the platform left (positive), so ``ω_p = (v_r − v_l)/(2 r_c)``.
+* Eq. (50), yaw term ``½ (I_c + I_a)(r_w ω_l/r_c − ½ r_w ω_r/r_c)²``: the factors and the sign
+  are inconsistent; from (49) it is ``½ (I_c + I_a)(r_w (ω_r − ω_l)/(2 r_c))²``.
+* Eq. (50) omits the wheels' rotation about the vertical axis (``I_d θ̇²`` per wheel, the ``I_d``
+  term of ``J``); the wheels' ``m_w r_c² θ̇²`` is implicit in its ``½ m_w (r_w ω)²`` terms and is
+  kept. Eq. (42) leaves out the wheel masses, which eq. (50) then adds (``m`` above).
+* Eq. (54) ``R i = v − v_m`` is the armature circuit with back-EMF ``v_m = K ω`` (the seed's
+  "rolling resistance" is the winding resistance); see :mod:`robodyn_ros.systems.motor`.
+* Section 3.3.1 speaks of three degrees of freedom: the platform has a five-dimensional
+  configuration (x, y, θ, φ_l, φ_r) but only two velocity degrees of freedom (the three
+  constraints below).
+
+Rolling constraints (nonholonomic) and ground forces
+----------------------------------------------------
+The contact point of wheel ``s`` (left: ``σ = +1``, right: ``σ = −1``) must not slip. In
+``base_link`` axes (forward speed ``v_f = ẋ cos θ + ẏ sin θ``, lateral ``v_y = −ẋ sin θ + ẏ cos θ``)::
+
+    longitudinal:  v_f − σ r_c θ̇ − r_w φ̇_s = 0        lateral:  v_y = 0          (D4)
+
+Stacked as ``K(q) v = 0`` with rows ``[long_l, lat_l, long_r, lat_r]`` (4 × nv; the arm columns
+are zero), and ``K̇ v = [θ̇ v_y, −θ̇ v_f, θ̇ v_y, −θ̇ v_f]``. Each row is the contact point's velocity
+projected on a unit direction (the chassis heading, or its left normal), i.e. a row of the
+contact Jacobian, so by the sign convention of :mod:`robodyn_ros.constraints`
+(``M a = Q + Kᵀ λ``) the multipliers ``λ = [F_long_l, F_lat_l, F_long_r, F_lat_r]`` are the
+horizontal forces the ground exerts on each wheel at its contact point (N, + forward / + left).
+The two lateral rows are identical (both wheels sit on one axle line: the split of the lateral
+force between them is statically indeterminate); :func:`~robodyn_ros.constraints.kkt_solve`
+reports rank 3 of 4 and returns the minimum-norm multipliers, i.e. an equal split. Drift of
+(D4) is stabilised at the velocity level by Baumgarte, ``K a = −K̇ v − α K v`` (gain
+``baumgarte_alpha``, 1/s), and removed after every step by the mass-orthogonal velocity
+projection in :meth:`project`; ``constraint_residual`` (m/s) in ``outputs.extra`` reports
+``‖K v‖∞``.
+
+Published wrenches (``outputs.wrenches``; only when ``wrenches=True``)
+----------------------------------------------------------------------
+* ``left_wheel_contact`` / ``right_wheel_contact``: frame ``<side>_wheel_contact``, a frame fixed
+  to the chassis with its origin at the contact point and base_link's axes (x along the wheel's
+  rolling direction, y along its axle, z up): ``[0, 0, 0, F_long, F_lat, 0]``. The normal force is
+  not modelled (planar) and is reported as 0; a point contact transmits no torque.
+* ``left_wheel_joint`` / ``right_wheel_joint`` and every arm joint: the wrench the parent body
+  exerts on the child through the joint, in the child link frame (RNEA with the contact forces as
+  external forces); its axis component is the joint torque.
+* ``base_plane``: the wrench the ground plane (the unmodelled supports) exerts on ``base_link``
+  to hold it in the plane, at the base_link origin in base_link axes. Its x, y force and z torque
+  vanish (every horizontal force comes through the wheels); the z force is the total normal load.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve, eigh
+
+from .. import dynamics as dyn
+from ..constraints import BAUMGARTE_ALPHA, KKT_RCOND, baumgarte_rhs, kkt_solve, null_space_basis
+from ..model import REVOLUTE, LinkSpec, ModelError, build_model, to_urdf
+from ..spatial import skew
+from .base import InputPort, System, SystemOutputs
+from .motor import DCMotor
+
+__all__ = ['Body', 'PlatformParams', 'DiffDriveSystem', 'PLATFORM_LINKS', 'SIDES']
+
+SIDES = ('left', 'right')
+#: link names the platform uses (an arm mounted on it may not reuse them)
+PLATFORM_LINKS = ('odom', 'base_x_link', 'base_y_link', 'base_link', 'chassis', 'payload', 'left_wheel',
+                  'right_wheel', 'left_wheel_contact', 'right_wheel_contact')
+#: relative tolerance on K v0 for an initial state to count as rolling without slip
+INITIAL_STATE_TOL = 1e-9
+_IX, _IY, _ITH, _IL, _IR = 0, 1, 2, 3, 4
+
+
+@dataclass(frozen=True)
+class Body:
+    """A rigid part fixed to the chassis: mass (kg), yaw inertia (kg·m², about its centre of mass
+    and the vertical) and centre of mass ``com`` (3,) in base_link (m). Its roll/pitch inertias
+    do not enter planar motion; the URDF gets those of a thin plate (``Izz/2, Izz/2, Izz``)."""
+
+    mass: float
+    yaw_inertia: float
+    com: tuple = (0.0, 0.0, 0.0)
+
+    def inertia(self) -> np.ndarray:
+        """3x3 inertia about the centre of mass (thin plate: Ixx = Iyy = Izz/2)."""
+        return np.diag([0.5 * self.yaw_inertia, 0.5 * self.yaw_inertia, self.yaw_inertia])
+
+
+@dataclass(frozen=True)
+class PlatformParams:
+    """Parameters of the platform (SI units; seed 001 values by default).
+
+    chassis: the chassis body; payload: an optional rigid payload (the seed's arm as a rigid
+    body: mass 0.4 kg, yaw inertia 0.975 kg·m²); wheel_radius r_w, half_track r_c (m);
+    wheel_mass m_w; wheel_spin_inertia I_w (about the axle); wheel_diametral_inertia I_d (about
+    a diameter; None = I_w/2, a thin disc); motors: (left, right) :class:`DCMotor`;
+    baumgarte_alpha: velocity-level constraint stabilisation gain (1/s).
+    """
+
+    chassis: Body = Body(3.3, 0.18965, (0.0, 0.0, 0.28))
+    payload: Body | None = Body(0.4, 0.975, (0.0, 0.0, 0.28))
+    wheel_radius: float = 0.28
+    half_track: float = 0.35
+    wheel_mass: float = 0.3
+    wheel_spin_inertia: float = 0.0037
+    wheel_diametral_inertia: float | None = None
+    motors: tuple = field(default_factory=lambda: (DCMotor(), DCMotor()))
+    baumgarte_alpha: float = BAUMGARTE_ALPHA
+
+    def __post_init__(self):
+        for k in ('wheel_radius', 'half_track'):
+            if not np.isfinite(getattr(self, k)) or getattr(self, k) <= 0.0:
+                raise ValueError(f'{k}: must be a finite length > 0 m, got {getattr(self, k)!r}')
+        for k in ('wheel_mass', 'wheel_spin_inertia', 'baumgarte_alpha'):
+            if not np.isfinite(getattr(self, k)) or getattr(self, k) < 0.0:
+                raise ValueError(f'{k}: must be finite and >= 0, got {getattr(self, k)!r}')
+        for label, b in (('chassis', self.chassis), ('payload', self.payload)):
+            if b is None:
+                continue
+            if not (np.isfinite(b.mass) and b.mass >= 0.0 and np.isfinite(b.yaw_inertia) and b.yaw_inertia >= 0.0):
+                raise ValueError(f'{label}: mass and yaw_inertia must be finite and >= 0, got {b!r}')
+            if len(b.com) != 3 or not np.all(np.isfinite(b.com)):
+                raise ValueError(f'{label}: com must be 3 finite numbers, got {b.com!r}')
+        if self.chassis.mass <= 0.0 or self.chassis.yaw_inertia <= 0.0:
+            raise ValueError(f'chassis: mass and yaw_inertia must be > 0, got {self.chassis!r}')
+        mr2 = self.wheel_mass * self.wheel_radius ** 2
+        if self.wheel_spin_inertia > mr2 * (1.0 + 1e-12):
+            raise ValueError(f'wheel_spin_inertia: {self.wheel_spin_inertia!r} kg·m² exceeds m_w r_w² = {mr2:.6g} '
+                             'kg·m² (a thin ring); no wheel of that mass and radius has it')
+        Id = self.diametral_inertia
+        if not np.isfinite(Id) or 2.0 * Id < self.wheel_spin_inertia * (1.0 - 1e-12):
+            raise ValueError(f'wheel_diametral_inertia: {Id!r} kg·m² is below half the spin inertia '
+                             f'({0.5 * self.wheel_spin_inertia:.6g}); principal moments must obey the triangle inequality')
+        if len(self.motors) != 2 or not all(isinstance(m, DCMotor) for m in self.motors):
+            raise ValueError(f'motors: expected (left, right) DCMotor, got {self.motors!r}')
+
+    @property
+    def diametral_inertia(self) -> float:
+        """Wheel inertia about a diameter (kg·m²)."""
+        return 0.5 * self.wheel_spin_inertia if self.wheel_diametral_inertia is None else self.wheel_diametral_inertia
+
+
+class DiffDriveSystem(System):
+    """Differential-drive platform with two DC motors, optionally carrying an articulated arm.
+
+    params: :class:`PlatformParams`; arm_specs: LinkSpecs of an arm whose root-attached links
+    hang from ``base_link`` (their origins already in base_link coordinates; ``None`` = no arm);
+    arm_root: the name those specs use for their base frame; arm_actuated: arm joints driven by
+    the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom.
+
+    State ``y = [q (nv), v (nv), i (n_L)]`` with q, v as in (D1) and one current per motor with
+    ``L > 0`` (left first). Inputs: ``wheel_voltage`` ``[left, right]`` (V) and, with an arm
+    that has actuated joints, ``effort`` (one per actuated arm joint).
+    """
+
+    def __init__(self, params: PlatformParams | None = None, arm_specs=None, arm_root='base_link',
+                 arm_actuated=None, gravity=(0.0, 0.0, -9.81), name='diff_drive'):
+        self.params = p = params or PlatformParams()
+        self.motors = tuple(p.motors)
+        self.has_arm = bool(arm_specs)
+        specs = self._platform_specs(p, dynamic=True)
+        arm = self._rehome_arm(arm_specs or [], arm_root)
+        self.model = build_model(specs + arm, gravity=gravity, name=name, root='odom')
+        self.urdf_model = build_model(self._platform_specs(p, dynamic=False) + arm, gravity=gravity, name=name,
+                                      root='base_link')
+        m = self.model
+        self.nv = m.nv
+        self.nq = m.nv
+        assert m.nq == m.nv
+        for k, link in ((_IX, 'base_x_link'), (_IY, 'base_y_link'), (_ITH, 'base_link'), (_IL, 'left_wheel'),
+                        (_IR, 'right_wheel')):
+            assert m.v_idx[m.body(link)] == k, (link, m.v_idx[m.body(link)])
+        self.arm_joint_names = [n for n in m.dof_joint_names if n not in
+                                ('base_x', 'base_y', 'base_yaw', 'left_wheel_joint', 'right_wheel_joint')]
+        self.joint_names = ['left_wheel_joint', 'right_wheel_joint'] + self.arm_joint_names
+        self._arm_idx = np.array([m.v_idx[m.joint_names.index(n)] for n in self.arm_joint_names], dtype=int)
+        self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(int)
+        actuated = list(self.arm_joint_names if arm_actuated is None else arm_actuated)
+        unknown = [j for j in actuated if j not in self.arm_joint_names]
+        if unknown:
+            raise ValueError(f'actuated joints {unknown} are not arm joints; arm joints are {self.arm_joint_names}')
+        self.actuated = actuated
+        self.B = np.zeros((self.nv, len(actuated)))  # arm actuation: tau = B u['effort']
+        for k, n in enumerate(actuated):
+            self.B[m.v_idx[m.joint_names.index(n)], k] = 1.0
+        self._cur = [k for k, mot in enumerate(self.motors) if mot.has_current_state]
+        self.n_current = len(self._cur)
+        self.ny = 2 * self.nv + self.n_current
+        self.inputs = {'wheel_voltage': InputPort('wheel_voltage', 2, SIDES, 'V')}
+        if actuated:
+            units = ['N·m' if m.jtype[m.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated]
+            self.inputs['effort'] = InputPort('effort', len(actuated), tuple(actuated), '/'.join(sorted(set(units))))
+        self._armature = np.zeros(self.nv)
+        self._armature[[_IL, _IR]] = [mot.reflected_inertia for mot in self.motors]
+        self._wheels = (m.body('left_wheel'), m.body('right_wheel'))
+        self._chassis_body = m.body('base_link')
+        self._planar_inertia()
+
+    # -- construction ----------------------------------------------------------------------
+    @staticmethod
+    def _platform_specs(p: PlatformParams, dynamic: bool):
+        """LinkSpecs of the platform: with the planar virtual joints (dynamic tree, root odom) or
+        rooted at base_link with the chassis as a fixed link and the contact frames (URDF)."""
+        rw, rc = p.wheel_radius, p.half_track
+        Iw = np.diag([p.diametral_inertia, p.wheel_spin_inertia, p.diametral_inertia])
+        out = []
+        if dynamic:
+            out += [LinkSpec('base_x_link', 'base_x', None, 'prismatic', axis=(1.0, 0.0, 0.0)),
+                    LinkSpec('base_y_link', 'base_y', 'base_x_link', 'prismatic', axis=(0.0, 1.0, 0.0)),
+                    LinkSpec('base_link', 'base_yaw', 'base_y_link', 'revolute', axis=(0.0, 0.0, 1.0),
+                             mass=p.chassis.mass, com=tuple(p.chassis.com), inertia=p.chassis.inertia())]
+        else:
+            out.append(LinkSpec('chassis', 'chassis_joint', 'base_link', 'fixed', mass=p.chassis.mass,
+                                com=tuple(p.chassis.com), inertia=p.chassis.inertia()))
+        if p.payload is not None and p.payload.mass > 0.0:
+            out.append(LinkSpec('payload', 'payload_joint', 'base_link', 'fixed', mass=p.payload.mass,
+                                com=tuple(p.payload.com), inertia=p.payload.inertia()))
+        for side, sigma in zip(SIDES, (1.0, -1.0)):
+            out.append(LinkSpec(f'{side}_wheel', f'{side}_wheel_joint', 'base_link', 'revolute',
+                                origin_xyz=(0.0, sigma * rc, rw), axis=(0.0, 1.0, 0.0), mass=p.wheel_mass,
+                                inertia=Iw))
+        if not dynamic:
+            for side, sigma in zip(SIDES, (1.0, -1.0)):
+                out.append(LinkSpec(f'{side}_wheel_contact', f'{side}_wheel_contact_joint', 'base_link', 'fixed',
+                                    origin_xyz=(0.0, sigma * rc, 0.0)))
+        return out
+
+    @staticmethod
+    def _rehome_arm(arm_specs, arm_root):
+        """Copies of the arm's LinkSpecs with root-attached links hung from base_link."""
+        from dataclasses import replace
+        clash = sorted({s.name for s in arm_specs} & set(PLATFORM_LINKS) - {arm_root})
+        if clash:
+            raise ModelError(f'arm links {clash} clash with the platform links {list(PLATFORM_LINKS)}')
+        return [replace(s, parent='base_link') if s.parent in (None, arm_root) else replace(s) for s in arm_specs]
+
+    def _planar_inertia(self):
+        """Sums of (D2): total mass m, first moment S (2,), yaw inertia J, wheel spin inertia."""
+        p = self.params
+        bodies = [(p.chassis.mass, p.chassis.yaw_inertia, np.asarray(p.chassis.com[:2], float))]
+        if p.payload is not None and p.payload.mass > 0.0:
+            bodies.append((p.payload.mass, p.payload.yaw_inertia, np.asarray(p.payload.com[:2], float)))
+        for sigma in (1.0, -1.0):
+            bodies.append((p.wheel_mass, p.diametral_inertia, np.array([0.0, sigma * p.half_track])))
+        self._m = sum(b[0] for b in bodies)
+        self._S = sum(b[0] * b[2] for b in bodies)
+        self._J = sum(b[1] + b[0] * float(b[2] @ b[2]) for b in bodies)
+        self._Is = p.wheel_spin_inertia + self._armature[[_IL, _IR]]
+
+    # -- state -----------------------------------------------------------------------------
+    def split(self, y):
+        """Views ``(q, v)`` of the state vector (nv each)."""
+        return y[:self.nv], y[self.nv:2 * self.nv]
+
+    def currents_state(self, y):
+        """The current states (n_current,) (A); empty when every motor has L = 0."""
+        return y[2 * self.nv:]
+
+    def initial_state(self, q0=None, v0=None, i0=None):
+        """State vector from q0 (nv,), v0 (nv,) (zeros by default) and currents i0 (n_current,).
+
+        Raises ValueError when v0 violates the rolling constraints (D4) (the message gives the
+        wheel rates that would roll without slip).
+        """
+        y = np.zeros(self.ny)
+        if q0 is not None:
+            y[:self.nv] = q0
+        if v0 is not None:
+            y[self.nv:2 * self.nv] = v0
+        if i0 is not None:
+            y[2 * self.nv:] = i0
+        q, v = self.split(y)
+        K, _ = self.constraint_jacobian(q, v)
+        e = K @ v
+        if np.abs(e).max() > INITIAL_STATE_TOL * (1.0 + np.abs(v).max()):
+            th = q[_ITH]
+            vf = np.cos(th) * v[_IX] + np.sin(th) * v[_IY]
+            rw, rc = self.params.wheel_radius, self.params.half_track
+            raise ValueError(
+                f'initial velocity violates rolling without slip (residual {np.abs(e).max():.3g} m/s): lateral '
+                f'speed must be 0 and the wheel rates must be φ̇_l = {(vf - rc * v[_ITH]) / rw:.6g}, '
+                f'φ̇_r = {(vf + rc * v[_ITH]) / rw:.6g} rad/s for this chassis velocity')
+        return y
+
+    def project(self, y):
+        """Mass-orthogonal projection of the velocities onto ``K(q) v = 0`` (in place)."""
+        q, v = self.split(y)
+        K, _ = self.constraint_jacobian(q, v)
+        if np.abs(K @ v).max() > 0.0:
+            M, _ = self.mass_and_bias(q, v, bias=False)
+            c = cho_factor(M)
+            MinvKt = cho_solve(c, K.T)
+            dl = np.linalg.lstsq(K @ MinvKt, K @ v, rcond=KKT_RCOND)[0]
+            y[self.nv:2 * self.nv] = v - MinvKt @ dl
+        return y
+
+    # -- dynamics ----------------------------------------------------------------------------
+    def planar_mass_matrix(self, theta):
+        """First-principles mass matrix (D3) of the platform without an articulated arm (5, 5)."""
+        c, s = np.cos(theta), np.sin(theta)
+        RES = np.array([c * -self._S[1] - s * self._S[0], s * -self._S[1] + c * self._S[0]])  # R E S
+        M = np.zeros((5, 5))
+        M[0, 0] = M[1, 1] = self._m
+        M[0:2, 2] = M[2, 0:2] = RES
+        M[2, 2] = self._J
+        M[3, 3], M[4, 4] = self._Is
+        return M
+
+    def mass_and_bias(self, q, v, bias=True):
+        """``(M (nv, nv), h (nv,))``: (D3) without an arm, CRBA/RNEA with one (+ rotor inertia)."""
+        if not self.has_arm:
+            M = self.planar_mass_matrix(q[_ITH])
+            if not bias:
+                return M, None
+            c, s = np.cos(q[_ITH]), np.sin(q[_ITH])
+            h = np.zeros(5)
+            h[0:2] = -v[_ITH] ** 2 * np.array([c * self._S[0] - s * self._S[1], s * self._S[0] + c * self._S[1]])
+            return M, h
+        M = dyn.crba(self.model, q) + np.diag(self._armature)
+        return M, (dyn.bias_forces(self.model, q, v) if bias else None)
+
+    def constraint_jacobian(self, q, v):
+        """``(K (4, nv), K̇ v (4,))`` of the rolling constraints (D4), rows [long_l, lat_l, long_r, lat_r]."""
+        rw, rc = self.params.wheel_radius, self.params.half_track
+        c, s = np.cos(q[_ITH]), np.sin(q[_ITH])
+        K = np.zeros((4, self.nv))
+        K[0, [_IX, _IY, _ITH, _IL]] = (c, s, -rc, -rw)
+        K[1, [_IX, _IY]] = (-s, c)
+        K[2, [_IX, _IY, _ITH, _IR]] = (c, s, rc, -rw)
+        K[3, [_IX, _IY]] = (-s, c)
+        vf = c * v[_IX] + s * v[_IY]
+        vy = -s * v[_IX] + c * v[_IY]
+        w = v[_ITH]
+        return K, np.array([w * vy, -w * vf, w * vy, -w * vf])
+
+    def electrical(self, y, u):
+        """Motor quantities at state y: ``(v_applied (2,), i (2,), torque on the wheels (2,))``."""
+        _, v = self.split(y)
+        volts = np.array([mot.applied_voltage(x) for mot, x in zip(self.motors, u['wheel_voltage'])], dtype=float)
+        w = v[[_IL, _IR]]
+        i = np.empty(2)
+        ic = self.currents_state(y)
+        for k, mot in enumerate(self.motors):
+            i[k] = ic[self._cur.index(k)] if mot.has_current_state else mot.current(volts[k], w[k])
+        tau = np.array([mot.output_torque(i[k], w[k]) for k, mot in enumerate(self.motors)])
+        return volts, i, tau
+
+    def generalized_forces(self, y, u, tau_wheels=None):
+        """Applied generalised forces (nv,): motor torques on the wheels, arm efforts, arm damping."""
+        _, v = self.split(y)
+        if tau_wheels is None:
+            tau_wheels = self.electrical(y, u)[2]
+        Q = dyn.passive_forces(self.model, v)
+        Q[[_IL, _IR]] += tau_wheels
+        if self.B.shape[1]:
+            Q += self.B @ u['effort']
+        return Q
+
+    def solve(self, y, u, electrical=None):
+        """Constrained accelerations and ground forces at state y.
+
+        Returns ``(a (nv,), λ (4,) = [F_long_l, F_lat_l, F_long_r, F_lat_r] (N), SolveInfo)`` of
+        ``M a = Q − h + Kᵀ λ``, ``K a = −K̇ v − α K v`` (see the module docstring).
+        """
+        q, v = self.split(y)
+        if electrical is None:
+            electrical = self.electrical(y, u)
+        M, h = self.mass_and_bias(q, v)
+        K, Kdv = self.constraint_jacobian(q, v)
+        k = baumgarte_rhs(-Kdv, phidot=K @ v, alpha=self.params.baumgarte_alpha)
+        return kkt_solve(M, self.generalized_forces(y, u, electrical[2]) - h, K, k)
+
+    def rhs(self, t, y, u):
+        """``[q̇; v̇; di/dt]``."""
+        _, v = self.split(y)
+        el = self.electrical(y, u)
+        a, _, _ = self.solve(y, u, el)
+        out = np.empty(self.ny)
+        out[:self.nv] = v
+        out[self.nv:2 * self.nv] = a
+        volts, i, _ = el
+        w = v[[_IL, _IR]]
+        for n, k in enumerate(self._cur):
+            out[2 * self.nv + n] = self.motors[k].current_rate(volts[k], i[k], w[k])
+        return out
+
+    # -- outputs -----------------------------------------------------------------------------
+    def contact_wrenches(self, y, u, a, lam):
+        """Joint and contact wrenches ``{name: (frame, (6,) [torque; force])}`` (module docstring).
+
+        a, lam: accelerations and multipliers from :meth:`solve`. The contact forces enter the
+        RNEA as external forces on the wheels, so the joint wrenches see them.
+        """
+        q, v = self.split(y)
+        m = self.model
+        R, p = dyn.body_poses(m, q)
+        th = q[_ITH]
+        heading = np.array([np.cos(th), np.sin(th), 0.0])
+        left = np.array([-np.sin(th), np.cos(th), 0.0])
+        f_ext = np.zeros((m.nb, 6))
+        out = {}
+        for k, (side, b) in enumerate(zip(SIDES, self._wheels)):
+            F_long, F_lat = lam[2 * k], lam[2 * k + 1]
+            F = F_long * heading + F_lat * left
+            r = np.array([0.0, 0.0, -self.params.wheel_radius])  # contact point - wheel centre (odom)
+            f_ext[b, :3] = R[b].T @ np.cross(r, F)
+            f_ext[b, 3:] = R[b].T @ F
+            out[f'{side}_wheel_contact'] = (f'{side}_wheel_contact', np.array([0.0, 0.0, 0.0, F_long, F_lat, 0.0]))
+        _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
+        for i in range(m.nb):
+            jn = m.joint_names[i]
+            if jn in ('base_x', 'base_y'):
+                continue
+            out['base_plane' if jn == 'base_yaw' else jn] = (m.link_names[i], f[i].copy())
+        return out
+
+    def outputs(self, t, y, u, wrenches=True):
+        """Joint states (wheels first), odometry, motor diagnostics and (optionally) wrenches."""
+        q, v = self.split(y)
+        el = self.electrical(y, u)
+        volts, i, tau = el
+        w = v[[_IL, _IR]]
+        arm_effort = (self.B @ u['effort'])[self._arm_idx] if self.B.shape[1] else np.zeros(len(self._arm_idx))
+        effort = np.concatenate([tau, arm_effort])
+        th = q[_ITH]
+        c, s = np.cos(th), np.sin(th)
+        odom = {'position': np.array([q[_IX], q[_IY], 0.0]),
+                'orientation': np.array([0.0, 0.0, np.sin(0.5 * th), np.cos(0.5 * th)]),
+                'linear': np.array([c * v[_IX] + s * v[_IY], -s * v[_IX] + c * v[_IY], 0.0]),
+                'angular': np.array([0.0, 0.0, v[_ITH]])}
+        K, _ = self.constraint_jacobian(q, v)
+        extra = {}
+        for k, side in enumerate(SIDES):
+            mot = self.motors[k]
+            extra[f'{side}_motor_voltage'] = float(volts[k])
+            extra[f'{side}_motor_current'] = float(i[k])
+            extra[f'{side}_motor_power'] = float(volts[k] * i[k])
+            extra[f'{side}_motor_torque'] = float(tau[k])
+            extra[f'{side}_motor_friction_loss'] = float(mot.friction_loss(w[k]))
+        extra['electrical_power'] = float(volts @ i)
+        extra['copper_loss'] = float(sum(mot.resistance * x * x for mot, x in zip(self.motors, i)))
+        extra['voltage_saturated'] = bool(np.any(volts != np.asarray(u['wheel_voltage'], dtype=float)))
+        extra['constraint_residual'] = float(np.abs(K @ v).max())
+        wr = {}
+        if wrenches:
+            a, lam, info = self.solve(y, u, el)
+            wr = self.contact_wrenches(y, u, a, lam)
+            extra['constraint_rank'] = int(info.rank)
+        energy = self.energies(y)
+        return SystemOutputs(joint_names=list(self.joint_names), position=q[self._pub_idx].copy(),
+                             velocity=v[self._pub_idx].copy(), effort=effort, wrenches=wr, odom=odom,
+                             energy=energy, extra=extra)
+
+    # -- energy ------------------------------------------------------------------------------
+    def energies(self, y):
+        """``{'kinetic', 'potential', 'magnetic'}`` (J); kinetic includes the rotor inertia."""
+        q, v = self.split(y)
+        M, _ = self.mass_and_bias(q, v, bias=False)
+        ic = self.currents_state(y)
+        mag = sum(0.5 * self.motors[k].inductance * ic[n] ** 2 for n, k in enumerate(self._cur))
+        pot = dyn.potential_energy(self.model, q) if self.has_arm else 0.0
+        return {'kinetic': 0.5 * float(v @ M @ v), 'potential': float(pot), 'magnetic': float(mag)}
+
+    def total_energy(self, y):
+        """Kinetic + gravitational (arm) + magnetic energy (J); the chassis height is constant."""
+        return float(sum(self.energies(y).values()))
+
+    def input_power(self, t, y, u):
+        """``Σ (v i − R i² − friction loss)`` + arm effort power − arm damping (W)."""
+        _, v = self.split(y)
+        volts, i, _ = self.electrical(y, u)
+        w = v[[_IL, _IR]]
+        P = sum(mot.input_power(volts[k], i[k], w[k]) for k, mot in enumerate(self.motors))
+        P += float(v @ dyn.passive_forces(self.model, v))
+        if self.B.shape[1]:
+            P += float(v @ (self.B @ u['effort']))
+        return float(P)
+
+    def fastest_time_constant(self, y):
+        """Fastest time constant (s): the electrical ``L/R`` of motors with L > 0, and the
+        mechanical ones of the constrained motion under the back-EMF (L = 0), friction-slope and
+        joint damping (generalised eigenvalues of the reduced damping and mass matrices)."""
+        q, v = self.split(y)
+        taus = [mot.electrical_time_constant for mot in self.motors if mot.has_current_state]
+        D = np.diag(self.model.damping.astype(float))
+        for k, (mot, j) in enumerate(zip(self.motors, (_IL, _IR))):
+            D[j, j] += mot.friction_slope(v[j]) + (0.0 if mot.has_current_state else mot.electrical_damping())
+        K, _ = self.constraint_jacobian(q, v)
+        C, _ = null_space_basis(K)
+        M, _ = self.mass_and_bias(q, v, bias=False)
+        mu = eigh(C.T @ D @ C, C.T @ M @ C, eigvals_only=True)
+        if mu.max() > 0.0:
+            taus.append(1.0 / mu.max())
+        return float(min(taus)) if taus else float('inf')
+
+    def urdf(self):
+        """URDF rooted at base_link (chassis, payload, wheels, contact frames, arm)."""
+        return to_urdf(self.urdf_model)
