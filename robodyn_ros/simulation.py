@@ -256,16 +256,21 @@ class Simulator:
         return {'energy': E, 'energy0': self.diag.energy0, 'work': self.diag.work, 'drift': drift,
                 'relative_drift': drift / scale}
 
-    def diagnostics_values(self) -> dict:
-        """Flat name -> value map for the ``diagnostics`` topic."""
+    def diagnostics_values(self, wall_clock: bool = False) -> dict:
+        """Flat name -> value map for the ``diagnostics`` topic.
+
+        wall_clock: include figures that depend on the machine's speed (compute real-time
+        factor). Off for headless recordings, so that equal runs give byte-identical files.
+        """
         e = self.energy_report()
         d = self.diag
-        rtf = d.sim_time / d.wall if d.wall > 0 else float('nan')
         vals = {'sim_time': self.t, 'energy': e['energy'], 'energy_drift': e['drift'],
                 'energy_drift_relative': e['relative_drift'], 'work_in': e['work'],
-                'steps': d.steps, 'rhs_evals': d.rhs_evals, 'rejected_steps': d.rejected_steps,
-                'real_time_factor_compute': rtf, 'rejected_commands': self.rejected_commands,
-                'integrator': self.settings['integrator']}
+                'steps': d.steps, 'rhs_evals': d.rhs_evals,
+                'rejected_steps': 'unknown' if d.rejected_steps is None else d.rejected_steps,
+                'rejected_commands': self.rejected_commands, 'integrator': self.settings['integrator']}
+        if wall_clock:
+            vals['real_time_factor_compute'] = d.sim_time / d.wall if d.wall > 0 else float('nan')
         for k, p in self.ports.items():
             vals[f'{k}_timed_out'] = p.timed_out
         vals.update(d.extra)
