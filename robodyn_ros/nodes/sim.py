@@ -1,0 +1,617 @@
+"""``sim``: the simulation node, a thin adapter between ROS topics/parameters and the Simulator.
+
+Run it as ``sim --ros-args -p scene:=stanford_arm -p mode:=lockstep -p record:=run.mcap`` (or
+``ros2 run robodyn_ros sim ...``). Interface (GUIDE §2, all names relative to the namespace
+except ``/clock``): one command subscription per input port of the scene's system
+(``effort_commands``, ``wheel_voltage_commands``, ``base_wrench_command``); publishes
+``joint_states``, ``odom`` (systems with a base), ``constraint_wrenches/<joint>``,
+``robot_description`` (transient local), ``/clock``, ``diagnostics``; services ``~/reset``
+(std_srvs/Trigger) and ``~/pause`` (std_srvs/SetBool). Parameters: see :data:`PARAMETERS`.
+
+Time is cut into control periods of ``1 / publish_rate`` seconds. A period is: scripted
+commands (if any), ``Simulator.advance`` to the period's end, outputs, publish (and record). A
+command received from a topic is applied at the current simulation time, i.e. at a period
+boundary, in every mode; that is what makes every recording re-simulate exactly
+(``robodyn resim``). Modes differ only in *when* periods run:
+
+- ``realtime``: whenever simulation time lags wall time x ``rate_factor`` (catching up after a
+  slow period, re-anchoring if more than ``max_lag`` s behind);
+- ``max``: back to back, answering callbacks every :data:`MAX_MODE_SLICE` s of wall time;
+- ``lockstep``: one period per received command message, then publish (deterministic: the
+  trajectory does not depend on the machine's speed).
+"""
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import messages as M
+from ..simulation import CommandError, SimulationError, Simulator
+from .ports import command_topics, command_values
+
+NODE_NAME = 'robodyn_sim'
+MODES = ('realtime', 'max', 'lockstep')
+#: wall seconds of simulation work between executor spins in ``max`` mode (service latency)
+MAX_MODE_SLICE = 0.01
+#: wall seconds between spins when there is nothing to simulate (paused, failed, lockstep idle)
+IDLE_SPIN = 0.05
+#: wall seconds between re-sends of the initial state to new subscribers in lockstep (see README)
+LOCKSTEP_RESEND_PERIOD = 0.1
+#: wall seconds between diagnostics while simulation time stands still (paused, failed, idle)
+IDLE_DIAGNOSTICS_PERIOD = 1.0
+#: wall seconds between throttled repeats of the same warning or error
+LOG_THROTTLE = 2.0
+
+#: name -> (default, description); '' / 0 defaults mean "the scene's simulation setting"
+PARAMETERS = {
+    'scene': ('stanford_arm', 'bundled scene name or path to a scene YAML file'),
+    'integrator': ('', "integrator name (rk4, dop853, ...); '' = the scene's"),
+    'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
+    'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
+    'atol': (0.0, "absolute tolerance of error-controlled integrators; 0 = the scene's or the default"),
+    'publish_rate': (0.0, "control and publication rate (Hz); one period = 1/publish_rate; 0 = the scene's"),
+    'mode': ('realtime', 'realtime, max (as fast as possible) or lockstep (one period per command)'),
+    'rate_factor': (1.0, 'realtime mode: simulated seconds per wall second'),
+    'max_lag': (0.25, 'realtime mode: wall seconds behind schedule after which the node stops catching up'),
+    'command_timeout': (0.5, 'simulated seconds without a command after which inputs go to zero; 0 = never'),
+    'duration': (0.0, 'simulated seconds to run, then exit; 0 = until shut down'),
+    'record': ('', "MCAP file to record to; '' = no recording"),
+    'scripted_commands': (False, "use the scene's scripted commands instead of the command topics"),
+    'initial_positions': (None, "initial joint positions (nq values; unset = the scene's)"),
+    'initial_velocities': (None, "initial joint velocities (nv values; unset = the scene's)"),
+    'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
+    'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
+}
+
+
+class ConfigError(ValueError):
+    """An invalid parameter value; the message names the parameter and what is accepted."""
+
+
+@dataclass
+class Config:
+    """Validated node parameters (see :data:`PARAMETERS`); scene settings already merged."""
+
+    scene: str
+    integrator: str
+    dt: float | None
+    rtol: float | None
+    atol: float | None
+    publish_rate: float
+    mode: str
+    rate_factor: float
+    max_lag: float
+    command_timeout: float | None
+    duration: float
+    record: str
+    scripted_commands: bool
+    diagnostics_period: float
+    y0: np.ndarray
+
+    def settings(self, namespace: str) -> dict:
+        """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
+        return {'integrator': self.integrator, 'dt': self.dt, 'rtol': self.rtol, 'atol': self.atol,
+                'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
+                'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
+                'scripted_commands': self.scripted_commands, 'namespace': namespace,
+                'y0': [float(x) for x in self.y0]}
+
+
+def _number(name, v, positive=False, minimum=None) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ConfigError(f'parameter {name!r} must be a finite number, got {v!r}')
+    if positive and v <= 0:
+        raise ConfigError(f'parameter {name!r} must be > 0, got {v!r}')
+    if minimum is not None and v < minimum:
+        raise ConfigError(f'parameter {name!r} must be >= {minimum}, got {v!r}')
+    return float(v)
+
+
+def _vector(name, v, n, what) -> np.ndarray:
+    if not isinstance(v, (list, tuple)) or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
+        raise ConfigError(f'parameter {name!r} must be a list of numbers ({what}), got {v!r}')
+    if len(v) != n:
+        raise ConfigError(f'parameter {name!r} needs {n} values ({what}), got {len(v)}')
+    arr = np.array(v, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(f'parameter {name!r} must be finite, got {v!r}')
+    return arr
+
+
+def resolve_config(p: dict, scene) -> Config:
+    """Validate raw parameter values ``p`` (name -> value) against ``scene``; scene defaults fill gaps.
+
+    Raises :class:`ConfigError` naming the parameter. The integrator settings are resolved like
+    ``robodyn run`` does (:func:`robodyn_ros.cli.run.resolve_settings`), so a node run and a
+    headless run of the same scene use the same defaults.
+    """
+    from argparse import Namespace
+
+    from ..cli.run import resolve_settings
+    from ..integrators import INTEGRATORS
+    if not isinstance(p['integrator'], str):
+        raise ConfigError(f"parameter 'integrator' must be a string, got {p['integrator']!r}")
+    if p['integrator'] and p['integrator'].lower() not in INTEGRATORS:
+        raise ConfigError(f"parameter 'integrator': unknown integrator {p['integrator']!r}; "
+                          f"valid names: {', '.join(INTEGRATORS)}")
+    opt = {k: (_number(k, p[k], minimum=0.0) or None) for k in ('dt', 'rtol', 'atol', 'publish_rate')}
+    st = resolve_settings(scene, Namespace(integrator=p['integrator'].lower() or None, dt=opt['dt'],
+                                           rtol=opt['rtol'], atol=opt['atol'], rate=opt['publish_rate'],
+                                           duration=None))
+    kind = INTEGRATORS[st['integrator']].kind
+    dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
+    mode = p['mode']
+    if mode not in MODES:
+        raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
+    if not isinstance(p['scripted_commands'], bool):
+        raise ConfigError(f"parameter 'scripted_commands' must be true or false, got {p['scripted_commands']!r}")
+    if p['scripted_commands'] and mode == 'lockstep':
+        raise ConfigError("scripted_commands needs mode realtime or max: lockstep advances on received commands")
+    if p['scripted_commands'] and scene.script is None:
+        raise ConfigError(f'scripted_commands: scene {scene.name!r} has no scripted commands')
+    if not isinstance(p['record'], str):
+        raise ConfigError(f"parameter 'record' must be a file path string, got {p['record']!r}")
+    timeout = _number('command_timeout', p['command_timeout'], minimum=0.0)
+    system = scene.system
+    y0 = np.array(scene.y0, dtype=float)
+    names = getattr(system, 'joint_names', None)
+    joints = ', '.join(names) if names else 'configuration coordinates'
+    if p['initial_positions'] is not None:
+        y0[:system.nq] = _vector('initial_positions', p['initial_positions'], system.nq, joints)
+    if p['initial_velocities'] is not None:
+        nv = getattr(system, 'nv', None)
+        if nv is None:
+            raise ConfigError(f"parameter 'initial_velocities': {type(system).__name__} does not say how many "
+                              f"velocities it has; set 'initial_state' ({system.ny} values) instead")
+        y0[system.nq:system.nq + nv] = _vector('initial_velocities', p['initial_velocities'], nv, joints)
+    if p['initial_state'] is not None:
+        y0 = _vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
+    return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol,
+                  publish_rate=float(st['rate']), mode=mode,
+                  rate_factor=_number('rate_factor', p['rate_factor'], positive=True),
+                  max_lag=_number('max_lag', p['max_lag'], positive=True),
+                  command_timeout=timeout or None,
+                  duration=_number('duration', p['duration'], minimum=0.0),
+                  record=p['record'], scripted_commands=p['scripted_commands'],
+                  diagnostics_period=_number('diagnostics_period', p['diagnostics_period'], positive=True),
+                  y0=y0)
+
+
+def _finite_outputs(out) -> bool:
+    """True when everything about to be published is finite."""
+    arrays = [out.position, out.velocity, out.effort] + [w for _, w in out.wrenches.values()]
+    if out.odom is not None:
+        arrays += [np.asarray(v, dtype=float) for v in out.odom.values()]
+    return all(np.all(np.isfinite(a)) for a in arrays)
+
+
+def _episode_path(path: str, episode: int) -> str:
+    """Recording file of the ``episode``-th reset: ``run.mcap`` -> ``run-1.mcap``, ..."""
+    if episode == 0:
+        return path
+    root, ext = os.path.splitext(path)
+    return f'{root}-{episode}{ext or ".mcap"}'
+
+
+def _import_msg(type_name: str):
+    """The rclpy message class of ``pkg/msg/Type``."""
+    import importlib
+    pkg, _, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+
+
+def make_node_class():
+    """Build the node class (rclpy is imported here, so importing this module needs no ROS)."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_srvs.srv import SetBool, Trigger
+
+    class SimNode(Node):
+        """The simulation node; construction validates parameters and loads the scene.
+
+        Drive it with :meth:`work` between executor spins (see :func:`main`); :attr:`finished`
+        turns True when ``duration`` is reached; :meth:`close` finishes the recording.
+        """
+
+        def __init__(self, **kwargs):
+            super().__init__(NODE_NAME, **kwargs)
+            from ..scene import load_scene
+            raw = {}
+            for name, (default, text) in PARAMETERS.items():
+                desc = ParameterDescriptor(description=text, dynamic_typing=True)
+                raw[name] = self.declare_parameter(name, default, desc).value
+            if not isinstance(raw['scene'], str) or not raw['scene']:
+                raise ConfigError(f"parameter 'scene' must be a scene name or path, got {raw['scene']!r}")
+            self.scene = load_scene(raw['scene'])
+            self.cfg = cfg = resolve_config(raw, self.scene)
+            self.namespace = self.get_namespace()
+            try:
+                self.sim = Simulator(self.scene.system, cfg.y0, integrator=cfg.integrator, dt=cfg.dt,
+                                     rtol=cfg.rtol, atol=cfg.atol, command_timeout=cfg.command_timeout)
+            except (ValueError, SimulationError) as e:
+                raise ConfigError(f'cannot build the simulator: {e}') from None
+            self.period = 1.0 / cfg.publish_rate   # s of simulation time per control period
+            self.paused = False
+            self.finished = False
+            self.episode = 0
+            self.recorders = []       # every McapRunSink opened (one per episode)
+            self.recorder = None
+            self._timed_out_warned = set()
+            self._wall_start = time.monotonic()
+            self._start_period_clock()
+
+            # -- publishers: state topics known from one output at the initial state
+            out0 = self.sim.outputs(wrenches=True)
+            self.pub = {'joint_states': self._publisher('joint_states'),
+                        '/clock': self._publisher('/clock'),
+                        'diagnostics': self._publisher('diagnostics')}
+            if out0.odom is not None:
+                self.pub['odom'] = self._publisher('odom')
+            self.wrench_pubs = {}
+            for name in out0.wrenches:
+                topic = M.WRENCH_PREFIX + name
+                self.wrench_pubs[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
+            self.pub.update(self.wrench_pubs)
+            latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                                 reliability=ReliabilityPolicy.RELIABLE)
+            self.description = M.string(self.scene.system.urdf())
+            self.pub['robot_description'] = self.create_publisher(
+                _import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description', latched)
+
+            # -- command subscriptions, one per input port (none with scripted commands)
+            self.subs = []
+            if not cfg.scripted_commands:
+                for port, (topic, type_name) in command_topics(self.scene.system).items():
+                    self.subs.append(self.create_subscription(
+                        _import_msg(type_name), topic, lambda msg, port=port: self._on_command(port, msg), 10))
+
+            self.create_service(Trigger, '~/reset', self._on_reset)
+            self.create_service(SetBool, '~/pause', self._on_pause)
+
+            # -- start: description, recording, initial state at t0
+            self.pub['robot_description'].publish(M.fill(self.pub['robot_description'].msg_type(),
+                                                         self.description))
+            self._open_recording()
+            self._commanded = False     # lockstep: a command has arrived since the last (re)start
+            # lockstep: joint_states subscriber count at the last (re)send of the initial state; 0 so
+            # that a subscriber matched just after the first publication still gets the state
+            self._resend_subs = 0
+            self._next_resend = 0.0
+            self._next_idle_diag = time.monotonic() + IDLE_DIAGNOSTICS_PERIOD
+            self._publish_outputs(self.sim.outputs(wrenches=self._wrenches_wanted()))
+            self.get_logger().info(
+                f'scene {self.scene.name}: {cfg.integrator} '
+                + (f'dt={cfg.dt:g} s' if cfg.dt else f'rtol={cfg.rtol:g} atol={cfg.atol:g}')
+                + f', {cfg.publish_rate:g} Hz, mode {cfg.mode}'
+                + (f' x{cfg.rate_factor:g}' if cfg.mode == 'realtime' else '')
+                + (', scripted commands' if cfg.scripted_commands else
+                   f', commands on {", ".join(t for t, _ in command_topics(self.scene.system).values())}')
+                + (f', recording to {self.recorder.path}' if self.recorder else ''))
+
+        # -- set-up helpers -------------------------------------------------------------------
+        def _publisher(self, topic):
+            return self.create_publisher(_import_msg(M.TOPIC_TYPES[topic]), topic, 10)
+
+        def _start_period_clock(self):
+            """(Re)start the period counter at the current simulation time and the realtime anchor."""
+            self.t_start = self.sim.t
+            self.k = 0
+            self._anchor_wall = time.monotonic()
+            self._anchor_sim = self.sim.t
+            self._rtf_wall, self._rtf_sim = self._anchor_wall, self.sim.t
+            self.rtf = float('nan')
+            self._next_diag = self.sim.t
+
+        def _open_recording(self):
+            if not self.cfg.record:
+                return
+            from ..recording.run_sink import McapRunSink
+            path = _episode_path(self.cfg.record, self.episode)
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            self.recorder = McapRunSink(path, self.scene, self.cfg.settings(self.namespace),
+                                        record_wrenches=True, diagnostics_period=self.cfg.diagnostics_period,
+                                        namespace=self.namespace.strip('/'))
+            self.recorders.append(self.recorder)
+            self.recorder.on_start(self.sim)
+
+        def _record(self, topic, type_name, msg, t_ns):
+            """Write one published message dict to the recording (same dict as published)."""
+            from ..recording.run_sink import resolve
+            r = self.recorder
+            r.writer.write(resolve(topic, r.namespace), type_name, msg, t_ns)
+            r.count += 1
+
+        def _wrenches_wanted(self) -> bool:
+            return self.recorder is not None or any(p.get_subscription_count() for p in self.wrench_pubs.values())
+
+        # -- commands -------------------------------------------------------------------------
+        def _on_command(self, port, msg):
+            """A command message: validate, hold (zero-order) and record; in lockstep run one period."""
+            try:
+                values = command_values(port, msg)
+                self.sim.set_command(port, values)
+            except CommandError as e:
+                if 'frame_id' in str(e):
+                    self.sim.ports[port].rejected += 1
+                self.get_logger().error(f'command rejected ({self.sim.rejected_commands} so far), last valid '
+                                        f'command stays: {e}', throttle_duration_sec=LOG_THROTTLE)
+            else:
+                self._timed_out_warned.discard(port)
+                if self.recorder is not None:
+                    self.recorder.on_command(self.sim.t, port, self.sim.ports[port].value)
+            if self.cfg.mode == 'lockstep':
+                self._commanded = True
+                if self._can_advance():
+                    self._run_period()
+
+        def _apply_script(self):
+            for port, values in self.scene.script(self.sim.t, self.sim.y).items():
+                self.sim.set_command(port, values)
+                if self.recorder is not None:
+                    self.recorder.on_command(self.sim.t, port, self.sim.ports[port].value)
+
+        # -- one control period ---------------------------------------------------------------
+        def _can_advance(self) -> bool:
+            return not (self.paused or self.finished or self.sim.failed)
+
+        def _run_period(self) -> bool:
+            """Scripted commands, advance one period, publish; False (and failed) on a simulation error."""
+            sim = self.sim
+            try:
+                if self.cfg.scripted_commands:
+                    self._apply_script()
+                # same arithmetic as run_headless, so period ends are bit-identical to a headless run
+                sim.advance(self.t_start + (self.k + 1) / self.cfg.publish_rate)
+                out = sim.outputs(wrenches=self._wrenches_wanted())
+                if not _finite_outputs(out):
+                    sim.failed = f'non-finite outputs at t={sim.t:.6f} s; nothing published'
+                    raise SimulationError(sim.failed)
+            except (SimulationError, CommandError) as e:
+                self._fail(e)
+                return False
+            self.k += 1
+            self._warn_timeouts()
+            self._publish_outputs(out)
+            if self.cfg.duration and sim.t - self.t_start >= self.cfg.duration - 0.5 * self.period:
+                self.finished = True
+            return True
+
+        def _warn_timeouts(self):
+            for port, p in self.sim.ports.items():
+                if p.timed_out and port not in self._timed_out_warned:
+                    self._timed_out_warned.add(port)
+                    self.get_logger().warning(
+                        f'no {M.PORT_TOPICS.get(port, port)} for {self.cfg.command_timeout:g} s of simulation '
+                        f'time: {port} set to zero until the next command', throttle_duration_sec=LOG_THROTTLE)
+
+        def _fail(self, err):
+            """Stop advancing: log the cause and the last good state, publish an ERROR diagnostic."""
+            sim = self.sim
+            if not sim.failed:
+                sim.failed = str(err)
+            np.set_printoptions(precision=17)
+            self.get_logger().error(
+                f'simulation stopped at t={sim.t:.6f} s: {err}; last good state y={sim.y.tolist()}; '
+                f'still serving ~/reset and ~/pause')
+            self._publish_diagnostics(record=True)
+
+        # -- publication ----------------------------------------------------------------------
+        def _send(self, topic, type_name, msg, t_ns):
+            pub = self.pub.get(topic)
+            if pub is not None and pub.get_subscription_count():
+                pub.publish(M.fill(pub.msg_type(), msg))
+            if self.recorder is not None:
+                self._record(topic, type_name, msg, t_ns)
+
+        def _publish_outputs(self, out):
+            """State messages, /clock and (every diagnostics_period) diagnostics of one period."""
+            t_ns = M.to_ns(self.sim.t)
+            for topic, type_name, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches)):
+                self._send(topic, type_name, msg, t_ns)
+            self._send('/clock', M.TOPIC_TYPES['/clock'], M.clock(t_ns), t_ns)
+            self._last_extra = out.extra
+            if self.sim.t >= self._next_diag - 1e-9:
+                self._publish_diagnostics(record=True)
+                self._next_diag += self.cfg.diagnostics_period
+
+        def _status(self):
+            if self.sim.failed:
+                return 2, f'stopped: {self.sim.failed}'
+            if self.paused:
+                return 0, 'paused'
+            if self.finished:
+                return 0, 'finished'
+            lag = (self.cfg.mode == 'realtime' and math.isfinite(self.rtf)
+                   and self.rtf < 0.95 * self.cfg.rate_factor)
+            timed_out = [p for p, s in self.sim.ports.items() if s.timed_out]
+            if lag:
+                return 1, f'cannot keep real time: real-time factor {self.rtf:.3f} < {self.cfg.rate_factor:g}'
+            if timed_out:
+                return 1, f'command timeout: {", ".join(timed_out)} held at zero'
+            return 0, 'running'
+
+        def _publish_diagnostics(self, record: bool):
+            """Diagnostics of the simulator, the system's extra values and the node (rate, mode)."""
+            now = time.monotonic()
+            if now > self._rtf_wall:
+                if self.sim.t > self._rtf_sim:
+                    self.rtf = (self.sim.t - self._rtf_sim) / (now - self._rtf_wall)
+                self._rtf_wall, self._rtf_sim = now, self.sim.t
+            values = self.sim.diagnostics_values()
+            values.update(getattr(self, '_last_extra', {}) or {})
+            values.update({'mode': self.cfg.mode, 'rate_factor_target': self.cfg.rate_factor,
+                           'real_time_factor': self.rtf,
+                           'real_time_factor_overall': ((self.sim.t - self._anchor_sim) /
+                                                        max(now - self._anchor_wall, 1e-9)),
+                           'publish_rate': self.cfg.publish_rate, 'paused': self.paused,
+                           'episode': self.episode})
+            level, message = self._status()
+            t_ns = M.to_ns(self.sim.t)
+            msg = M.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message, values)
+            pub = self.pub['diagnostics']
+            pub.publish(M.fill(pub.msg_type(), msg))
+            if record and self.recorder is not None:
+                self._record('diagnostics', M.TOPIC_TYPES['diagnostics'], msg, t_ns)
+            self._next_idle_diag = now + IDLE_DIAGNOSTICS_PERIOD
+
+        # -- services -------------------------------------------------------------------------
+        def _on_reset(self, request, response):
+            """Back to the initial state at time 0; the recording continues in a new file."""
+            self.sim.reset()
+            self._timed_out_warned.clear()
+            self.finished = False
+            if self.recorder is not None:
+                self.recorder.close()
+                self.episode += 1
+                self._open_recording()
+            else:
+                self.episode += 1
+            self._start_period_clock()
+            self._commanded = False
+            self._resend_subs = 0
+            self._publish_outputs(self.sim.outputs(wrenches=self._wrenches_wanted()))
+            response.success = True
+            response.message = (f'reset to the initial state at t={self.sim.t:g} s'
+                                + (f'; recording continues in {self.recorder.path}' if self.recorder else ''))
+            self.get_logger().info(response.message)
+            return response
+
+        def _on_pause(self, request, response):
+            """Pause (data=true) or resume (false) simulation time; commands are still held."""
+            was = self.paused
+            self.paused = bool(request.data)
+            if was and not self.paused:
+                self._anchor_wall, self._anchor_sim = time.monotonic(), self.sim.t
+                self._rtf_wall, self._rtf_sim = self._anchor_wall, self.sim.t
+                if self.cfg.mode == 'lockstep':
+                    self._resend_state()
+            response.success = True
+            response.message = f'{"paused" if self.paused else "running"} at t={self.sim.t:g} s'
+            self.get_logger().info(response.message)
+            self._publish_diagnostics(record=False)
+            return response
+
+        def _resend_state(self):
+            """Publish the current state again (not recorded: same time, same bytes) for new listeners."""
+            if self.sim.failed:
+                return
+            out = self.sim.outputs(wrenches=bool(self.wrench_pubs) and self._wrenches_wanted())
+            t_ns = M.to_ns(self.sim.t)
+            for topic, _type, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches)):
+                pub = self.pub.get(topic)
+                if pub is not None:
+                    pub.publish(M.fill(pub.msg_type(), msg))
+            self.pub['/clock'].publish(M.fill(self.pub['/clock'].msg_type(), M.clock(t_ns)))
+
+        # -- the loop body ----------------------------------------------------------------------
+        def work(self) -> float:
+            """Run the periods that are due now; return how long (s) the executor may wait for callbacks."""
+            now = time.monotonic()
+            if now >= self._next_idle_diag:
+                self._publish_diagnostics(record=False)
+            if not self._can_advance():
+                return IDLE_SPIN
+            mode = self.cfg.mode
+            if mode == 'lockstep':
+                if not self._commanded and now >= self._next_resend:
+                    # until the first command, (re)send the initial state to each new subscriber
+                    n = self.pub['joint_states'].get_subscription_count()
+                    if n > self._resend_subs:
+                        self._resend_state()
+                    self._resend_subs = n
+                    self._next_resend = now + LOCKSTEP_RESEND_PERIOD
+                return IDLE_SPIN
+            if mode == 'max':
+                while time.monotonic() - now < MAX_MODE_SLICE:
+                    if not self._run_period() or self.finished:
+                        break
+                return 0.0
+            # realtime: simulation time follows wall time x rate_factor from the anchor
+            rf = self.cfg.rate_factor
+            while True:
+                now = time.monotonic()
+                target = self._anchor_sim + (now - self._anchor_wall) * rf
+                next_end = self.t_start + (self.k + 1) / self.cfg.publish_rate
+                if next_end > target:
+                    return min(max((next_end - target) / rf, 0.0), IDLE_SPIN)
+                if (target - next_end) / rf > self.cfg.max_lag:
+                    self.get_logger().warning(
+                        f'{(target - next_end) / rf:.3f} s behind real time x{rf:g}; skipping ahead '
+                        '(lower rate_factor or publish_rate, or use mode max)',
+                        throttle_duration_sec=LOG_THROTTLE)
+                    self._anchor_wall = now - (self.t_start + self.k / self.cfg.publish_rate - self._anchor_sim) / rf
+                if not self._run_period() or self.finished:
+                    return 0.0
+
+        # -- shutdown ---------------------------------------------------------------------------
+        def close(self) -> str:
+            """Finish the recording; return the run summary (``robodyn run`` format)."""
+            from ..cli.run import summary
+            for r in self.recorders:
+                r.close()
+            wall = time.monotonic() - self._wall_start
+            st = {'integrator': self.cfg.integrator, 'dt': self.cfg.dt, 'rtol': self.cfg.rtol,
+                  'atol': self.cfg.atol}
+            record = self.recorder.path if self.recorder else None
+            return summary(self.scene, self.sim, st, wall, record, self.recorders)
+
+    return SimNode
+
+
+class _Stop:
+    """SIGINT/SIGTERM flag: the loop finishes the current period, then shuts down cleanly.
+
+    A second signal raises KeyboardInterrupt at once (the ``finally`` still closes the file).
+    """
+
+    def __init__(self):
+        self.requested = False
+
+    def __call__(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+
+def main(args=None) -> int:
+    """Entry point of the ``sim`` console script; returns the exit status (2 = bad parameters)."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from ..scene import SceneError
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = _Stop()
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
+    node, status = None, 0
+    try:
+        node = make_node_class()()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        wait = 0.0
+        while not stop.requested and not node.finished:
+            executor.spin_once(timeout_sec=wait)
+            wait = node.work()
+    except (ConfigError, SceneError) as e:
+        print(f'sim: {e}', file=sys.stderr)
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            print(node.close(), flush=True)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
