@@ -480,8 +480,85 @@ def build_prescribed_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     return Part(name=arm.name, kind='prescribed_arm', mount=arm.mount, system=system, path=path)
 
 
+_FREE_BASE_REQUIRED = ('kind', 'name', 'environment', 'mass', 'inertia')
+_FREE_BASE_OPTIONAL = ('link', 'joint', 'com', 'formulation', 'table_height', 'stabilisation')
+
+
+def build_free_base_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build a ``free_base`` part: a 6-DOF platform (seed 003), alone or carrying arms mounted on it.
+
+    Keys: ``environment: orbit | air_bearing_table`` (orbit needs ``gravity: [0, 0, 0]``, the
+    table gravity along -z); ``mass`` (kg), ``com`` (3,) m and ``inertia`` about the com
+    (base_link axes); ``link`` (default base_link), ``joint`` (the free joint, default
+    base_joint); ``formulation: minimal | augmented`` (default minimal); ``table_height`` (m,
+    default the initial height); ``stabilisation: {method: baumgarte | projection | none,
+    alpha, beta}`` (1/s). An arm part with ``mount: <this part's name>`` hangs from ``link``.
+    """
+    from .systems import freeflyer as ff
+    from .systems.augmented import AugmentedFreeFlyerSystem
+    ctx.mapping(spec, path, required=_FREE_BASE_REQUIRED, optional=_FREE_BASE_OPTIONAL)
+    name = ctx.string(spec['name'], _key(path, 'name'))
+    env = ctx.string(spec['environment'], _key(path, 'environment'))
+    if env not in ff.ENVIRONMENTS:
+        ctx.fail(_key(path, 'environment'), f'unknown environment {env!r}; use {" or ".join(ff.ENVIRONMENTS)}')
+    if env == 'orbit' and np.any(ctx.gravity != 0.0):
+        ctx.fail('gravity', f'environment orbit needs gravity: [0, 0, 0], got {ctx.gravity.tolist()}')
+    if env == 'air_bearing_table' and not (ctx.gravity[2] < 0.0 and np.allclose(ctx.gravity[:2], 0.0)):
+        ctx.fail('gravity', f'the air-bearing table is horizontal: gravity must point along -z, got {ctx.gravity.tolist()}')
+    form = ctx.string(spec.get('formulation', 'minimal'), _key(path, 'formulation'))
+    if form not in ff.FORMULATIONS:
+        ctx.fail(_key(path, 'formulation'), f'unknown formulation {form!r}; use {" or ".join(ff.FORMULATIONS)}')
+    inert = _inertial(ctx, {k: spec[k] for k in ('mass', 'com', 'inertia') if k in spec}, path)
+    spath = _key(path, 'stabilisation')
+    st = ctx.mapping(spec.get('stabilisation', {}), spath, optional=('method', 'alpha', 'beta'))
+    method = ctx.string(st.get('method', 'baumgarte'), _key(spath, 'method'))
+    if method not in ff.STABILISATIONS:
+        ctx.fail(_key(spath, 'method'), f'unknown method {method!r}; use {", ".join(ff.STABILISATIONS)}')
+    opts = {k: ctx.number(st[k], _key(spath, k), minimum=0.0) for k in ('alpha', 'beta') if k in st}
+    if 'table_height' in spec:
+        if env != 'air_bearing_table':
+            ctx.fail(_key(path, 'table_height'), 'only an air_bearing_table environment has a table height')
+        opts['table_height'] = ctx.number(spec['table_height'], _key(path, 'table_height'))
+    base = LinkSpec(name=ctx.string(spec.get('link', 'base_link'), _key(path, 'link')),
+                    joint=ctx.string(spec.get('joint', 'base_joint'), _key(path, 'joint')), parent=None,
+                    joint_type='free', mass=inert['mass'], com=tuple(inert.get('com', np.zeros(3))),
+                    inertia=inert['inertia'])
+    cls = AugmentedFreeFlyerSystem if form == 'augmented' else ff.FreeFlyerSystem
+    try:
+        model = ff.free_flyer_model(base, [], gravity=ctx.gravity, name=name)
+        system = cls(model, environment=env, stabilisation=method, **opts)
+    except (ModelError, ValueError) as e:
+        ctx.fail(path, str(e))
+    return Part(name=name, kind='free_base', mount='world', system=system, path=path)
+
+
+def _assemble_free_base(ctx: SceneContext, parts: list):
+    """A free base and the arm parts mounted on it -> one free-flyer system."""
+    bases = [p for p in parts if p.kind == 'free_base']
+    if len(bases) != 1:
+        ctx.fail(_key(bases[1].path, 'kind'), 'a scene can have one free_base part')
+    fb = bases[0]
+    arms = [p for p in parts if p is not fb]
+    link = fb.system.base_link
+    specs, actuated = [], []
+    for p in arms:
+        if p.kind != 'arm' or p.mount != fb.name:
+            ctx.fail(_key(p.path, 'mount'), f"with a free_base part every other part must be an 'arm' with "
+                                             f"mount: {fb.name}")
+        if p.system.model.root != link:
+            ctx.fail(_key(p.path, 'root'), f'the arm must hang from the free base link {link!r}, '
+                                            f'its root is {p.system.model.root!r}')
+        specs += list(p.system.model.specs)
+        actuated += list(p.system.actuated)
+    try:
+        return fb.system.with_arm(specs, actuated=actuated) if arms else fb.system
+    except (ModelError, ValueError) as e:
+        ctx.fail(fb.path, str(e))
+
+
 #: part kind -> builder(spec, path, ctx) -> Part
-PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': build_prescribed_arm_part}
+PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': build_prescribed_arm_part,
+                                   'free_base': build_free_base_part}
 
 
 def _assemble(ctx: SceneContext, parts: list) -> object:
@@ -490,6 +567,8 @@ def _assemble(ctx: SceneContext, parts: list) -> object:
     For now a scene is one part mounted on the world; composing parts (an arm on a
     differential-drive platform or on a free-flying base) is added here by later work.
     """
+    if any(p.kind == 'free_base' for p in parts):
+        return _assemble_free_base(ctx, parts)
     if len(parts) != 1:
         ctx.fail('parts', f'a scene of {len(parts)} parts needs a composition of '
                           f'{[p.kind for p in parts]} that is not available yet; use one part')
@@ -573,8 +652,10 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
     ctx.mapping(params, path, required=('profile', 'amplitude', 'frequency_hz'),
                 optional=('phase', 'stiffness', 'center'))
     model = getattr(system, 'model', None)
-    if port != 'effort' or model is None or not hasattr(system, 'B') or model.nq != model.nv:
-        ctx.fail(_key(path, 'profile'), "gravity_compensation_sine needs the 'effort' port of a fixed-base arm")
+    if port != 'effort' or model is None or not hasattr(system, 'B') or \
+            (model.nq != model.nv and not hasattr(system, 'minimal')):
+        ctx.fail(_key(path, 'profile'), "gravity_compensation_sine needs the 'effort' port of a fixed-base arm "
+                                        "or of a free-flyer (which maps its state to minimal coordinates)")
     n = system.inputs[port].size
     what = f'values (one per {port} input)'
     A, w, phase = _sine_parts(params, path, ctx, n, port)
@@ -588,10 +669,12 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
         center = np.zeros(n)
     zeros = np.zeros(model.nv)
     BT = system.B.T
+    Bq = getattr(system, 'Bq', BT)  # actuated joint positions = Bq q (= Bᵀ q when q and v share indices)
+    minimal = getattr(system, 'minimal', None)
 
     def f(t, y):
-        q, _ = system.split(y)
-        return BT @ dyn.rnea(model, q, zeros, zeros) + K * (center - BT @ q) + A * np.sin(w * t + phase)
+        q = minimal(y)[0] if minimal is not None else system.split(y)[0]
+        return BT @ dyn.rnea(model, q, zeros, zeros) + K * (center - Bq @ q) + A * np.sin(w * t + phase)
     return f
 
 
@@ -644,8 +727,9 @@ def _initial_state(ctx: SceneContext, v, system) -> np.ndarray:
     model = getattr(system, 'model', None)
     names = getattr(system, 'joint_names', None)
     what_q = f'values (one per joint: {", ".join(names)})' if names else 'values'
-    q0 = ctx.vector(v['q'], 'initial_state.q', system.nq, what_q) if 'q' in v else None
-    v0 = ctx.vector(v['v'], 'initial_state.v', system.nv, what_q) if 'v' in v else None
+    nq0, nv0 = getattr(system, 'initial_state_sizes', (system.nq, system.nv))  # augmented: minimal q, v
+    q0 = ctx.vector(v['q'], 'initial_state.q', nq0, what_q) if 'q' in v else None
+    v0 = ctx.vector(v['v'], 'initial_state.v', nv0, what_q) if 'v' in v else None
     if q0 is not None and model is not None:
         for i in range(model.nb):
             s = model.specs[i]

@@ -130,6 +130,7 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
         self.nq = 4 + self.nj + 3 * nb
         self.nv = self.nr + 3 * nb
         self.ny = self.nq + self.nv
+        self.initial_state_sizes = (model.nq, model.nv)  # initial_state() takes minimal coordinates
         self.m = np.empty(nb)
         self.com = np.empty((nb, 3))
         self.Ic = np.empty((nb, 3, 3))

@@ -197,6 +197,8 @@ class _FreeBaseCommon(System):
         self.environment = environment
         self.table = environment == 'air_bearing_table'
         self.table_height = None if table_height is None else float(table_height)
+        self._height0 = self.table_height
+        self._gains = (alpha, beta)
         self.stabilisation = stabilisation
         self.alpha, self.beta = (float(alpha), float(beta)) if stabilisation != 'none' else (0.0, 0.0)
         self.base_link = model.link_names[0]
@@ -210,8 +212,10 @@ class _FreeBaseCommon(System):
         self.n_arm = len(self.joint_names)
         dof_index = {n: k for k, n in enumerate(self.joint_names)}
         self.B = np.zeros((model.nv, len(actuated)))  # tau = B u on the minimal v (6 base + arm)
+        self.Bq = np.zeros((len(actuated), model.nq))  # actuated joint positions = Bq q (minimal q)
         for k, n in enumerate(actuated):
             self.B[6 + dof_index[n], k] = 1.0
+            self.Bq[k, 7 + dof_index[n]] = 1.0
         units = ['N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated]
         self.inputs = {'effort': InputPort('effort', len(actuated), tuple(actuated), '/'.join(sorted(set(units))) or '-'),
                        'base_wrench': InputPort('base_wrench', 6, BASE_WRENCH_LABELS, 'N/N·m')}
@@ -221,6 +225,22 @@ class _FreeBaseCommon(System):
         self.last_info = con.SolveInfo(0, 0, np.inf, np.inf)
 
     # -- shared helpers ------------------------------------------------------------------
+    @property
+    def options(self) -> dict:
+        """The constructor options of this system (environment, table height, stabilisation, gains)."""
+        return {'environment': self.environment, 'table_height': self._height0, 'stabilisation': self.stabilisation,
+                'alpha': self._gains[0], 'beta': self._gains[1]}
+
+    def with_arm(self, arm_specs, actuated=None, name=None):
+        """The same free base (class, environment, options) carrying the arm ``arm_specs``.
+
+        arm_specs: LinkSpecs whose root parent is this system's base link (or None); actuated:
+        driven joints (default all); name: model name (default this model's).
+        """
+        model = free_flyer_model(self.model.specs[0], arm_specs, gravity=self.model.gravity,
+                                 name=name or self.model.name, world=self.model.root)
+        return type(self)(model, actuated=actuated, **self.options)
+
     def arm_torques(self, u, thetadot):
         """Applied plus passive arm joint forces ``B_arm u − D θ̇`` (n_arm,)."""
         return (self.B @ u['effort'])[6:] - self.model.damping[6:] * thetadot
@@ -265,6 +285,7 @@ class FreeFlyerSystem(_FreeBaseCommon):
         super().__init__(model, **kw)
         self.nq, self.nv = model.nq, model.nv
         self.ny = self.nq + self.nv
+        self.initial_state_sizes = (model.nq, model.nv)
         self.has_constraints = self.table
         self.n_constraints = 3 if self.table else 0
 
