@@ -244,6 +244,7 @@ def make_node_class():
             self.recorders = []       # every McapRunSink opened (one per episode)
             self.recorder = None
             self._timed_out_warned = set()
+            self._last_logged = {}
             self._wall_start = time.monotonic()
             self._start_period_clock()
 
@@ -340,8 +341,8 @@ def make_node_class():
             except CommandError as e:
                 if 'frame_id' in str(e):
                     self.sim.ports[port].rejected += 1
-                self.get_logger().error(f'command rejected ({self.sim.rejected_commands} so far), last valid '
-                                        f'command stays: {e}', throttle_duration_sec=LOG_THROTTLE)
+                self._log_throttled('error', str(e), f'command rejected ({self.sim.rejected_commands} so far), '
+                                                     f'last valid command stays: {e}')
             else:
                 self._timed_out_warned.discard(port)
                 if self.recorder is not None:
@@ -382,6 +383,20 @@ def make_node_class():
             if self.cfg.duration and sim.t - self.t_start >= self.cfg.duration - 0.5 * self.period:
                 self.finished = True
             return True
+
+        def _log_throttled(self, level: str, key: str, text: str):
+            """Log ``text`` unless the same ``key`` was logged less than LOG_THROTTLE s ago.
+
+            Throttled per message rather than per call site, so a NaN command is still reported
+            right after a wrong-length one.
+            """
+            now = time.monotonic()
+            if now - self._last_logged.get(key, -math.inf) < LOG_THROTTLE:
+                return
+            if len(self._last_logged) > 100:
+                self._last_logged.clear()
+            self._last_logged[key] = now
+            getattr(self.get_logger(), level)(text)
 
         def _warn_timeouts(self):
             for port, p in self.sim.ports.items():
@@ -438,13 +453,16 @@ def make_node_class():
             return 0, 'running'
 
         def _publish_diagnostics(self, record: bool):
-            """Diagnostics of the simulator, the system's extra values and the node (rate, mode)."""
+            """Diagnostics of the simulator, the system's extra values and the node (rate, mode).
+
+            record: also record it (the regular ones every diagnostics_period of simulation time,
+            and state changes); the real-time factor window spans two regular ones.
+            """
             now = time.monotonic()
-            if now > self._rtf_wall:
-                if self.sim.t > self._rtf_sim:
-                    self.rtf = (self.sim.t - self._rtf_sim) / (now - self._rtf_wall)
+            if record and now > self._rtf_wall and self.sim.t > self._rtf_sim:
+                self.rtf = (self.sim.t - self._rtf_sim) / (now - self._rtf_wall)
                 self._rtf_wall, self._rtf_sim = now, self.sim.t
-            values = self.sim.diagnostics_values()
+            values = self.sim.diagnostics_values(wall_clock=True)
             values.update(getattr(self, '_last_extra', {}) or {})
             values.update({'mode': self.cfg.mode, 'rate_factor_target': self.cfg.rate_factor,
                            'real_time_factor': self.rtf,
@@ -514,11 +532,11 @@ def make_node_class():
         def work(self) -> float:
             """Run the periods that are due now; return how long (s) the executor may wait for callbacks."""
             now = time.monotonic()
-            if now >= self._next_idle_diag:
-                self._publish_diagnostics(record=False)
+            mode = self.cfg.mode
+            if now >= self._next_idle_diag and (mode == 'lockstep' or not self._can_advance()):
+                self._publish_diagnostics(record=False)   # simulation time stands still: say why
             if not self._can_advance():
                 return IDLE_SPIN
-            mode = self.cfg.mode
             if mode == 'lockstep':
                 if not self._commanded and now >= self._next_resend:
                     # until the first command, (re)send the initial state to each new subscriber
