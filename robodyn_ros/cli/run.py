@@ -33,7 +33,7 @@ def resolve_settings(scene, args) -> dict:
            'duration': args.duration if args.duration is not None else s.get('duration', 10.0)}
     from ..integrators import INTEGRATORS
     spec = INTEGRATORS.get(out['integrator'])
-    if spec is not None and getattr(spec, 'adaptive', False):
+    if spec is not None and spec.kind == 'adaptive':
         out['rtol'] = out['rtol'] if out['rtol'] is not None else 1e-8
         out['atol'] = out['atol'] if out['atol'] is not None else 1e-10
     return out
