@@ -28,6 +28,8 @@ def add_parser(sub):
                    help='replay only these topics (recorded names, e.g. /joint_states); /clock always follows')
     p.add_argument('--delay', type=float, default=0.5,
                    help='wall seconds to wait for subscribers to connect before the first message')
+    p.add_argument('--wait-subscribers', action='store_true',
+                   help='start as soon as every replayed topic has a subscriber (waiting at most --delay s)')
     return p
 
 
@@ -93,6 +95,8 @@ def main(args) -> int:
         clock_pub = pubs.get('/clock') or node.create_publisher(msg_class(M.TOPIC_TYPES['/clock']), '/clock', 10)
         end = time.monotonic() + args.delay
         while time.monotonic() < end:
+            if args.wait_subscribers and all(p.get_subscription_count() for p in pubs.values()):
+                break
             rclpy.spin_once(node, timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
         wall0, t0, last_clock = time.monotonic(), None, None
         for topic, type_name, t_ns, raw in read_raw_messages(args.input, topics=set(chosen)):
