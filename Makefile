@@ -15,8 +15,11 @@ $(STAMP): constraints.txt setup.py package.xml
 
 venv: $(STAMP)
 
+# the sim node on stanford_arm with its scripted commands, 10 s of simulation as fast as possible,
+# recorded; it prints the run summary on exit (same format as `robodyn run`)
 run: $(STAMP)
-	$(VENV)/bin/robodyn run stanford_arm --duration 10 --record runs/stanford_arm.mcap
+	$(VENV)/bin/sim --ros-args -p scene:=stanford_arm -p scripted_commands:=true -p mode:=max \
+	  -p duration:=10.0 -p record:=runs/stanford_arm.mcap
 
 test: $(STAMP)
 	$(PY) -m pytest -q

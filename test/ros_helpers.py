@@ -7,7 +7,6 @@ test runs on this machine never share a domain, and discovery limited to localho
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
 import os
 import signal
@@ -15,55 +14,12 @@ import subprocess
 import sys
 import time
 
-LOCK_DIR = os.path.join('/tmp', f'robodyn_ros_domains.{os.getuid()}')
+from robodyn_ros.nodes.probe import DISCOVERY_ENV, Domain, Probe, sim_command  # noqa: F401
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DISCOVERY_ENV = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'RCUTILS_COLORIZED_OUTPUT': '0',
-                 'PYTHONUNBUFFERED': '1'}
 # the test process itself talks ROS too: same discovery settings as the nodes it starts
 for _k, _v in DISCOVERY_ENV.items():
     os.environ.setdefault(_k, _v)
-
-
-class Domain:
-    """An exclusively claimed ROS_DOMAIN_ID; release() (or process exit) frees it."""
-
-    def __init__(self):
-        os.makedirs(LOCK_DIR, exist_ok=True)
-        start = (os.getpid() * 7919 + int(time.monotonic() * 1000)) % 100
-        for k in range(100):
-            did = (start + k) % 100 + 1
-            fd = os.open(os.path.join(LOCK_DIR, f'{did}.lock'), os.O_CREAT | os.O_RDWR, 0o644)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                os.close(fd)
-                continue
-            self.id, self._fd = did, fd
-            return
-        raise RuntimeError('no free ROS domain id in 1..100')
-
-    def env(self) -> dict:
-        """Environment for a subprocess in this domain."""
-        return dict(os.environ, ROS_DOMAIN_ID=str(self.id), **DISCOVERY_ENV)
-
-    def release(self):
-        if self._fd is not None:
-            os.close(self._fd)
-            self._fd = None
-
-
-def ros_args(params: dict) -> list:
-    """``--ros-args -p k:=v ...`` with YAML-formatted values."""
-    out = ['--ros-args']
-    for k, v in params.items():
-        if isinstance(v, bool):
-            v = 'true' if v else 'false'
-        elif isinstance(v, (list, tuple)):
-            v = '[' + ','.join(repr(float(x)) for x in v) + ']'
-        elif isinstance(v, str) and v == '':
-            v = "''"
-        out += ['-p', f'{k}:={v}']
-    return out
 
 
 class Proc:
@@ -81,6 +37,9 @@ class Proc:
 
     def alive(self) -> bool:
         return self.p.poll() is None
+
+    def poll(self):
+        return self.p.poll()
 
     def wait(self, timeout) -> int:
         return self.p.wait(timeout=timeout)
@@ -110,10 +69,7 @@ class Proc:
 
 def start_sim(domain: Domain, params: dict, log_path, namespace=None) -> Proc:
     """Start the sim node (``python -m robodyn_ros.nodes.sim``) with parameters in ``domain``."""
-    cmd = [sys.executable, '-m', 'robodyn_ros.nodes.sim'] + ros_args(params)
-    if namespace:
-        cmd += ['-r', f'__ns:={namespace}']
-    return Proc(cmd, domain.env(), log_path)
+    return Proc(sim_command(params, namespace), domain.env(), log_path)
 
 
 def start_pd(domain: Domain, log_path, **kw) -> Proc:
@@ -124,38 +80,8 @@ def start_pd(domain: Domain, log_path, **kw) -> Proc:
     return Proc(cmd, domain.env(), log_path)
 
 
-class RosClient:
-    """An rclpy context, node and executor of the test process in ``domain``."""
-
-    _count = 0
-
-    def __init__(self, domain: Domain, name='test_client'):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        self.rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain.id)
-        RosClient._count += 1
-        self.node = rclpy.create_node(f'{name}_{os.getpid()}_{RosClient._count}', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, pred, timeout: float, proc: Proc | None = None) -> bool:
-        """Spin until ``pred()`` is true (True) or ``timeout`` s pass (False); stop early if proc died."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if pred():
-                return True
-            if proc is not None and not proc.alive():
-                return bool(pred())
-            self.executor.spin_once(timeout_sec=0.02)
-        return bool(pred())
-
-    def spin_for(self, seconds: float):
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.02)
+class RosClient(Probe):
+    """The test process's rclpy context, node and executor in a domain, plus a service call."""
 
     def call(self, srv_type, name, request, timeout=10.0):
         """Call a service and return its response (raises on timeout)."""
@@ -169,11 +95,6 @@ class RosClient:
             return fut.result()
         finally:
             self.node.destroy_client(cli)
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.context)
 
 
 def diag_values(msg) -> dict:

@@ -1,0 +1,96 @@
+"""Benchmark of the sim node: real-time factor in ``max`` mode, command latency in ``lockstep``.
+
+:func:`bench_node` starts the node in a subprocess on a private ROS domain (discovery limited to
+this machine) with a probe node in this process, and returns table rows; it prints nothing.
+
+- real-time factor: ``stanford_arm``, RK4 at dt = 1 ms (1 kHz), mode ``max``, no commands (the
+  arm moves under gravity; the scene's scripted gravity compensation would add its own cost),
+  ``joint_states`` at 1000 Hz and at 100 Hz with one subscriber (the probe) attached so that
+  messages are really built and published (the node skips building messages for topics
+  nobody subscribes to); the figure is simulated time / wall time of the run as the node's exit
+  summary reports it (process start-up and scene loading excluded).
+- latency: mode ``lockstep``; wall time from publishing one ``effort_commands`` message to
+  receiving the ``joint_states`` it produced (one control period of integration included),
+  at publish_rate 100 Hz (10 RK4 steps per period) and 1000 Hz (1 step): median and 95th
+  percentile over ``n`` round trips.
+"""
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import tempfile
+import numpy as np
+
+SCENE = 'stanford_arm'
+#: RK4 at 1 kHz (the node benchmark figure of the issue)
+INTEGRATOR = {'integrator': 'rk4', 'dt': 0.001}
+_SUMMARY_TIME = re.compile(r'simulated ([0-9.]+) s in ([0-9.]+) s wall')
+
+
+def _max_mode_rtf(publish_rate: float, duration: float) -> dict:
+    """One max-mode run with a joint_states subscriber; returns the row."""
+    from ..nodes.probe import Domain, Probe, start_sim
+    dom = Domain()
+    probe = Probe(dom, 'robodyn_bench')
+    received = []
+    probe.subscribe_count('joint_states', received)
+    with tempfile.TemporaryFile() as log:
+        proc = start_sim(dom, {'scene': SCENE, 'mode': 'max', 'command_timeout': 0.0,
+                               'publish_rate': float(publish_rate), 'duration': float(duration), **INTEGRATOR},
+                         stdout=log)
+        try:
+            probe.spin_until(lambda: proc.poll() is not None, 60 + 20 * duration)
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            probe.close()
+            dom.release()
+        log.seek(0)
+        text = log.read().decode('utf-8', 'replace')
+    m = _SUMMARY_TIME.search(text)
+    if not m:
+        raise RuntimeError(f'sim node did not print its summary:\n{text[-2000:]}')
+    sim_t, wall = float(m.group(1)), float(m.group(2))
+    return {'figure': 'real-time factor', 'mode': 'max', 'publish_rate_hz': publish_rate,
+            'value': round(sim_t / wall, 3), 'unit': 'x real time',
+            'notes': f'{SCENE}, rk4 dt=1 ms, {sim_t:g} s simulated in {wall:.2f} s, '
+                     f'{len(received)} joint_states received by one subscriber'}
+
+
+def _lockstep_latency(publish_rate: float, n: int) -> dict:
+    """Round trips command -> joint_states against a lockstep node; returns the row."""
+    from ..nodes.probe import Domain, Probe, start_sim
+    dom = Domain()
+    probe = Probe(dom, 'robodyn_bench')
+    proc = start_sim(dom, {'scene': SCENE, 'mode': 'lockstep', 'publish_rate': float(publish_rate), **INTEGRATOR})
+    try:
+        lat = np.array(probe.lockstep_latency(n, [0.0] * 6, timeout=90.0)) * 1e3
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        probe.close()
+        dom.release()
+    steps = int(round(1.0 / publish_rate / INTEGRATOR['dt']))
+    return {'figure': 'command -> joint_states latency', 'mode': 'lockstep', 'publish_rate_hz': publish_rate,
+            'value': round(float(np.median(lat)), 3), 'unit': 'ms (median)',
+            'notes': f'p95 {np.percentile(lat, 95):.3f} ms, min {lat.min():.3f} ms over {n} round trips; '
+                     f'includes {steps} rk4 step{"s" if steps > 1 else ""} of {SCENE}'}
+
+
+def bench_node(duration: float = 5.0, round_trips: int = 300) -> list:
+    """Rows ``{figure, mode, publish_rate_hz, value, unit, notes}`` of the node benchmark.
+
+    duration: simulated seconds of each max-mode run; round_trips: lockstep commands per
+    latency figure. Takes about ``2 x duration / rtf + round_trips x latency + 4 x startup``.
+    """
+    return [_max_mode_rtf(1000.0, duration), _max_mode_rtf(100.0, duration),
+            _lockstep_latency(100.0, round_trips), _lockstep_latency(1000.0, round_trips)]
