@@ -132,6 +132,7 @@ class Simulator:
         if self._y0.shape != (self.system.ny,) or not np.all(np.isfinite(self._y0)):
             raise SimulationError(f'initial state must be {self.system.ny} finite numbers, got {self._y0!r}')
         self.t = self._t0
+        self.system.reset_episode()
         self.y = self.system.project(self._y0.copy())
         self.ports = {k: CommandPort(np.zeros(p.size)) for k, p in self.system.inputs.items()}
         self.diag = Diagnostics(energy0=self.system.total_energy(self.y))

@@ -68,6 +68,10 @@ class System:
         """Project y back onto its manifold (renormalise quaternions); identity by default."""
         return y
 
+    def reset_episode(self) -> None:
+        """A new episode starts (Simulator construction and reset): clear once-per-episode state
+        such as warnings already issued; nothing by default."""
+
     def outputs(self, t: float, y: np.ndarray, u: dict, wrenches: bool = True) -> SystemOutputs:
         """Everything published about state y; ``wrenches=False`` skips the wrench solve."""
         raise NotImplementedError
