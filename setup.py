@@ -32,7 +32,9 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ] + _config_files(),
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap'],
+    # numba: compiled kernels (robodyn_ros.kernels); pip-only (no rosdep key), optional at run time:
+    # without it ArmSystem falls back to the numpy reference kernels
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'numba'],
     extras_require={
         'test': ['pytest', 'pin', 'mujoco', 'mcap-ros2-support', 'rosbags',
                  'colcon-common-extensions', 'matplotlib'],

@@ -1,11 +1,25 @@
 """A fixed-base articulated arm (any tree of revolute/prismatic/fixed joints), torque driven."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from .. import dynamics as dyn
+from .. import kernels
 from ..model import PRISMATIC, REVOLUTE, Model
 from .base import InputPort, System, SystemOutputs
+
+
+BACKENDS = ('numpy', 'numba')
+
+
+def default_backend() -> str:
+    """``'numba'`` when the compiled kernels are importable, else ``'numpy'`` (env ``ROBODYN_BACKEND``)."""
+    env = os.environ.get('ROBODYN_BACKEND', '').lower()
+    if env in BACKENDS:
+        return env if env == 'numpy' or kernels.AVAILABLE else 'numpy'
+    return 'numba' if kernels.AVAILABLE else 'numpy'
 
 
 class ArmSystem(System):
@@ -13,9 +27,20 @@ class ArmSystem(System):
 
     model: the kinematic tree; actuated: names of the driven joints (default: every 1-DOF
     joint); the others are passive (zero effort) but still damped by the model's damping.
+    backend: ``'numpy'`` (the reference kernels of :mod:`robodyn_ros.dynamics`) or ``'numba'``
+    (the compiled :mod:`robodyn_ros.kernels`, equal to 1e-12, plus :meth:`fused_advance`);
+    default :func:`default_backend`.
     """
 
-    def __init__(self, model: Model, actuated=None):
+    def __init__(self, model: Model, actuated=None, backend=None):
+        backend = default_backend() if backend is None else str(backend).lower()
+        if backend not in BACKENDS:
+            raise ValueError(f'unknown backend {backend!r}; valid: {", ".join(BACKENDS)}')
+        if backend == 'numba' and not kernels.AVAILABLE:
+            raise ValueError(f'backend numba unavailable: {kernels.UNAVAILABLE_REASON}')
+        self.backend = backend
+        self._km = kernels.CompiledModel(model) if backend == 'numba' else None
+        self._grids = {}
         self.model = model
         self.nq, self.nv = model.nq, model.nv
         self.ny = self.nq + self.nv
@@ -66,9 +91,70 @@ class ArmSystem(System):
         """``[q̇; v̇]`` with v̇ from the articulated-body algorithm."""
         q, v = self.split(y)
         out = np.empty(self.ny)
+        if self._km is not None:
+            out[:self.nq] = self._km.qdot(q, v)
+            out[self.nq:] = self._km.aba(q, v, self.generalized_forces(y, u))
+            return out
         out[:self.nq] = dyn.qdot(self.model, q, v)
         out[self.nq:] = dyn.aba(self.model, q, v, self.generalized_forces(y, u))
         return out
+
+    def inverse_dynamics(self, q, v, a):
+        """``tau = M(q) a + h(q, v)`` (nv,) by RNEA on this system's backend (e.g. for gravity compensation)."""
+        if self._km is not None:
+            return self._km.rnea(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+                                 np.ascontiguousarray(a, dtype=float))
+        return dyn.rnea(self.model, q, v, a)
+
+    def _energies(self, q, v):
+        """``(kinetic, potential)`` (J) on this system's backend."""
+        if self._km is not None:
+            return self._km.energies(q, v)
+        return dyn.kinetic_energy(self.model, q, v), dyn.potential_energy(self.model, q)
+
+    def fused_advance(self, integrator_name, dt, t0, z0, t1, u):
+        """Integrate ``z = [y, W]`` from t0 to t1 in one compiled call, or None to decline.
+
+        The Simulator's fast path for fixed-step integrators (``euler``,
+        ``semi_implicit_euler``, ``rk4``): the same method, step grid
+        (``FixedStepIntegrator.step_grid``), projection after every step and work quadrature
+        ``dW/dt = vᵀ (B u − D v)`` as ``Simulator._integrate`` with this system's ``rhs``,
+        computed by :func:`robodyn_ros.kernels.core.integrate_arm`. Declines (returns None) on
+        the numpy backend, for other integrators, and in subclasses that change the dynamics.
+        Returns ``(z1 (ny + 1,), IntegratorStats)``; raises ``IntegrationError`` like the
+        reference integrator when the state becomes non-finite.
+        """
+        from ..integrators import IntegrationError, IntegratorStats, make_integrator
+        if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact():
+            return None
+        z = np.array(z0, dtype=np.float64)
+        if z.shape != (self.ny + 1,):
+            return None
+        if not np.isfinite(z).all():
+            raise IntegrationError(integrator_name, t0, 'initial state is non-finite at components '
+                                   f'{np.flatnonzero(~np.isfinite(z))[:8].tolist()}')
+        grid = self._grids.get(dt)
+        if grid is None:
+            grid = self._grids[dt] = make_integrator('rk4', dt=dt)
+        n_full, h_last = grid.step_grid(float(t0), float(t1)) if t1 > t0 else (0, 0.0)
+        n_steps = n_full + (1 if h_last > 0.0 else 0)
+        tau_app = np.ascontiguousarray(self.B @ u['effort'], dtype=np.float64)
+        k = self._km.integrate_arm(integrator_name, z, tau_app, dt, n_full, h_last)
+        evals = 4 if integrator_name == 'rk4' else 1
+        if k >= 0:
+            t = t0 + k * dt
+            h = dt if k < n_full else h_last
+            raise IntegrationError(
+                integrator_name, t + h,
+                f'state became non-finite (components {np.flatnonzero(~np.isfinite(z))[:8].tolist()}) in the '
+                f'step from t={t:.12g} s with h={h:.6g} s; reduce dt or check the model')
+        return z, IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=1, projections=n_steps)
+
+    def _fused_exact(self) -> bool:
+        """True when this class computes dy/dt, power, projection and q̇ exactly as ArmSystem."""
+        cls = type(self)
+        return all(getattr(cls, n) is getattr(ArmSystem, n)
+                   for n in ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate'))
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states, joint wrenches (optional) and energies at state y."""
@@ -76,18 +162,21 @@ class ArmSystem(System):
         tau_cmd = self.B @ u['effort']
         w = {}
         if wrenches:
-            _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u))
+            if self._km is not None:
+                _, f = self._km.joint_wrenches(q, v, self.generalized_forces(y, u))
+            else:
+                _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u))
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
+        kin, pot = self._energies(q, v)
         return SystemOutputs(joint_names=list(self.joint_names), position=q.copy(), velocity=v.copy(),
-                             effort=tau_cmd, wrenches=w,
-                             energy={'kinetic': dyn.kinetic_energy(self.model, q, v),
-                                     'potential': dyn.potential_energy(self.model, q)})
+                             effort=tau_cmd, wrenches=w, energy={'kinetic': kin, 'potential': pot})
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""
         q, v = self.split(y)
-        return dyn.kinetic_energy(self.model, q, v) + dyn.potential_energy(self.model, q)
+        kin, pot = self._energies(q, v)
+        return kin + pot
 
     def input_power(self, t, y, u):
         """``vᵀ (B u - D v)``: actuator power minus damping dissipation (W)."""

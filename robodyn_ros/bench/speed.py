@@ -1,0 +1,560 @@
+"""``robodyn bench speed``: how fast, next to references measured in the same run.
+
+Sections (each can be skipped with ``--skip``):
+
+* ``kernels``  per-call time of inverse dynamics (RNEA), mass matrix (CRBA) and forward
+  dynamics (ABA) for every bundled scene's kinematic tree: the numpy reference, the compiled
+  kernels and Pinocchio on the exported URDF (``pin.buildModelFromXML(to_urdf(model))``), all
+  called from Python;
+* ``rtf``      real-time factor of ``--duration`` s (default 10) at 1 kHz RK4 headless (Simulator
+  + run_headless, scripted commands, joint states recorded at 100 Hz to a temporary MCAP),
+  next to a Python loop of RK4 over ``pin.aba`` and MuJoCo's RK4 (same URDF, timestep 1 ms)
+  stepped from Python (one ``mj_step`` per step, and ``mj_step(nstep=10)`` per 10 ms);
+* ``scaling``  forward dynamics of 8/16/32/64-link random chains (O(n): 64 links should cost
+  at most 10x 8 links);
+* ``memory``   peak RSS and RSS growth after warm-up of a long recorded run (``--long``: one
+  simulated hour), in a child process;
+* ``compile``  first-run cost of the compiled kernels (cold numba cache) against a warm start,
+  in child processes;
+* ``node``     the ROS node's figures from ``robodyn_ros.bench.node.bench_node()`` when present.
+
+Timings are the minimum over interleaved repeats (median in brackets where shown); they are
+figures to read, never asserted by tests.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from .timing import best_of, fmt_ratio, fmt_time, machine_line, peak_rss_bytes, per_call, rss_bytes, table
+
+HELP = 'per-call ID/M/FD, real-time factors, O(n) scaling, memory and compile cost vs Pinocchio/MuJoCo'
+SECTIONS = ('kernels', 'rtf', 'scaling', 'memory', 'compile', 'node')
+#: step and publication rate of the real-time-factor runs (issue 7: 1 kHz RK4, 100 Hz joint states)
+RTF_DT, RTF_RATE = 1e-3, 100.0
+#: simulated seconds of the numpy-reference RTF run (it is ~100x slower than the compiled one)
+REFERENCE_HORIZON = 0.5
+CHAIN_SIZES = (8, 16, 32, 64)
+
+
+def add_arguments(p):
+    """Options of the speed benchmark."""
+    p.add_argument('--out', default=None, help='also write the markdown report to this file')
+    p.add_argument('--scenes', nargs='*', default=None, help='bundled scene names (default: all)')
+    p.add_argument('--repeat', type=int, default=7, help='interleaved repeats per timing (default 7)')
+    p.add_argument('--duration', type=float, default=10.0, help='simulated seconds of the RTF runs (default 10)')
+    p.add_argument('--memory-duration', type=float, default=120.0,
+                   help='simulated seconds of the memory run (default 120; --long: 3600)')
+    p.add_argument('--long', action='store_true', help='memory run of one simulated hour')
+    p.add_argument('--quick', action='store_true', help='few repeats and short runs (a smoke test)')
+    p.add_argument('--skip', nargs='*', default=[], choices=SECTIONS, help='sections to leave out')
+    return p
+
+
+def main(args) -> int:
+    """Run the benchmark, print the markdown report, optionally write it to ``--out``."""
+    if args.quick:
+        args.repeat = min(args.repeat, 3)
+        args.duration = min(args.duration, 1.0)
+        args.memory_duration = min(args.memory_duration, 5.0)
+    if args.long:
+        args.memory_duration = 3600.0
+    parts = [f'## robodyn bench speed\n\nCommand: `robodyn bench speed {" ".join(_argv_echo(args))}`'.rstrip()
+             + f'  \nMachine: {machine_line()}\n']
+    print(parts[0], flush=True)
+    sections = [s for s in SECTIONS if s not in args.skip]
+    names = _scene_names(args.scenes)
+    for s in sections:
+        text = globals()[f'section_{s}'](args, names)
+        parts.append(text)
+        print(text + '\n', flush=True)
+    if args.out:
+        with open(args.out, 'w') as f:
+            f.write('\n\n'.join(parts) + '\n')
+    return 0
+
+
+def _argv_echo(args) -> list:
+    """The options as given (for the report heading)."""
+    out = []
+    if args.scenes:
+        out += ['--scenes'] + list(args.scenes)
+    for flag in ('quick', 'long'):
+        if getattr(args, flag):
+            out.append('--' + flag)
+    if args.skip:
+        out += ['--skip'] + list(args.skip)
+    if args.out:
+        out += ['--out', args.out]
+    return out
+
+
+def _scene_names(requested):
+    """Bundled scene names to benchmark (all of them by default)."""
+    from ..scene import list_scenes
+    names = [n for n, _ in list_scenes()]
+    if requested:
+        unknown = [n for n in requested if n not in names]
+        if unknown:
+            raise SystemExit(f'robodyn bench speed: unknown scene(s) {unknown}; bundled: {names}')
+        return list(requested)
+    return names
+
+
+@contextlib.contextmanager
+def _backend(name):
+    """Temporarily select the default ArmSystem backend (``ROBODYN_BACKEND``) for scene loading."""
+    old = os.environ.get('ROBODYN_BACKEND')
+    os.environ['ROBODYN_BACKEND'] = name
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop('ROBODYN_BACKEND', None)
+        else:
+            os.environ['ROBODYN_BACKEND'] = old
+
+
+def _load(name, backend='numba'):
+    """Load a bundled scene with ArmSystems on the given backend (warnings silenced)."""
+    import warnings
+    from ..scene import load_scene
+    with _backend(backend), warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        return load_scene(name)
+
+
+def _pin_model(model):
+    """Pinocchio model and data of the exported URDF, or ``(None, reason)``."""
+    try:
+        import pinocchio as pin
+    except ImportError:
+        return None, 'pinocchio not installed'
+    from ..model import to_urdf
+    pm = pin.buildModelFromXML(to_urdf(model))
+    return (pm, pm.createData()), ''
+
+
+def _random_state(model, rng):
+    """A random (q, v, a) valid for the model (unit quaternions for free joints)."""
+    from ..model import FREE
+    q = rng.uniform(-1.0, 1.0, size=model.nq)
+    for i in range(model.nb):
+        if model.jtype[i] == FREE:
+            s = model.q_idx[i] + 3
+            quat = rng.normal(size=4)
+            q[s:s + 4] = quat / np.linalg.norm(quat)
+    return q, rng.normal(size=model.nv), rng.normal(size=model.nv)
+
+
+# ----------------------------------------------------------------------------------------------
+# per-call kernels
+# ----------------------------------------------------------------------------------------------
+def section_kernels(args, names) -> str:
+    """Per-call ID/M/FD: numpy reference, compiled, Pinocchio."""
+    from .. import dynamics as dyn
+    from .. import kernels
+    rows = []
+    notes = []
+    for name in names:
+        try:
+            scene = _load(name)
+        except Exception as e:  # a scene that does not load is reported, not fatal
+            notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
+            continue
+        model = getattr(scene.system, 'model', None)
+        if model is None:
+            notes.append(f'{name}: no kinematic tree')
+            continue
+        rng = np.random.default_rng(0)
+        q, v, a = _random_state(model, rng)
+        km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
+        pin_md, why = _pin_model(model)
+        if pin_md is not None:
+            import pinocchio as pin
+            pm, pd = pin_md
+            qp = pin.neutral(pm) if pm.nq != model.nq else q.copy()
+            if pm.nq == model.nq and pm.nq != pm.nv:
+                qp = pin.randomConfiguration(pm, -np.ones(pm.nq), np.ones(pm.nq))
+            vp, ap = v.copy()[:pm.nv], a.copy()[:pm.nv]
+        ops = {
+            'ID': (lambda: dyn.rnea(model, q, v, a),
+                   (lambda: km.rnea(q, v, a)) if km else None,
+                   (lambda: pin.rnea(pm, pd, qp, vp, ap)) if pin_md else None),
+            'M': (lambda: dyn.crba(model, q),
+                  (lambda: km.crba(q)) if km else None,
+                  (lambda: pin.crba(pm, pd, qp)) if pin_md else None),
+            'FD': (lambda: dyn.aba(model, q, v, a),
+                   (lambda: km.aba(q, v, a)) if km else None,
+                   (lambda: pin.aba(pm, pd, qp, vp, ap)) if pin_md else None),
+        }
+        agree = {}
+        if km:
+            agree = {'ID': _rel(km.rnea(q, v, a), dyn.rnea(model, q, v, a)),
+                     'M': _rel(km.crba(q), dyn.crba(model, q)),
+                     'FD': _rel(km.aba(q, v, a), dyn.aba(model, q, v, a))}
+        for op, (f_np, f_c, f_pin) in ops.items():
+            t = per_call({'numpy': f_np, 'compiled': f_c, 'pin': f_pin}, repeat=args.repeat)
+            tn, tc, tp = (t[k][0] if t[k] else None for k in ('numpy', 'compiled', 'pin'))
+            rows.append([name, f'{model.nb}/{model.nv}', op, fmt_time(tn), fmt_time(tc), fmt_time(tp),
+                         fmt_ratio(tc, tp), fmt_ratio(tn, tc), f'{agree[op]:.1e}' if op in agree else '—'])
+        if not pin_md:
+            notes.append(f'{name}: Pinocchio column empty ({why})')
+    text = ['### Per-call time (called from Python; minimum of interleaved repeats)\n',
+            table(['scene', 'bodies/dof', 'op', 'numpy reference', 'compiled', 'Pinocchio', 'compiled / Pinocchio',
+                   'numpy / compiled', 'max rel. diff compiled vs numpy'], rows)]
+    text += ['', 'ID = RNEA, M = CRBA, FD = ABA; Pinocchio on `pin.buildModelFromXML(to_urdf(model))`, '
+             'random state (seed 0).'] + [f'- {n}' for n in notes]
+    return '\n'.join(text)
+
+
+def _rel(x, y) -> float:
+    """Largest deviation relative to the largest reference entry."""
+    y = np.asarray(y, dtype=float)
+    return float(np.abs(np.asarray(x) - y).max() / max(1.0, np.abs(y).max()))
+
+
+# ----------------------------------------------------------------------------------------------
+# real-time factor
+# ----------------------------------------------------------------------------------------------
+def run_robodyn(name, duration, record=True, backend='numba', rate=RTF_RATE, dt=RTF_DT):
+    """Wall seconds of a headless RK4 run (dt, rate) of a bundled scene, recording joint states.
+
+    Returns ``(wall, simulator)``; the Simulator and sink are built before the clock starts,
+    the sink's ``close()`` is inside the timing.
+    """
+    import warnings
+    from ..recording.run_sink import McapRunSink
+    from ..simulation import Simulator, run_headless
+    scene = _load(name, backend)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=dt)
+    with tempfile.TemporaryDirectory() as d:
+        sinks = [McapRunSink(os.path.join(d, 'bench.mcap'), scene,
+                             {'integrator': 'rk4', 'dt': dt, 'rate': rate, 'mode': 'bench'},
+                             record_wrenches=False)] if record else []
+        t0 = time.perf_counter()
+        try:
+            run_headless(sim, duration, rate, scene.script, sinks)
+        finally:
+            for s in sinks:
+                s.close()
+        return time.perf_counter() - t0, sim
+
+
+def pin_rk4_loop(pm, pd, q0, v0, damping, duration, dt=RTF_DT):
+    """A Python RK4 loop over ``pin.aba`` (fixed-base, unforced: gravity and damping only)."""
+    import pinocchio as pin
+    aba = pin.aba
+    q, v = q0.copy(), v0.copy()
+    h2, h6 = 0.5 * dt, dt / 6.0
+    for _ in range(int(round(duration / dt))):
+        a1 = aba(pm, pd, q, v, -damping * v)
+        q2, v2 = q + h2 * v, v + h2 * a1
+        a2 = aba(pm, pd, q2, v2, -damping * v2)
+        q3, v3 = q + h2 * v2, v + h2 * a2
+        a3 = aba(pm, pd, q3, v3, -damping * v3)
+        q4, v4 = q + dt * v3, v + dt * a3
+        a4 = aba(pm, pd, q4, v4, -damping * v4)
+        q = q + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4)
+        v = v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return q, v
+
+
+def mujoco_model(urdf, dt=RTF_DT):
+    """MuJoCo model of a URDF with RK4 at step dt, or ``(None, reason)``."""
+    try:
+        import mujoco
+    except ImportError:
+        return None, 'mujoco not installed'
+    # MuJoCo refuses zero principal moments (a slender bar's axial inertia): bound them at 1e-9 kg m²
+    urdf = urdf.replace('<link ', '<mujoco><compiler boundinertia="1e-9"/></mujoco>\n  <link ', 1)
+    try:
+        m = mujoco.MjModel.from_xml_string(urdf)
+    except Exception as e:  # MuJoCo's URDF importer refuses some files; say why
+        return None, f'MuJoCo cannot load the URDF ({" ".join(str(e).split())})'
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    m.opt.timestep = dt
+    return m, ''
+
+
+def mujoco_loop(m, q0, v0, duration, nstep=1, rate=RTF_RATE):
+    """Step MuJoCo from Python: ``nstep`` steps per call; reads qpos at every publication."""
+    import mujoco
+    d = mujoco.MjData(m)
+    d.qpos[:] = q0
+    d.qvel[:] = v0
+    n = int(round(duration / m.opt.timestep))
+    per_pub = max(1, int(round(1.0 / (rate * m.opt.timestep))))
+    step = mujoco.mj_step
+    if nstep == 1:
+        for k in range(n):
+            step(m, d)
+            if (k + 1) % per_pub == 0:
+                d.qpos.copy()
+    else:
+        for _ in range(n // nstep):
+            step(m, d, nstep)
+            d.qpos.copy()
+    return d
+
+
+def section_rtf(args, names) -> str:
+    """Real-time factors of the robodyn runs and the references."""
+    from ..model import to_urdf
+    from ..systems.arm import ArmSystem
+    rows, notes = [], []
+    dur = args.duration
+    for name in names:
+        try:
+            scene = _load(name)
+        except Exception as e:
+            notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
+            continue
+        try:
+            run_robodyn(name, 0.05)  # warm-up (compiled code, caches)
+            t_rec = best_of(lambda: run_robodyn(name, dur, record=True)[0], args.repeat if args.quick else 3)
+            t_norec = best_of(lambda: run_robodyn(name, dur, record=False)[0], 1 if args.quick else 3)
+            ref_h = min(REFERENCE_HORIZON, dur)
+            t_ref = best_of(lambda: run_robodyn(name, ref_h, record=True, backend='numpy')[0], 1)
+        except Exception as e:
+            notes.append(f'{name}: RK4 at {RTF_DT * 1e3:g} ms not run ({type(e).__name__}: {e})')
+            continue
+        row = [name, f'{dur / t_rec[0]:.0f} ({dur / t_rec[1]:.0f})', f'{dur / t_norec[0]:.0f}',
+               f'{ref_h / t_ref[0]:.1f}']
+        model = scene.system.model if isinstance(scene.system, ArmSystem) and \
+            type(scene.system).rhs is ArmSystem.rhs else None
+        if model is None:
+            row += ['n/a', 'n/a', 'n/a']
+            notes.append(f'{name}: {type(scene.system).__name__} has constraints/actuators the URDF does not '
+                         'carry, so no Pinocchio/MuJoCo equivalent')
+        else:
+            q0, v0 = scene.y0[:model.nq], scene.y0[model.nq:]
+            pin_md, why = _pin_model(model)
+            if pin_md is not None:
+                pm, pd = pin_md
+                t = best_of(lambda: pin_rk4_loop(pm, pd, q0, v0, model.damping, dur), 1 if args.quick else 2)
+                row.append(f'{dur / t[0]:.0f}')
+            else:
+                row.append(f'n/a ({why})')
+            m, why = mujoco_model(to_urdf(model))
+            if m is not None and m.nq == model.nq:
+                t1 = best_of(lambda: mujoco_loop(m, q0, v0, dur, 1), 1 if args.quick else 2)
+                t10 = best_of(lambda: mujoco_loop(m, q0, v0, dur, 10), 1 if args.quick else 2)
+                row += [f'{dur / t1[0]:.0f}', f'{dur / t10[0]:.0f}']
+            else:
+                why = why or f'MuJoCo model has nq={m.nq}, ours {model.nq}'
+                row += ['n/a', 'n/a']
+                notes.append(f'{name}: no MuJoCo reference ({why})')
+        rows.append(row)
+    text = [f'### Real-time factor: {dur:g} s simulated, RK4 at {RTF_DT * 1e3:g} ms, headless\n',
+            table(['scene', 'robodyn compiled + MCAP joint states 100 Hz (median)', 'robodyn compiled, no recording',
+                   f'robodyn numpy reference + MCAP ({min(REFERENCE_HORIZON, dur):g} s run)',
+                   'Python RK4 loop over pin.aba', 'MuJoCo RK4, mj_step per step from Python',
+                   'MuJoCo RK4, mj_step(nstep=10) per 10 ms'], rows),
+            '', 'RTF = simulated / wall time (higher is faster). robodyn runs: Simulator + run_headless with the '
+            "scene's scripted commands, fused compiled RK4 per 10 ms period, joint_states + /clock + commands + "
+            '1 Hz diagnostics written by McapRunSink (no wrenches). References integrate the same arm (URDF '
+            'export) unforced (gravity + damping), without recording.'] + [f'- {n}' for n in notes]
+    return '\n'.join(text)
+
+
+# ----------------------------------------------------------------------------------------------
+# O(n) scaling
+# ----------------------------------------------------------------------------------------------
+def section_scaling(args, names) -> str:
+    """Forward dynamics of random chains of 8..64 links."""
+    from .. import dynamics as dyn
+    from .. import kernels
+    from ..model import random_tree
+    rows = []
+    base = {}
+    for nb in CHAIN_SIZES:
+        model = random_tree(nb, np.random.default_rng(nb), prismatic_fraction=0.3, chain=True)
+        q, v, a = _random_state(model, np.random.default_rng(1))
+        km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
+        pin_md, _ = _pin_model(model)
+        fns = {'numpy': lambda: dyn.aba(model, q, v, a),
+               'compiled': (lambda: km.aba(q, v, a)) if km else None}
+        if km:
+            z = np.concatenate([q, v, [0.0]])
+            zero = np.zeros(model.nv)
+            n_in = 100
+            fns['in-loop'] = lambda: km.integrate_arm('euler', z.copy(), zero, 1e-6, n_in, 0.0)
+        if pin_md:
+            import pinocchio as pin
+            pm, pd = pin_md
+            fns['pin'] = lambda: pin.aba(pm, pd, q, v, a)
+        t = per_call(fns, repeat=args.repeat)
+        tt = {k: (t[k][0] if t.get(k) else None) for k in ('numpy', 'compiled', 'in-loop', 'pin')}
+        if tt['in-loop'] is not None:
+            tt['in-loop'] /= n_in
+        if nb == CHAIN_SIZES[0]:
+            base = dict(tt)
+        rows.append([nb] + [f'{fmt_time(tt[k])} (×{fmt_ratio(tt[k], base.get(k))})'
+                            for k in ('numpy', 'compiled', 'in-loop', 'pin')])
+    text = ['### O(n) scaling: forward dynamics of random chains (×: cost relative to 8 links)\n',
+            table(['links', 'numpy reference', 'compiled, from Python', 'compiled, inside the fused loop', 'Pinocchio'],
+                  rows),
+            '', 'Target: 64 links at most 10× 8 links. "inside the fused loop": one explicit-Euler step '
+            '(ABA + q̇ + power) per call of `integrate_arm`, 100 steps per call, no Python in between.']
+    return '\n'.join(text)
+
+
+# ----------------------------------------------------------------------------------------------
+# memory (child process)
+# ----------------------------------------------------------------------------------------------
+def memory_child(duration: float, scene_name='stanford_arm') -> dict:
+    """Run a recorded headless run in this process and report RSS figures (bytes)."""
+    import warnings
+    from ..recording.run_sink import McapRunSink
+    from ..simulation import Simulator, run_headless
+    scene = _load(scene_name)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=RTF_DT)
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, 'memory.mcap')
+        sink = McapRunSink(path, scene, {'integrator': 'rk4', 'dt': RTF_DT, 'rate': RTF_RATE, 'mode': 'bench'},
+                           record_wrenches=False)
+        probe = _RssProbe(every=max(1, int(duration * RTF_RATE) // 20))
+        t0 = time.perf_counter()
+        try:
+            run_headless(sim, duration, RTF_RATE, scene.script, [sink, probe])
+        finally:
+            sink.close()
+        wall = time.perf_counter() - t0
+        size = os.path.getsize(path)
+    samples = probe.samples + [rss_bytes()]
+    warm = samples[min(2, len(samples) - 1)]  # after 10 % of the run
+    return {'duration': duration, 'wall': wall, 'rss_warm': warm, 'rss_end': samples[-1],
+            'rss_max_after_warm': max(samples[min(2, len(samples) - 1):]), 'peak_rss': peak_rss_bytes(),
+            'mcap_bytes': size, 'messages': sink.count}
+
+
+class _RssProbe:
+    """A sink that samples the resident set size every ``every`` publications."""
+
+    wants_wrenches = False
+
+    def __init__(self, every):
+        self.every = every
+        self.n = 0
+        self.samples = []
+
+    def on_start(self, sim):
+        pass
+
+    def on_command(self, t, port, values):
+        pass
+
+    def on_output(self, t, out, sim):
+        self.n += 1
+        if self.n % self.every == 0:
+            self.samples.append(rss_bytes())
+
+    def close(self):
+        pass
+
+
+def section_memory(args, names) -> str:
+    """Peak RSS and RSS growth of a long recorded run (stanford_arm), measured in a child process."""
+    code = ('import json, sys; from robodyn_ros.bench.speed import memory_child; '
+            f'print(json.dumps(memory_child({float(args.memory_duration)!r})))')
+    r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)
+    if r.returncode != 0:
+        return f'### Memory\n\nchild process failed:\n```\n{r.stderr[-2000:]}\n```'
+    m = json.loads(r.stdout.strip().splitlines()[-1])
+    mb = 1024.0 ** 2
+    growth = (m['rss_max_after_warm'] - m['rss_warm']) / m['rss_warm'] * 100.0
+    rows = [['stanford_arm', f'{m["duration"]:g} s', f'{m["wall"]:.1f} s', f'{m["rss_warm"] / mb:.1f} MiB',
+             f'{m["rss_end"] / mb:.1f} MiB', f'{growth:+.2f} %', f'{m["peak_rss"] / mb:.1f} MiB',
+             f'{m["messages"]} msgs, {m["mcap_bytes"] / mb:.1f} MiB']]
+    return '\n'.join([
+        '### Memory: recorded RK4 run at 1 kHz, joint states at 100 Hz (child process)\n',
+        table(['scene', 'simulated', 'wall', 'RSS after warm-up (10 %)', 'RSS at end',
+               'growth after warm-up (max)', 'peak RSS', 'recording'], rows),
+        '', 'Target: growth < 10 % over one simulated hour (`--long`).'])
+
+
+# ----------------------------------------------------------------------------------------------
+# first-run (compilation) cost (child processes)
+# ----------------------------------------------------------------------------------------------
+_START_CODE = r'''
+import json, time, warnings
+t0 = time.perf_counter()
+from robodyn_ros import kernels
+t1 = time.perf_counter()
+w = kernels.warmup()
+t2 = time.perf_counter()
+from robodyn_ros.bench.speed import run_robodyn
+warnings.simplefilter('ignore')
+run_robodyn('stanford_arm', 0.1, record=True)
+t3 = time.perf_counter()
+print(json.dumps({'import': t1 - t0, 'warmup': t2 - t1, 'first_run': t3 - t2, 'available': kernels.AVAILABLE,
+                  'cache': kernels.CACHE_DIR}))
+'''
+
+
+def _start(env) -> dict:
+    r = subprocess.run([sys.executable, '-c', _START_CODE], capture_output=True, text=True, env=env)
+    if r.returncode != 0:
+        raise RuntimeError(r.stderr[-2000:])
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def section_compile(args, names) -> str:
+    """Cold (empty numba cache) and warm start of the compiled kernels, and the numpy-only start."""
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        env = dict(os.environ, NUMBA_CACHE_DIR=d)
+        env.pop('ROBODYN_BACKEND', None)
+        try:
+            cold = _start(env)
+            warm = _start(env)
+            ref = _start(dict(env, ROBODYN_BACKEND='numpy'))
+        except RuntimeError as e:
+            return f'### First-run cost\n\nchild process failed:\n```\n{e}\n```'
+    for label, r in (('cold cache (first start of an install)', cold), ('warm cache (every later start)', warm),
+                     ('ROBODYN_BACKEND=numpy (no numba)', ref)):
+        rows.append([label, fmt_time(r['import']), fmt_time(r['warmup']), fmt_time(r['first_run']),
+                     fmt_time(r['import'] + r['warmup'] + r['first_run'])])
+    return '\n'.join([
+        '### First-run cost of the compiled kernels (child processes)\n',
+        table(['start', 'import kernels', 'load/compile all kernels', 'first 0.1 s stanford_arm run', 'total'], rows),
+        '', f'numba caches the machine code on disk (here a temporary NUMBA_CACHE_DIR; normally '
+        f'`{_default_cache()}`), so only the first start of an install pays the compilation.'])
+
+
+def _default_cache() -> str:
+    from .. import kernels
+    return kernels.CACHE_DIR
+
+
+# ----------------------------------------------------------------------------------------------
+# node (written by the node engineer)
+# ----------------------------------------------------------------------------------------------
+def section_node(args, names) -> str:
+    """The node's figures from ``robodyn_ros.bench.node.bench_node()`` when that module exists."""
+    import importlib
+    try:
+        node = importlib.import_module('.node', __package__)
+    except ModuleNotFoundError as e:
+        if e.name != f'{__package__}.node':
+            raise
+        return '### Node\n\nskipped: `robodyn_ros.bench.node` is not in this install yet.'
+    rows = node.bench_node()
+    if not rows:
+        return '### Node\n\n(no figures)'
+    header = list(rows[0])
+    for r in rows[1:]:
+        header += [k for k in r if k not in header]
+    return '\n'.join(['### Node\n', table(header, [[r.get(k, '') for k in header] for r in rows])])

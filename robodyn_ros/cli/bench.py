@@ -1,0 +1,17 @@
+"""``robodyn bench [speed|precision|...]``: print benchmark tables (see :mod:`robodyn_ros.bench`)."""
+from __future__ import annotations
+
+
+def add_parser(sub):
+    """Register ``bench`` with one sub-subcommand per benchmark module."""
+    from ..bench import BENCHES, add_subparsers
+    p = sub.add_parser('bench', help=f'benchmarks: {", ".join(BENCHES)} (default {BENCHES[0]})',
+                       description='Print benchmark tables; without a name, runs the speed benchmark.')
+    add_subparsers(p)
+    return p
+
+
+def main(args) -> int:
+    """Dispatch to the chosen benchmark."""
+    from ..bench import main as bench_main
+    return bench_main(args)

@@ -1,0 +1,803 @@
+"""numba-compiled rigid-body kernels on packed model arrays (see :mod:`robodyn_ros.kernels`).
+
+The algorithms are those of :mod:`robodyn_ros.dynamics` (Featherstone 2008, book notation
+``Xup, S, vJ, c, IA, pA, U, d, u``), rewritten for speed without changing what they compute:
+
+* a Plücker transform ``X = [E 0; -E r× E]`` is stored as ``(E (3, 3), r (3,))`` (book §2.8),
+  never as a 6x6 matrix; ``X m``, ``Xᵀ f`` and ``Xᵀ I X`` are written out on 3-vectors
+  (:func:`xmot`, :func:`xforce_T_add`, :func:`xinertia_T_add`), about a quarter of the flops
+  of the 6x6 products;
+* a 1-DOF joint's motion subspace is ``S = [k; 0]`` (revolute) or ``[0; k]`` (prismatic) in its
+  own body frame, so ``U = IA S``, ``d = Sᵀ U`` and ``Sᵀ f`` are 3-term dot products, and a
+  revolute ``XJ(q)`` is Rodrigues' formula folded into ``Xtree`` (book Table 4.1);
+* a FREE joint (6 DOF, ``S = 1``) solves its 6x6 articulated inertia by Cholesky;
+* all per-body work quantities live in one work array ``W`` (:func:`workspace`), addressed by
+  (row = body, named column offset) — no per-body array views, which numba would have to
+  reference-count — and the fused integrators (:func:`integrate_arm`) allocate once per call and
+  then run whole stretches of fixed steps without returning to Python.
+
+Packed model (built by :func:`robodyn_ros.kernels.pack_model`):
+
+* ``mi`` int64 (nb, 4): columns ``PARENT`` (-1 = root), ``JTYPE`` (model codes), ``QIDX``, ``VIDX``;
+* ``mf`` float64 (nb + 1, NF): per body ``AX`` axis (3), ``ET`` Xtree's E (9, row major),
+  ``RT`` Xtree's r (3), ``MASS``, ``HV`` = m c (3), ``IB`` rotational inertia about the body
+  origin (9, row major); the extra last row holds gravity (3,) in columns ``0:3``.
+
+Work array ``W`` (nb + 1, NW): row i < nb holds body i's ``E_`` (9, Xup's E row major), ``R_``
+(3, Xup's r), ``V_`` velocity, ``C_`` = v × vJ, ``P_`` bias force pA (RNEA: the joint wrench f),
+``U_`` = IA S, ``UV_`` = u (1 or 6 entries), ``A_`` acceleration, ``IA_`` (36, articulated or
+composite inertia, row major), ``D_`` = Sᵀ IA S, ``E0_``/``R0_`` root-to-body transform; the
+last row is scratch (``T_``, ``TMP_``, ``L_``, ``S1_``..``S4_``, ``FC_``). Spatial vectors are
+``[angular; linear]`` in body coordinates.
+
+Gravity enters as the fictitious base acceleration ``a0 = -[0; g]`` (book §5.3), as in the
+reference.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..model import FIXED, FREE, PRISMATIC, REVOLUTE
+
+# columns of mi
+PARENT, JTYPE, QIDX, VIDX = 0, 1, 2, 3
+# columns of mf
+AX, ET, RT, MASS, HV, IB, NF = 0, 3, 12, 15, 16, 19, 28
+# columns of a body row of W
+E_, R_, V_, C_, P_, U_, UV_, A_, IA_, D_, E0_, R0_ = 0, 9, 12, 18, 24, 30, 36, 42, 48, 84, 85, 94
+# columns of the scratch row of W
+T_, TMP_, L_, S1_, S2_, S3_, S4_, FC_ = 0, 36, 45, 81, 87, 93, 99, 105
+NW = 141
+
+# fused-integrator method codes (see integrate_arm; kernels.FUSED_METHODS maps names to them)
+M_EULER, M_SEMI_IMPLICIT_EULER, M_RK4 = 0, 1, 2
+
+_JIT = dict(cache=True, nogil=True, error_model='numpy')
+
+
+@njit(**_JIT)
+def workspace(nb):
+    """The work array W (nb + 1, NW) of the algorithms (see the module docstring)."""
+    return np.empty((nb + 1, NW))
+
+
+# ----------------------------------------------------------------------------------------------
+# spatial arithmetic on (E, r) transforms and 6-vectors stored in W
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def xmot(W, i, sr, sc, dr, dc):
+    """``W[dr, dc:dc+6] = X_i W[sr, sc:sc+6]`` (motion): ``[E w; E (u - r × w)]``; may alias."""
+    w0, w1, w2 = W[sr, sc], W[sr, sc + 1], W[sr, sc + 2]
+    r0, r1, r2 = W[i, R_], W[i, R_ + 1], W[i, R_ + 2]
+    u0 = W[sr, sc + 3] - (r1 * w2 - r2 * w1)
+    u1 = W[sr, sc + 4] - (r2 * w0 - r0 * w2)
+    u2 = W[sr, sc + 5] - (r0 * w1 - r1 * w0)
+    for a in range(3):
+        e0, e1, e2 = W[i, E_ + 3 * a], W[i, E_ + 3 * a + 1], W[i, E_ + 3 * a + 2]
+        W[dr, dc + a] = e0 * w0 + e1 * w1 + e2 * w2
+        W[dr, dc + 3 + a] = e0 * u0 + e1 * u1 + e2 * u2
+
+
+@njit(**_JIT)
+def xforce_T_add(W, i, sr, sc, dr, dc):
+    """``W[dr, dc:dc+6] += X_iᵀ W[sr, sc:sc+6]`` (force, child -> parent): ``[Eᵀ n + r × Eᵀ f; Eᵀ f]``."""
+    n0, n1, n2 = W[sr, sc], W[sr, sc + 1], W[sr, sc + 2]
+    f0, f1, f2 = W[sr, sc + 3], W[sr, sc + 4], W[sr, sc + 5]
+    g0 = W[i, E_] * f0 + W[i, E_ + 3] * f1 + W[i, E_ + 6] * f2
+    g1 = W[i, E_ + 1] * f0 + W[i, E_ + 4] * f1 + W[i, E_ + 7] * f2
+    g2 = W[i, E_ + 2] * f0 + W[i, E_ + 5] * f1 + W[i, E_ + 8] * f2
+    r0, r1, r2 = W[i, R_], W[i, R_ + 1], W[i, R_ + 2]
+    W[dr, dc] += W[i, E_] * n0 + W[i, E_ + 3] * n1 + W[i, E_ + 6] * n2 + (r1 * g2 - r2 * g1)
+    W[dr, dc + 1] += W[i, E_ + 1] * n0 + W[i, E_ + 4] * n1 + W[i, E_ + 7] * n2 + (r2 * g0 - r0 * g2)
+    W[dr, dc + 2] += W[i, E_ + 2] * n0 + W[i, E_ + 5] * n1 + W[i, E_ + 8] * n2 + (r0 * g1 - r1 * g0)
+    W[dr, dc + 3] += g0
+    W[dr, dc + 4] += g1
+    W[dr, dc + 5] += g2
+
+
+@njit(**_JIT)
+def etxe(e, x):
+    """``Eᵀ X E`` for 3x3 matrices given as row-major 9-tuples (returns a 9-tuple)."""
+    m0 = x[0] * e[0] + x[1] * e[3] + x[2] * e[6]
+    m1 = x[0] * e[1] + x[1] * e[4] + x[2] * e[7]
+    m2 = x[0] * e[2] + x[1] * e[5] + x[2] * e[8]
+    m3 = x[3] * e[0] + x[4] * e[3] + x[5] * e[6]
+    m4 = x[3] * e[1] + x[4] * e[4] + x[5] * e[7]
+    m5 = x[3] * e[2] + x[4] * e[5] + x[5] * e[8]
+    m6 = x[6] * e[0] + x[7] * e[3] + x[8] * e[6]
+    m7 = x[6] * e[1] + x[7] * e[4] + x[8] * e[7]
+    m8 = x[6] * e[2] + x[7] * e[5] + x[8] * e[8]
+    return (e[0] * m0 + e[3] * m3 + e[6] * m6, e[0] * m1 + e[3] * m4 + e[6] * m7, e[0] * m2 + e[3] * m5 + e[6] * m8,
+            e[1] * m0 + e[4] * m3 + e[7] * m6, e[1] * m1 + e[4] * m4 + e[7] * m7, e[1] * m2 + e[4] * m5 + e[7] * m8,
+            e[2] * m0 + e[5] * m3 + e[8] * m6, e[2] * m1 + e[5] * m4 + e[8] * m7, e[2] * m2 + e[5] * m5 + e[8] * m8)
+
+
+@njit(**_JIT)
+def xinertia_T_add(W, i, sr, sc, dr, dc):
+    """``W[dr, dc:dc+36] += X_iᵀ A X_i`` for a symmetric 6x6 A at ``W[sr, sc:sc+36]`` (row major).
+
+    With ``X = Rot(E) Trans(r)``: first the blocks of ``Rot(E)ᵀ A Rot(E)``, ``P = Eᵀ A11 E``,
+    ``Q = Eᵀ A12 E``, ``R = Eᵀ A22 E``; then, with ``Y = Q r×`` and ``Z = r× R``::
+
+        Trans(r)ᵀ [P Q; Qᵀ R] Trans(r) = [P - Y - Yᵀ - Z r×,  Q + Z;  (Q + Z)ᵀ,  R]
+
+    (``Trans(r) = [1 0; -r× 1]``), all in scalars (no stores between the stages).
+    """
+    e = (W[i, E_], W[i, E_ + 1], W[i, E_ + 2], W[i, E_ + 3], W[i, E_ + 4], W[i, E_ + 5],
+         W[i, E_ + 6], W[i, E_ + 7], W[i, E_ + 8])
+    P = etxe(e, (W[sr, sc], W[sr, sc + 1], W[sr, sc + 2], W[sr, sc + 6], W[sr, sc + 7], W[sr, sc + 8],
+                 W[sr, sc + 12], W[sr, sc + 13], W[sr, sc + 14]))
+    Q = etxe(e, (W[sr, sc + 3], W[sr, sc + 4], W[sr, sc + 5], W[sr, sc + 9], W[sr, sc + 10], W[sr, sc + 11],
+                 W[sr, sc + 15], W[sr, sc + 16], W[sr, sc + 17]))
+    R = etxe(e, (W[sr, sc + 21], W[sr, sc + 22], W[sr, sc + 23], W[sr, sc + 27], W[sr, sc + 28], W[sr, sc + 29],
+                 W[sr, sc + 33], W[sr, sc + 34], W[sr, sc + 35]))
+    r0, r1, r2 = W[i, R_], W[i, R_ + 1], W[i, R_ + 2]
+    # Z = r× R: column b is r × R[:, b]; H = Q + Z
+    z0, z3, z6 = r1 * R[6] - r2 * R[3], r2 * R[0] - r0 * R[6], r0 * R[3] - r1 * R[0]
+    z1, z4, z7 = r1 * R[7] - r2 * R[4], r2 * R[1] - r0 * R[7], r0 * R[4] - r1 * R[1]
+    z2, z5, z8 = r1 * R[8] - r2 * R[5], r2 * R[2] - r0 * R[8], r0 * R[5] - r1 * R[2]
+    # Y rows: Q[a] × r; (Z r×) rows: Z[a] × r
+    y0, y1, y2 = Q[1] * r2 - Q[2] * r1, Q[2] * r0 - Q[0] * r2, Q[0] * r1 - Q[1] * r0
+    y3, y4, y5 = Q[4] * r2 - Q[5] * r1, Q[5] * r0 - Q[3] * r2, Q[3] * r1 - Q[4] * r0
+    y6, y7, y8 = Q[7] * r2 - Q[8] * r1, Q[8] * r0 - Q[6] * r2, Q[6] * r1 - Q[7] * r0
+    w0, w1, w2 = z1 * r2 - z2 * r1, z2 * r0 - z0 * r2, z0 * r1 - z1 * r0
+    w4, w5 = z5 * r0 - z3 * r2, z3 * r1 - z4 * r0
+    w8 = z6 * r1 - z7 * r0
+    i00 = P[0] - 2.0 * y0 - w0
+    i01 = P[1] - y1 - y3 - w1
+    i02 = P[2] - y2 - y6 - w2
+    i11 = P[4] - 2.0 * y4 - w4
+    i12 = P[5] - y5 - y7 - w5
+    i22 = P[8] - 2.0 * y8 - w8
+    h = (Q[0] + z0, Q[1] + z1, Q[2] + z2, Q[3] + z3, Q[4] + z4, Q[5] + z5, Q[6] + z6, Q[7] + z7, Q[8] + z8)
+    W[dr, dc] += i00
+    W[dr, dc + 1] += i01
+    W[dr, dc + 2] += i02
+    W[dr, dc + 6] += i01
+    W[dr, dc + 7] += i11
+    W[dr, dc + 8] += i12
+    W[dr, dc + 12] += i02
+    W[dr, dc + 13] += i12
+    W[dr, dc + 14] += i22
+    for a in range(3):
+        for b in range(3):
+            W[dr, dc + 6 * a + 3 + b] += h[3 * a + b]
+            W[dr, dc + 6 * (3 + b) + a] += h[3 * a + b]
+            W[dr, dc + 6 * (3 + a) + 3 + b] += R[3 * a + b]
+
+
+@njit(**_JIT)
+def rigid_inertia(mf, i, W, dr, dc):
+    """Body i's spatial inertia ``[Ī h×; h×ᵀ m1]`` (book eq. 2.63) into ``W[dr, dc:dc+36]``."""
+    h0, h1, h2 = mf[i, HV], mf[i, HV + 1], mf[i, HV + 2]
+    m = mf[i, MASS]
+    for a in range(3):
+        for b in range(3):
+            W[dr, dc + 6 * a + b] = mf[i, IB + 3 * a + b]
+            W[dr, dc + 6 * (3 + a) + 3 + b] = m if a == b else 0.0
+    W[dr, dc + 3], W[dr, dc + 4], W[dr, dc + 5] = 0.0, -h2, h1
+    W[dr, dc + 9], W[dr, dc + 10], W[dr, dc + 11] = h2, 0.0, -h0
+    W[dr, dc + 15], W[dr, dc + 16], W[dr, dc + 17] = -h1, h0, 0.0
+    for a in range(3):
+        for b in range(3):
+            W[dr, dc + 6 * (3 + b) + a] = W[dr, dc + 6 * a + 3 + b]
+
+
+@njit(**_JIT)
+def rigid_inertia_times(mf, i, W, sr, sc, dr, dc):
+    """``W[dr, dc:dc+6] = I_i W[sr, sc:sc+6]``: ``[Ī w + h × u; m u - h × w]``."""
+    w0, w1, w2 = W[sr, sc], W[sr, sc + 1], W[sr, sc + 2]
+    u0, u1, u2 = W[sr, sc + 3], W[sr, sc + 4], W[sr, sc + 5]
+    h0, h1, h2 = mf[i, HV], mf[i, HV + 1], mf[i, HV + 2]
+    m = mf[i, MASS]
+    W[dr, dc] = mf[i, IB] * w0 + mf[i, IB + 1] * w1 + mf[i, IB + 2] * w2 + (h1 * u2 - h2 * u1)
+    W[dr, dc + 1] = mf[i, IB + 3] * w0 + mf[i, IB + 4] * w1 + mf[i, IB + 5] * w2 + (h2 * u0 - h0 * u2)
+    W[dr, dc + 2] = mf[i, IB + 6] * w0 + mf[i, IB + 7] * w1 + mf[i, IB + 8] * w2 + (h0 * u1 - h1 * u0)
+    W[dr, dc + 3] = m * u0 - (h1 * w2 - h2 * w1)
+    W[dr, dc + 4] = m * u1 - (h2 * w0 - h0 * w2)
+    W[dr, dc + 5] = m * u2 - (h0 * w1 - h1 * w0)
+
+
+@njit(**_JIT)
+def cross_force_add(W, vr, vc, fr, fc, dr, dc):
+    """``W[dr, dc:dc+6] += v ×* f`` (book eq. 2.32): ``[w × n + u × f; w × f]``."""
+    w0, w1, w2 = W[vr, vc], W[vr, vc + 1], W[vr, vc + 2]
+    u0, u1, u2 = W[vr, vc + 3], W[vr, vc + 4], W[vr, vc + 5]
+    n0, n1, n2 = W[fr, fc], W[fr, fc + 1], W[fr, fc + 2]
+    f0, f1, f2 = W[fr, fc + 3], W[fr, fc + 4], W[fr, fc + 5]
+    W[dr, dc] += w1 * n2 - w2 * n1 + u1 * f2 - u2 * f1
+    W[dr, dc + 1] += w2 * n0 - w0 * n2 + u2 * f0 - u0 * f2
+    W[dr, dc + 2] += w0 * n1 - w1 * n0 + u0 * f1 - u1 * f0
+    W[dr, dc + 3] += w1 * f2 - w2 * f1
+    W[dr, dc + 4] += w2 * f0 - w0 * f2
+    W[dr, dc + 5] += w0 * f1 - w1 * f0
+
+
+@njit(**_JIT)
+def cross_motion_add(W, vr, vc, mr, mc, dr, dc):
+    """``W[dr, dc:dc+6] += v × m`` (book eq. 2.31): ``[w × mw; w × mu + u × mw]``."""
+    w0, w1, w2 = W[vr, vc], W[vr, vc + 1], W[vr, vc + 2]
+    u0, u1, u2 = W[vr, vc + 3], W[vr, vc + 4], W[vr, vc + 5]
+    a0, a1, a2 = W[mr, mc], W[mr, mc + 1], W[mr, mc + 2]
+    b0, b1, b2 = W[mr, mc + 3], W[mr, mc + 4], W[mr, mc + 5]
+    W[dr, dc] += w1 * a2 - w2 * a1
+    W[dr, dc + 1] += w2 * a0 - w0 * a2
+    W[dr, dc + 2] += w0 * a1 - w1 * a0
+    W[dr, dc + 3] += w1 * b2 - w2 * b1 + u1 * a2 - u2 * a1
+    W[dr, dc + 4] += w2 * b0 - w0 * b2 + u2 * a0 - u0 * a2
+    W[dr, dc + 5] += w0 * b1 - w1 * b0 + u0 * a1 - u1 * a0
+
+
+# ----------------------------------------------------------------------------------------------
+# joints
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def joint_transform(mi, mf, q, i, W):
+    """``Xup[i] = XJ(q_i) Xtree[i]`` as ``(E, r)`` into ``W[i, E_]``, ``W[i, R_]``.
+
+    Composition ``(E2, r2)(E1, r1) = (E2 E1, r1 + E1ᵀ r2)``; revolute ``XJ = (Rᵀ(k, q), 0)``
+    with Rodrigues ``Rᵀ = c 1 - s k× + (1 - c) k kᵀ``; prismatic ``XJ = (1, k q)``; free
+    ``XJ = (Rᵀ(quat), p)`` (``spatial.quat_to_R``); fixed ``XJ = 1``.
+    """
+    jt = mi[i, JTYPE]
+    qi = mi[i, QIDX]
+    if jt == REVOLUTE or jt == FREE:
+        if jt == REVOLUTE:
+            th = q[qi]
+            c = math.cos(th)
+            s = math.sin(th)
+            t = 1.0 - c
+            kx, ky, kz = mf[i, AX], mf[i, AX + 1], mf[i, AX + 2]
+            J00, J01, J02 = c + t * kx * kx, s * kz + t * kx * ky, -s * ky + t * kx * kz
+            J10, J11, J12 = -s * kz + t * ky * kx, c + t * ky * ky, s * kx + t * ky * kz
+            J20, J21, J22 = s * ky + t * kz * kx, -s * kx + t * kz * ky, c + t * kz * kz
+            for a in range(3):
+                W[i, R_ + a] = mf[i, RT + a]
+        else:
+            x, y, z, w = q[qi + 3], q[qi + 4], q[qi + 5], q[qi + 6]
+            J00, J10, J20 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+            J01, J11, J21 = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+            J02, J12, J22 = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+            p0, p1, p2 = q[qi], q[qi + 1], q[qi + 2]
+            for a in range(3):
+                W[i, R_ + a] = mf[i, RT + a] + mf[i, ET + a] * p0 + mf[i, ET + 3 + a] * p1 + mf[i, ET + 6 + a] * p2
+        for b in range(3):
+            e0, e1, e2 = mf[i, ET + b], mf[i, ET + 3 + b], mf[i, ET + 6 + b]
+            W[i, E_ + b] = J00 * e0 + J01 * e1 + J02 * e2
+            W[i, E_ + 3 + b] = J10 * e0 + J11 * e1 + J12 * e2
+            W[i, E_ + 6 + b] = J20 * e0 + J21 * e1 + J22 * e2
+        return
+    for a in range(9):
+        W[i, E_ + a] = mf[i, ET + a]
+    if jt == PRISMATIC:
+        qq = q[qi]
+        d0, d1, d2 = mf[i, AX] * qq, mf[i, AX + 1] * qq, mf[i, AX + 2] * qq
+        for a in range(3):
+            W[i, R_ + a] = mf[i, RT + a] + mf[i, ET + a] * d0 + mf[i, ET + 3 + a] * d1 + mf[i, ET + 6 + a] * d2
+    else:
+        for a in range(3):
+            W[i, R_ + a] = mf[i, RT + a]
+
+
+@njit(**_JIT)
+def transforms(mi, mf, q, W):
+    """Every body's ``Xup`` into W."""
+    for i in range(mi.shape[0]):
+        joint_transform(mi, mf, q, i, W)
+
+
+@njit(**_JIT)
+def joint_motion(mi, mf, x, i, W, dr, dc):
+    """``W[dr, dc:dc+6] = S_i x_i`` (joint velocity vJ, or S a)."""
+    jt = mi[i, JTYPE]
+    s = mi[i, VIDX]
+    for a in range(6):
+        W[dr, dc + a] = 0.0
+    if jt == REVOLUTE:
+        for a in range(3):
+            W[dr, dc + a] = mf[i, AX + a] * x[s]
+    elif jt == PRISMATIC:
+        for a in range(3):
+            W[dr, dc + 3 + a] = mf[i, AX + a] * x[s]
+    elif jt == FREE:
+        for a in range(6):
+            W[dr, dc + a] = x[s + a]
+
+
+@njit(**_JIT)
+def joint_nv(jt):
+    """Number of velocity coordinates of a joint type."""
+    if jt == FREE:
+        return 6
+    if jt == FIXED:
+        return 0
+    return 1
+
+
+@njit(**_JIT)
+def project_force(mi, mf, W, sr, sc, j, out, off):
+    """``out[off + v_j : off + v_j + nv_j] = S_jᵀ W[sr, sc:sc+6]`` (a joint's share of a body force)."""
+    jt = mi[j, JTYPE]
+    t = off + mi[j, VIDX]
+    if jt == REVOLUTE:
+        out[t] = mf[j, AX] * W[sr, sc] + mf[j, AX + 1] * W[sr, sc + 1] + mf[j, AX + 2] * W[sr, sc + 2]
+    elif jt == PRISMATIC:
+        out[t] = mf[j, AX] * W[sr, sc + 3] + mf[j, AX + 1] * W[sr, sc + 4] + mf[j, AX + 2] * W[sr, sc + 5]
+    elif jt == FREE:
+        for a in range(6):
+            out[t + a] = W[sr, sc + a]
+
+
+@njit(**_JIT)
+def base_acceleration(mf, W, dr, dc):
+    """``a0 = -[0; g]`` into ``W[dr, dc:dc+6]``, gravity from the last row of mf."""
+    g = mf.shape[0] - 1
+    W[dr, dc] = 0.0
+    W[dr, dc + 1] = 0.0
+    W[dr, dc + 2] = 0.0
+    W[dr, dc + 3] = -mf[g, 0]
+    W[dr, dc + 4] = -mf[g, 1]
+    W[dr, dc + 5] = -mf[g, 2]
+
+
+@njit(**_JIT)
+def chol6_solve(W, ar, ac, br, bc, xr, xc):
+    """Solve ``A x = b`` for a symmetric positive definite A (6, 6) at ``W[ar, ac:ac+36]`` by Cholesky.
+
+    b at ``W[br, bc:bc+6]``, x into ``W[xr, xc:xc+6]``; L in the scratch row.
+    """
+    s_ = W.shape[0] - 1
+    for j in range(6):
+        s = W[ar, ac + 7 * j]
+        for k in range(j):
+            s -= W[s_, L_ + 6 * j + k] ** 2
+        d = math.sqrt(s) if s > 0.0 else math.nan
+        W[s_, L_ + 7 * j] = d
+        for i in range(j + 1, 6):
+            s = W[ar, ac + 6 * i + j]
+            for k in range(j):
+                s -= W[s_, L_ + 6 * i + k] * W[s_, L_ + 6 * j + k]
+            W[s_, L_ + 6 * i + j] = s / d
+    for i in range(6):
+        s = W[br, bc + i]
+        for k in range(i):
+            s -= W[s_, L_ + 6 * i + k] * W[xr, xc + k]
+        W[xr, xc + i] = s / W[s_, L_ + 7 * i]
+    for i in range(5, -1, -1):
+        s = W[xr, xc + i]
+        for k in range(i + 1, 6):
+            s -= W[s_, L_ + 6 * k + i] * W[xr, xc + k]
+        W[xr, xc + i] = s / W[s_, L_ + 7 * i]
+
+
+# ----------------------------------------------------------------------------------------------
+# algorithms (Xup already in W: call transforms first)
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
+    """Articulated-body forward dynamics (book Table 7.1) into qdd (nv,).
+
+    tau (nv,) generalised forces; fext (nb, 6) external body forces (used if has_fext).
+    """
+    nb = mi.shape[0]
+    s_ = nb  # scratch row
+    for i in range(nb):                     # pass 1: velocities, bias terms
+        p = mi[i, PARENT]
+        joint_motion(mi, mf, v, i, W, s_, S1_)           # vJ
+        if p < 0:
+            for a in range(6):
+                W[i, V_ + a] = W[s_, S1_ + a]
+                W[i, C_ + a] = 0.0
+        else:
+            xmot(W, i, p, V_, i, V_)
+            for a in range(6):
+                W[i, V_ + a] += W[s_, S1_ + a]
+                W[i, C_ + a] = 0.0
+            cross_motion_add(W, i, V_, s_, S1_, i, C_)    # c = v × vJ
+        rigid_inertia(mf, i, W, i, IA_)
+        rigid_inertia_times(mf, i, W, i, V_, s_, S2_)    # I v
+        for a in range(6):
+            W[i, P_ + a] = -fext[i, a] if has_fext else 0.0
+        cross_force_add(W, i, V_, s_, S2_, i, P_)        # pA = v ×* I v - f_ext
+    for i in range(nb - 1, -1, -1):         # pass 2: articulated inertias
+        p = mi[i, PARENT]
+        jt = mi[i, JTYPE]
+        s = mi[i, VIDX]
+        if jt == REVOLUTE or jt == PRISMATIC:
+            o = 0 if jt == REVOLUTE else 3
+            k0, k1, k2 = mf[i, AX], mf[i, AX + 1], mf[i, AX + 2]
+            for a in range(6):              # U = IA S
+                b = IA_ + 6 * a + o
+                W[i, U_ + a] = W[i, b] * k0 + W[i, b + 1] * k1 + W[i, b + 2] * k2
+            di = k0 * W[i, U_ + o] + k1 * W[i, U_ + o + 1] + k2 * W[i, U_ + o + 2]
+            ui = tau[s] - (k0 * W[i, P_ + o] + k1 * W[i, P_ + o + 1] + k2 * W[i, P_ + o + 2])
+            W[i, D_] = di
+            W[i, UV_] = ui
+            if p >= 0:
+                # Ia = IA - U Uᵀ / d (in place), pa = pA + Ia c + U u / d
+                ud = ui / di
+                for a in range(6):
+                    Ua = W[i, U_ + a] / di
+                    acc = W[i, P_ + a] + W[i, U_ + a] * ud
+                    for b in range(6):
+                        x = W[i, IA_ + 6 * a + b] - Ua * W[i, U_ + b]
+                        W[i, IA_ + 6 * a + b] = x
+                        acc += x * W[i, C_ + b]
+                    W[s_, S2_ + a] = acc
+                xinertia_T_add(W, i, i, IA_, p, IA_)
+                xforce_T_add(W, i, s_, S2_, p, P_)
+        elif jt == FREE:
+            # S = 1: U = D = IA, so Ia = 0 and pa = pA + u (the joint force)
+            for a in range(6):
+                W[i, UV_ + a] = tau[s + a] - W[i, P_ + a]
+            if p >= 0:
+                for a in range(6):
+                    W[s_, S2_ + a] = W[i, P_ + a] + W[i, UV_ + a]
+                xforce_T_add(W, i, s_, S2_, p, P_)
+        elif p >= 0:  # FIXED (c = 0): the welded body's IA and pA pass on unchanged
+            xinertia_T_add(W, i, i, IA_, p, IA_)
+            xforce_T_add(W, i, i, P_, p, P_)
+    for i in range(nb):                     # pass 3: accelerations
+        p = mi[i, PARENT]
+        jt = mi[i, JTYPE]
+        s = mi[i, VIDX]
+        if p < 0:
+            base_acceleration(mf, W, s_, S3_)
+            xmot(W, i, s_, S3_, i, A_)
+        else:
+            xmot(W, i, p, A_, i, A_)
+        for a in range(6):
+            W[i, A_ + a] += W[i, C_ + a]
+        if jt == REVOLUTE or jt == PRISMATIC:
+            o = 0 if jt == REVOLUTE else 3
+            Ua = 0.0
+            for a in range(6):
+                Ua += W[i, U_ + a] * W[i, A_ + a]
+            qi = (W[i, UV_] - Ua) / W[i, D_]
+            qdd[s] = qi
+            for a in range(3):
+                W[i, A_ + o + a] += mf[i, AX + a] * qi
+        elif jt == FREE:
+            # qdd = IA⁻¹ (u - IA ap) = IA⁻¹ u - ap, and a = ap + qdd = IA⁻¹ u
+            chol6_solve(W, i, IA_, i, UV_, s_, S4_)
+            for a in range(6):
+                qdd[s + a] = W[s_, S4_ + a] - W[i, A_ + a]
+                W[i, A_ + a] = W[s_, S4_ + a]
+
+
+@njit(**_JIT)
+def rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W):
+    """Recursive Newton–Euler (book Table 5.1) into tau (nv,); joint wrenches left in ``W[:, P_]``.
+
+    ``W[i, P_:P_+6]`` is the force the parent exerts on body i through joint i, in body i
+    coordinates at its origin (see :func:`robodyn_ros.dynamics.rnea_wrenches`).
+    """
+    nb = mi.shape[0]
+    s_ = nb
+    for i in range(nb):
+        p = mi[i, PARENT]
+        joint_motion(mi, mf, v, i, W, s_, S1_)     # vJ
+        joint_motion(mi, mf, acc, i, W, s_, S2_)   # S qdd
+        if p < 0:
+            base_acceleration(mf, W, s_, S3_)
+            xmot(W, i, s_, S3_, i, A_)
+            for a in range(6):
+                W[i, V_ + a] = W[s_, S1_ + a]
+                W[i, A_ + a] += W[s_, S2_ + a]
+        else:
+            xmot(W, i, p, V_, i, V_)
+            xmot(W, i, p, A_, i, A_)
+            for a in range(6):
+                W[i, V_ + a] += W[s_, S1_ + a]
+                W[i, A_ + a] += W[s_, S2_ + a]
+            cross_motion_add(W, i, V_, s_, S1_, i, A_)
+        rigid_inertia_times(mf, i, W, i, A_, i, P_)
+        rigid_inertia_times(mf, i, W, i, V_, s_, S4_)
+        cross_force_add(W, i, V_, s_, S4_, i, P_)
+        if has_fext:
+            for a in range(6):
+                W[i, P_ + a] -= fext[i, a]
+    for i in range(nb - 1, -1, -1):
+        project_force(mi, mf, W, i, P_, i, tau, 0)
+        p = mi[i, PARENT]
+        if p >= 0:
+            xforce_T_add(W, i, i, P_, p, P_)
+
+
+@njit(**_JIT)
+def crba_ws(mi, mf, H, W):
+    """Composite-rigid-body joint-space inertia (book Table 6.2) into H (nv, nv) (C order), zeroed by caller."""
+    nb = mi.shape[0]
+    nv = H.shape[0]
+    Hf = H.reshape(nv * nv)
+    s_ = nb
+    for i in range(nb):
+        rigid_inertia(mf, i, W, i, IA_)
+    for i in range(nb - 1, -1, -1):
+        p = mi[i, PARENT]
+        if p >= 0:
+            xinertia_T_add(W, i, i, IA_, p, IA_)
+    for i in range(nb):
+        jt = mi[i, JTYPE]
+        ni = joint_nv(jt)
+        if ni == 0:
+            continue
+        s = mi[i, VIDX]
+        # F = IC S, column k at W[s_, FC_ + 6k]
+        for k in range(ni):
+            for a in range(6):
+                if jt == REVOLUTE:
+                    b = IA_ + 6 * a
+                    x = W[i, b] * mf[i, AX] + W[i, b + 1] * mf[i, AX + 1] + W[i, b + 2] * mf[i, AX + 2]
+                elif jt == PRISMATIC:
+                    b = IA_ + 6 * a + 3
+                    x = W[i, b] * mf[i, AX] + W[i, b + 1] * mf[i, AX + 1] + W[i, b + 2] * mf[i, AX + 2]
+                else:
+                    x = W[i, IA_ + 6 * a + k]
+                W[s_, FC_ + 6 * k + a] = x
+        for k in range(ni):                 # diagonal block S_iᵀ F
+            project_force(mi, mf, W, s_, FC_ + 6 * k, i, Hf, (s + k) * nv)
+        j = i
+        while mi[j, PARENT] >= 0:
+            for k in range(ni):             # F = Xup[j]ᵀ F
+                for a in range(6):
+                    W[s_, S1_ + a] = 0.0
+                xforce_T_add(W, j, s_, FC_ + 6 * k, s_, S1_)
+                for a in range(6):
+                    W[s_, FC_ + 6 * k + a] = W[s_, S1_ + a]
+            j = mi[j, PARENT]
+            t = mi[j, VIDX]
+            nj = joint_nv(mi[j, JTYPE])
+            for k in range(ni):
+                project_force(mi, mf, W, s_, FC_ + 6 * k, j, Hf, (s + k) * nv)
+                for m in range(nj):
+                    H[t + m, s + k] = H[s + k, t + m]
+
+
+@njit(**_JIT)
+def energies_ws(mi, mf, q, v, W):
+    """``(kinetic, potential)`` (J): ``½ Σ vᵢᵀ Iᵢ vᵢ`` and ``-gᵀ Σ mᵢ cᵢ`` (world coms).
+
+    Root-to-body transforms ``X0_i = Xup_i X0_p``: ``E0_i = E_i E0_p``, ``r0_i = r0_p + E0_pᵀ r_i``.
+    """
+    nb = mi.shape[0]
+    s_ = nb
+    kin = 0.0
+    mc0, mc1, mc2 = 0.0, 0.0, 0.0
+    for i in range(nb):
+        p = mi[i, PARENT]
+        joint_motion(mi, mf, v, i, W, s_, S1_)
+        if p < 0:
+            for a in range(6):
+                W[i, V_ + a] = W[s_, S1_ + a]
+            for a in range(9):
+                W[i, E0_ + a] = W[i, E_ + a]
+            for a in range(3):
+                W[i, R0_ + a] = W[i, R_ + a]
+        else:
+            xmot(W, i, p, V_, i, V_)
+            for a in range(6):
+                W[i, V_ + a] += W[s_, S1_ + a]
+            r0, r1, r2 = W[i, R_], W[i, R_ + 1], W[i, R_ + 2]
+            for a in range(3):
+                W[i, R0_ + a] = W[p, R0_ + a] + W[p, E0_ + a] * r0 + W[p, E0_ + 3 + a] * r1 + W[p, E0_ + 6 + a] * r2
+                for b in range(3):
+                    W[i, E0_ + 3 * a + b] = (W[i, E_ + 3 * a] * W[p, E0_ + b] + W[i, E_ + 3 * a + 1] * W[p, E0_ + 3 + b]
+                                             + W[i, E_ + 3 * a + 2] * W[p, E0_ + 6 + b])
+        rigid_inertia_times(mf, i, W, i, V_, s_, S2_)
+        for a in range(6):
+            kin += W[i, V_ + a] * W[s_, S2_ + a]
+        m = mf[i, MASS]
+        h0, h1, h2 = mf[i, HV], mf[i, HV + 1], mf[i, HV + 2]
+        # m (p + R c) = m r0 + E0ᵀ h
+        mc0 += m * W[i, R0_] + W[i, E0_] * h0 + W[i, E0_ + 3] * h1 + W[i, E0_ + 6] * h2
+        mc1 += m * W[i, R0_ + 1] + W[i, E0_ + 1] * h0 + W[i, E0_ + 4] * h1 + W[i, E0_ + 7] * h2
+        mc2 += m * W[i, R0_ + 2] + W[i, E0_ + 2] * h0 + W[i, E0_ + 5] * h1 + W[i, E0_ + 8] * h2
+    g = mf.shape[0] - 1
+    return 0.5 * kin, -(mf[g, 0] * mc0 + mf[g, 1] * mc1 + mf[g, 2] * mc2)
+
+
+@njit(**_JIT)
+def qdot_into(mi, q, v, out):
+    """``dq/dt`` (nq,) into out: v for 1-DOF joints; ``[R v_lin, ½ quat ⊗ [w; 0]]`` for free ones."""
+    for i in range(mi.shape[0]):
+        jt = mi[i, JTYPE]
+        q0 = mi[i, QIDX]
+        v0 = mi[i, VIDX]
+        if jt == FREE:
+            x, y, z, w = q[q0 + 3], q[q0 + 4], q[q0 + 5], q[q0 + 6]
+            R00, R01, R02 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+            R10, R11, R12 = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+            R20, R21, R22 = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+            l0, l1, l2 = v[v0 + 3], v[v0 + 4], v[v0 + 5]
+            out[q0] = R00 * l0 + R01 * l1 + R02 * l2
+            out[q0 + 1] = R10 * l0 + R11 * l1 + R12 * l2
+            out[q0 + 2] = R20 * l0 + R21 * l1 + R22 * l2
+            bx, by, bz = v[v0], v[v0 + 1], v[v0 + 2]
+            # ½ quat ⊗ (bx, by, bz, 0), as spatial.quat_mul
+            out[q0 + 3] = 0.5 * (w * bx + y * bz - z * by)
+            out[q0 + 4] = 0.5 * (w * by - x * bz + z * bx)
+            out[q0 + 5] = 0.5 * (w * bz + x * by - y * bx)
+            out[q0 + 6] = 0.5 * (-x * bx - y * by - z * bz)
+        elif jt != FIXED:
+            out[q0] = v[v0]
+
+
+@njit(**_JIT)
+def normalize_into(mi, q):
+    """Renormalise free-joint quaternions of q in place (the projection onto the manifold)."""
+    for i in range(mi.shape[0]):
+        if mi[i, JTYPE] == FREE:
+            s = mi[i, QIDX] + 3
+            n = math.sqrt(q[s] * q[s] + q[s + 1] * q[s + 1] + q[s + 2] * q[s + 2] + q[s + 3] * q[s + 3])
+            for a in range(4):
+                q[s + a] /= n
+
+
+# ----------------------------------------------------------------------------------------------
+# one-call entry points (called from Python)
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def aba(mi, mf, q, v, tau):
+    """Forward dynamics ``qdd`` (nv,) without external forces."""
+    W = workspace(mi.shape[0])
+    transforms(mi, mf, q, W)
+    qdd = np.empty(tau.shape[0])
+    aba_ws(mi, mf, q, v, tau, W, False, qdd, W)
+    return qdd
+
+
+@njit(**_JIT)
+def aba_fext(mi, mf, q, v, tau, fext):
+    """Forward dynamics ``qdd`` (nv,) with external body forces fext (nb, 6)."""
+    W = workspace(mi.shape[0])
+    transforms(mi, mf, q, W)
+    qdd = np.empty(tau.shape[0])
+    aba_ws(mi, mf, q, v, tau, fext, True, qdd, W)
+    return qdd
+
+
+@njit(**_JIT)
+def rnea(mi, mf, q, v, acc, fext, has_fext):
+    """Inverse dynamics with joint wrenches: ``(tau (nv,), f (nb, 6))``."""
+    nb = mi.shape[0]
+    W = workspace(nb)
+    transforms(mi, mf, q, W)
+    tau = np.empty(acc.shape[0])
+    rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W)
+    return tau, W[:nb, P_:P_ + 6].copy()
+
+
+@njit(**_JIT)
+def rnea_tau(mi, mf, q, v, acc):
+    """Inverse dynamics ``tau`` (nv,) without external forces."""
+    W = workspace(mi.shape[0])
+    transforms(mi, mf, q, W)
+    tau = np.empty(acc.shape[0])
+    rnea_ws(mi, mf, q, v, acc, W, False, tau, W)
+    return tau
+
+
+@njit(**_JIT)
+def crba(mi, mf, q, nv):
+    """Joint-space inertia matrix ``M(q)`` (nv, nv)."""
+    W = workspace(mi.shape[0])
+    transforms(mi, mf, q, W)
+    H = np.zeros((nv, nv))
+    crba_ws(mi, mf, H, W)
+    return H
+
+
+@njit(**_JIT)
+def joint_wrenches(mi, mf, q, v, tau, fext, has_fext):
+    """``(qdd (nv,), f (nb, 6))``: ABA, then the RNEA wrenches at that acceleration."""
+    nb = mi.shape[0]
+    W = workspace(nb)
+    transforms(mi, mf, q, W)
+    qdd = np.empty(tau.shape[0])
+    aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W)
+    tau2 = np.empty(tau.shape[0])
+    rnea_ws(mi, mf, q, v, qdd, fext, has_fext, tau2, W)
+    return qdd, W[:nb, P_:P_ + 6].copy()
+
+
+@njit(**_JIT)
+def energies(mi, mf, q, v):
+    """``(kinetic, potential)`` energy (J)."""
+    W = workspace(mi.shape[0])
+    transforms(mi, mf, q, W)
+    return energies_ws(mi, mf, q, v, W)
+
+
+@njit(**_JIT)
+def qdot(mi, q, v):
+    """``dq/dt`` (nq,)."""
+    out = np.empty(q.shape[0])
+    qdot_into(mi, q, v, out)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# fused fixed-step integration of an arm with its work quadrature
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def arm_rhs(mi, mf, damping, tau_app, nq, nv, z, dz, tauv, W):
+    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v``.
+
+    tau_app (nv,) = B u held over the call; damping (nv,) = D; tauv (nv,) scratch.
+    (ArmSystem.rhs and .input_power of the reference path.)
+    """
+    q = z[:nq]
+    v = z[nq:nq + nv]
+    qdot_into(mi, q, v, dz[:nq])
+    P = 0.0
+    for k in range(nv):
+        tk = tau_app[k] - damping[k] * v[k]
+        tauv[k] = tk
+        P += v[k] * tk
+    transforms(mi, mf, q, W)
+    aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
+    dz[nq + nv] = P
+
+
+@njit(**_JIT)
+def integrate_arm(mi, mf, damping, tau_app, nq, method, z, dt, n_full, h_last):
+    """Integrate ``z = [q, v, W]`` in place over ``n_full`` steps of dt and one of h_last (if > 0).
+
+    method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
+    :mod:`robodyn_ros.integrators` (RK4: ``acc = k1 + 2 k2 + 2 k3 + k4`` folded stage by
+    stage, ``y += h/6 acc``; symplectic Euler: ``[v, W] += h f[nq:]``, then ``q += h q̇(q,
+    v_new)``); free-joint quaternions are renormalised after every step, as the Simulator's
+    projection does. Returns the index of the first step whose result is non-finite (z then
+    holds that result), or -1.
+    """
+    nb = mi.shape[0]
+    n = z.shape[0]
+    nv = n - nq - 1
+    W = workspace(nb)
+    buf = np.empty(3 * n + nv + nq)
+    K = buf[:n]
+    Y = buf[n:2 * n]
+    acc = buf[2 * n:3 * n]
+    tauv = buf[3 * n:3 * n + nv]
+    qd = buf[3 * n + nv:]
+    n_steps = n_full + (1 if h_last > 0.0 else 0)
+    for k in range(n_steps):
+        h = dt if k < n_full else h_last
+        if method == M_RK4:
+            half = 0.5 * h
+            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            for a in range(n):
+                acc[a] = K[a]
+                Y[a] = K[a] * half + z[a]
+            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            for a in range(n):
+                acc[a] = (acc[a] + K[a]) + K[a]
+                Y[a] = K[a] * half + z[a]
+            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            for a in range(n):
+                acc[a] = (acc[a] + K[a]) + K[a]
+                Y[a] = K[a] * h + z[a]
+            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            h6 = h / 6.0
+            for a in range(n):
+                z[a] += (acc[a] + K[a]) * h6
+        elif method == M_SEMI_IMPLICIT_EULER:
+            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            for a in range(nq, n):
+                z[a] += K[a] * h
+            qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
+            for a in range(nq):
+                z[a] += qd[a] * h
+        else:
+            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            for a in range(n):
+                z[a] += K[a] * h
+        normalize_into(mi, z[:nq])
+        for a in range(n):
+            if not math.isfinite(z[a]):
+                return k
+    return -1

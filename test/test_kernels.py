@@ -1,0 +1,315 @@
+"""Compiled kernels (numba) ≡ numpy reference, to 1e-12 relative, and the fused integrator path.
+
+The reference is :mod:`robodyn_ros.dynamics`; the compiled kernels are
+:mod:`robodyn_ros.kernels`. Compared on seeded random trees (chains and branched trees,
+revolute and prismatic joints, FIXED joints mid-tree, FREE root joints) and on every bundled
+scene: RNEA (with and without external forces, with joint wrenches), CRBA, ABA, joint wrenches,
+kinetic and potential energy, q̇ and quaternion normalisation. Then the fused fixed-step loop
+(``ArmSystem.fused_advance``, used by the Simulator) against the Simulator's reference path over
+0.1 s. No timings are asserted here (see ``robodyn bench speed``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+import warnings
+import zlib
+
+import numpy as np
+import pytest
+
+from robodyn_ros import dynamics as dyn
+from robodyn_ros import kernels
+from robodyn_ros.model import FIXED, FREE, build_model, random_tree
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason=f'numba unavailable: {kernels.UNAVAILABLE_REASON}')
+
+RTOL = 1e-12
+N_TREES = 24
+
+
+def close(x, ref, rtol=RTOL):
+    """Norm-wise relative agreement: ``max|x - ref| <= rtol * max|ref|`` (exact when ref is 0)."""
+    x = np.asarray(x, dtype=float)
+    ref = np.asarray(ref, dtype=float)
+    assert x.shape == ref.shape, (x.shape, ref.shape)
+    err = np.abs(x - ref).max() if ref.size else 0.0
+    scale = np.abs(ref).max() if ref.size else 0.0
+    return bool(np.all(np.isfinite(x))) and err <= rtol * scale
+
+
+def _variant(model, name, fixed=(), free_root=False):
+    """Rebuild a random tree with some joints welded (FIXED) and/or a FREE joint at the first root."""
+    specs = []
+    for k, s in enumerate(model.specs):
+        if s.name in fixed:
+            s = dataclasses.replace(s, joint_type='fixed')
+        if free_root and k == 0:
+            s = dataclasses.replace(s, joint_type='free')
+        specs.append(s)
+    return build_model(specs, gravity=model.gravity, name=name)
+
+
+def make_trees():
+    """``N_TREES`` seeded models: chains/trees of 1..12 bodies, prismatic shares 0..1, tilted
+    gravity, FIXED joints mid-tree, FREE roots (floating base), and combinations."""
+    out = []
+    fractions = (0.0, 0.3, 0.6, 1.0)
+    for k in range(16):
+        rng = np.random.default_rng(7000 + k)
+        nb = 1 + (5 * k) % 12
+        chain = k % 3 == 0
+        g = (0.0, 0.0, -9.81) if k % 4 else tuple(9.81 * rng.normal(size=3) / np.sqrt(3.0))
+        out.append((f'seed{7000 + k}-nb{nb}-{"chain" if chain else "tree"}',
+                    random_tree(nb, rng, prismatic_fraction=fractions[k % 4], chain=chain, gravity=g)))
+    for k in range(4):  # FIXED joints mid-tree (a leaf weld in the branched ones)
+        rng = np.random.default_rng(7100 + k)
+        m = random_tree(6 + 2 * k, rng, prismatic_fraction=0.3, chain=k % 2 == 0)
+        welded = {'l2', 'l3'} if k == 0 else {'l3', m.link_names[-1]}
+        out.append((f'fixed{k}', _variant(m, f'fixed{k}', fixed=welded)))
+    for k in range(4):  # FREE root joint (floating base), with and without a weld
+        rng = np.random.default_rng(7200 + k)
+        m = random_tree(3 + 2 * k, rng, prismatic_fraction=0.3, chain=k % 2 == 1)
+        out.append((f'free{k}', _variant(m, f'free{k}', fixed={'l2'} if k >= 2 else (), free_root=True)))
+    assert len(out) == N_TREES
+    return out
+
+
+TREES = make_trees()
+
+
+def random_state(model, rng):
+    """Random ``(q, v, a, f_ext)`` with unit quaternions for FREE joints."""
+    q = rng.uniform(-np.pi, np.pi, size=model.nq)
+    for i in range(model.nb):
+        if model.jtype[i] == FREE:
+            s = model.q_idx[i]
+            q[s:s + 3] = rng.normal(size=3)
+            quat = rng.normal(size=4)
+            q[s + 3:s + 7] = quat / np.linalg.norm(quat)
+    return q, rng.normal(size=model.nv), rng.normal(size=model.nv), rng.normal(size=(model.nb, 6))
+
+
+def test_tree_family_covers_every_joint_kind():
+    kinds = set()
+    for _, m in TREES:
+        kinds |= set(int(j) for j in m.jtype)
+    assert kinds == {0, 1, 2, 3}
+    mid_fixed = [m for _, m in TREES if any(m.jtype[i] == FIXED and i in set(m.parent.tolist())
+                                            for i in range(m.nb))]
+    assert len(mid_fixed) >= 3
+    assert sum(1 for _, m in TREES if m.jtype[0] == FREE) == 4
+    assert sum(1 for _, m in TREES if np.any(m.parent[1:] != np.arange(m.nb - 1))) >= 5  # branched
+
+
+def _compare_all(model, q, v, a, fe):
+    """Every compiled kernel against its reference at one state; returns the failing names."""
+    km = kernels.CompiledModel(model)
+    bad = []
+    checks = {
+        'rnea': (km.rnea(q, v, a), dyn.rnea(model, q, v, a)),
+        'rnea_fext': (km.rnea(q, v, a, fe), dyn.rnea(model, q, v, a, fe)),
+        'rnea_wrenches': (km.rnea_wrenches(q, v, a, fe)[1], dyn.rnea_wrenches(model, q, v, a, fe)[1]),
+        'crba': (km.crba(q), dyn.crba(model, q)),
+        'aba': (km.aba(q, v, a), dyn.aba(model, q, v, a)),
+        'aba_fext': (km.aba(q, v, a, fe), dyn.aba(model, q, v, a, fe)),
+        'joint_wrenches_qdd': (km.joint_wrenches(q, v, a)[0], dyn.joint_wrenches(model, q, v, a)[0]),
+        'joint_wrenches_f': (km.joint_wrenches(q, v, a)[1], dyn.joint_wrenches(model, q, v, a)[1]),
+        'joint_wrenches_fext': (km.joint_wrenches(q, v, a, fe)[1], dyn.joint_wrenches(model, q, v, a, fe)[1]),
+        'kinetic': (km.kinetic_energy(q, v), dyn.kinetic_energy(model, q, v)),
+        'potential': (km.potential_energy(q), dyn.potential_energy(model, q)),
+        'energies': (km.energies(q, v), (dyn.kinetic_energy(model, q, v), dyn.potential_energy(model, q))),
+        'qdot': (km.qdot(q, v), dyn.qdot(model, q, v)),
+        'normalize': (km.normalize(2.0 * q), dyn.normalize_configuration(model, 2.0 * q) if model.nq != model.nv
+                      else 2.0 * q),
+    }
+    for name, (x, ref) in checks.items():
+        if not close(x, ref):
+            bad.append(name)
+    return bad
+
+
+@pytest.mark.parametrize('label,model', TREES, ids=[t[0] for t in TREES])
+def test_compiled_equals_reference_on_random_trees(label, model):
+    rng = np.random.default_rng(zlib.crc32(label.encode()))
+    for _ in range(2):
+        assert _compare_all(model, *random_state(model, rng)) == []
+
+
+def _scene_names():
+    from robodyn_ros.scene import list_scenes
+    return [n for n, _ in list_scenes()]
+
+
+def _load(name, backend=None):
+    from robodyn_ros.scene import load_scene
+    old = os.environ.get('ROBODYN_BACKEND')
+    if backend:
+        os.environ['ROBODYN_BACKEND'] = backend
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            return load_scene(name)
+    finally:
+        if old is None:
+            os.environ.pop('ROBODYN_BACKEND', None)
+        else:
+            os.environ['ROBODYN_BACKEND'] = old
+
+
+SCENES = _scene_names()
+
+
+@pytest.mark.parametrize('name', SCENES)
+def test_compiled_equals_reference_on_scenes(name):
+    scene = _load(name)
+    model = getattr(scene.system, 'model', None)
+    if model is None:
+        pytest.skip(f'{name}: no kinematic tree')
+    rng = np.random.default_rng(11)
+    q0 = np.asarray(scene.y0[:model.nq], dtype=float).copy()
+    if q0.shape == (model.nq,):  # the scene's own initial configuration, moving
+        _, v, a, fe = random_state(model, rng)
+        assert _compare_all(model, q0, v, a, fe) == []
+    assert _compare_all(model, *random_state(model, rng)) == []
+
+
+def test_bundled_scenes_are_all_there():
+    for name in ('stanford_arm', 'betancur_pendulum', 'huston_p19_2_3'):
+        assert name in SCENES
+
+
+# ------------------------------------------------------------------------------------------
+# the fused integrator path of ArmSystem/Simulator
+# ------------------------------------------------------------------------------------------
+def _run(system, y0, integrator, duration, rate, script):
+    from robodyn_ros.simulation import Simulator, run_headless
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(system, y0, integrator=integrator, dt=1e-3)
+    run_headless(sim, duration, rate, script)
+    return sim
+
+
+def _arm_cases():
+    """(label, model, actuated, y0, script) for every ArmSystem scene and a floating-base random tree."""
+    from robodyn_ros.systems.arm import ArmSystem
+    cases = []
+    for name in SCENES:
+        scene = _load(name)
+        if type(scene.system) is ArmSystem:
+            cases.append((name, scene.system.model, scene.system.actuated, scene.y0, scene.script))
+    _, m = TREES[-1]  # FREE root + weld
+    rng = np.random.default_rng(5)
+    q, v, _, _ = random_state(m, rng)
+    u = rng.normal(size=len(m.dof_joint_names))
+    cases.append(('free-root-tree', m, None, np.concatenate([q, 0.3 * v]), lambda t, y: {'effort': u * np.cos(t)}))
+    return cases
+
+
+ARM_CASES = _arm_cases()
+
+
+@pytest.mark.parametrize('integrator', ['rk4', 'semi_implicit_euler', 'euler'])
+@pytest.mark.parametrize('label,model,actuated,y0,script', ARM_CASES, ids=[c[0] for c in ARM_CASES])
+def test_fused_loop_equals_simulator_reference_path(label, model, actuated, y0, script, integrator):
+    from robodyn_ros.systems.arm import ArmSystem
+    ref_sys = ArmSystem(model, actuated=actuated, backend='numpy')
+    fast_sys = ArmSystem(model, actuated=actuated, backend='numba')
+    calls = []
+    fused = fast_sys.fused_advance
+
+    def counting(*a, **k):
+        res = fused(*a, **k)
+        calls.append(res is not None)
+        return res
+    fast_sys.fused_advance = counting
+    # 30 Hz publications with 1 ms steps: 33 full steps and a partial one per period
+    ref = _run(ref_sys, y0, integrator, 0.1, 30.0, script)
+    fast = _run(fast_sys, y0, integrator, 0.1, 30.0, script)
+    assert calls and all(calls)  # the Simulator took the fused path every period
+    assert fast.t == ref.t
+    assert close(fast.y, ref.y), np.abs(fast.y - ref.y).max()
+    assert close([fast.diag.work], [ref.diag.work]) or abs(fast.diag.work - ref.diag.work) < 1e-14
+    assert (fast.diag.steps, fast.diag.rhs_evals) == (ref.diag.steps, ref.diag.rhs_evals)
+    assert fast.integrator.stats.steps == ref.integrator.stats.steps
+    assert np.all(np.isfinite(fast.y)) and not np.allclose(fast.y, y0)  # it moved
+
+
+def test_fused_path_declines_where_it_would_be_wrong():
+    from robodyn_ros.systems.arm import ArmSystem
+    model = TREES[3][1]
+    z0 = np.zeros(2 * model.nv + 1)
+    u = {'effort': np.zeros(model.nv)}
+    assert ArmSystem(model, backend='numpy').fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is None
+    fast = ArmSystem(model, backend='numba')
+    assert fast.fused_advance('rk45', 1e-3, 0.0, z0, 0.01, u) is None
+    assert fast.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is not None
+
+    class Changed(ArmSystem):
+        def rhs(self, t, y, u):
+            return super().rhs(t, y, u) * 0.0
+    assert Changed(model, backend='numba').fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is None
+
+
+def test_fused_path_reports_non_finite_state_like_the_reference():
+    from robodyn_ros.integrators import IntegrationError
+    from robodyn_ros.systems.arm import ArmSystem
+    model = TREES[3][1]
+    z0 = np.zeros(2 * model.nv + 1)
+    u = {'effort': np.full(model.nv, 1e308)}
+    with pytest.raises(IntegrationError, match='non-finite'):
+        ArmSystem(model, backend='numba').fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u)
+
+
+def test_arm_outputs_and_energy_equal_on_both_backends():
+    from robodyn_ros.systems.arm import ArmSystem
+    scene = _load('stanford_arm')
+    m = scene.system.model
+    u = {'effort': np.linspace(-1.0, 1.0, len(scene.system.actuated))}
+    y = scene.y0 + 0.1
+    a = ArmSystem(m, actuated=scene.system.actuated, backend='numpy')
+    b = ArmSystem(m, actuated=scene.system.actuated, backend='numba')
+    oa, ob = a.outputs(0.0, y, u), b.outputs(0.0, y, u)
+    assert close(ob.energy['kinetic'], oa.energy['kinetic']) and close(ob.energy['potential'], oa.energy['potential'])
+    assert set(oa.wrenches) == set(ob.wrenches)
+    for k in oa.wrenches:
+        assert oa.wrenches[k][0] == ob.wrenches[k][0] and close(ob.wrenches[k][1], oa.wrenches[k][1])
+    assert close(b.rhs(0.0, y, u), a.rhs(0.0, y, u))
+    assert close(b.total_energy(y), a.total_energy(y))
+    q, v = y[:m.nq], y[m.nq:]
+    assert close(b.inverse_dynamics(q, v, v), a.inverse_dynamics(q, v, v))
+
+
+def test_backend_selection():
+    from robodyn_ros.systems.arm import ArmSystem, default_backend
+    model = TREES[0][1]
+    assert ArmSystem(model).backend == default_backend() == 'numba'
+    assert ArmSystem(model, backend='NumPy').backend == 'numpy'
+    with pytest.raises(ValueError, match='unknown backend'):
+        ArmSystem(model, backend='fortran')
+
+
+def test_cache_dir_is_writable_and_used():
+    assert os.path.isdir(kernels.CACHE_DIR) or os.access(os.path.dirname(kernels.CACHE_DIR), os.W_OK)
+    # a child process with an unwritable package dir is not simulated here; the fallback is
+    # checked through NUMBA_CACHE_DIR, which kernels honours
+    code = 'from robodyn_ros import kernels; print(kernels.CACHE_DIR)'
+    env = dict(os.environ, NUMBA_CACHE_DIR='/tmp/robodyn-test-numba-cache')
+    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == '/tmp/robodyn-test-numba-cache'
+
+
+def test_bench_cli_smoke(tmp_path):
+    """``robodyn bench speed`` runs and writes its table (figures are not checked)."""
+    from robodyn_ros.cli import build_parser
+    args = build_parser().parse_args(['bench'])
+    assert args.command == 'bench' and getattr(args, '_bench_main', None) is None  # defaults to speed
+    out = tmp_path / 'bench.md'
+    args = build_parser().parse_args(['bench', 'speed', '--quick', '--scenes', 'betancur_pendulum',
+                                      '--skip', 'rtf', 'scaling', 'memory', 'compile', 'node', '--out', str(out)])
+    assert args._main(args) == 0
+    text = out.read_text()
+    assert '| betancur_pendulum | 5/4 | FD |' in text and 'compiled / Pinocchio' in text
