@@ -129,14 +129,14 @@ def live(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('live')
     dom = Domain()
     node = start_sim(dom, {'scene': 'stanford_arm', 'mode': 'realtime', 'dt': 0.005,
-                           'command_timeout': TIMEOUT}, tmp / 'node.log')
+                           'command_timeout': TIMEOUT, 'record': str(tmp / 'live.mcap')}, tmp / 'node.log')
     client = RosClient(dom)
     try:
         from sensor_msgs.msg import JointState
         states = []
         client.node.create_subscription(JointState, 'joint_states', states.append, 100)
         assert client.spin_until(lambda: len(states) > 5, 30, node), node.output()
-        yield {'node': node, 'client': client, 'states': states}
+        yield {'node': node, 'client': client, 'states': states, 'tmp': tmp}
     finally:
         client.close()
         node.cleanup()
@@ -258,6 +258,21 @@ def test_pause_stops_time_and_reset_returns_to_initial_state(live):
     np.testing.assert_array_equal(first.position, SCENE.y0[:6])
     np.testing.assert_array_equal(first.velocity, np.zeros(6))
     assert client.spin_until(lambda: 0 < _stamp_ns(states[-1]) < t_paused, 10)
+
+
+def test_sigterm_finishes_the_recording_of_each_episode(live):
+    """After ~/reset the recording continues in live-1.mcap; SIGTERM finishes both files."""
+    from robodyn_ros.cli.check import check_file
+    node = live['node']
+    assert node.stop(signal.SIGTERM) == 0, node.output()
+    assert 'recording ' in node.output() and 'live-1.mcap' in node.output()
+    for name, least in (('live.mcap', 100), ('live-1.mcap', 1)):
+        report = check_file(live['tmp'] / name)
+        assert report['ok'], (name, report['problems'])
+        assert report['topics']['/joint_states']['count'] >= least
+        assert report['topics']['/robot_description']['count'] == 1
+    first = [t for _, _, t, _ in read_raw_messages(live['tmp'] / 'live-1.mcap', topics=['/joint_states'])]
+    assert first[0] == 0
 
 
 # ------------------------------------------------------------------------------------------
