@@ -344,3 +344,76 @@ def test_sigkill_leaves_every_complete_chunk_readable(tmp_path):
           f'({size} bytes on disk, simulated up to {js[-1] / 1e9:.2f} s); at least {lost_s:.2f} s of '
           f'simulation ({lost_s * 100:.0f} periods, at most one 64 KiB chunk) lost')
     assert 0 <= lost_s < 1.5
+
+
+def test_simulation_error_stops_the_node_cleanly_and_reset_recovers(tmp_path):
+    """In-process node: the state turns non-finite at t > 0.2 s. Nothing non-finite is published,
+    an ERROR diagnostic says why, time stops, ~/reset still answers and the run resumes."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+    from std_srvs.srv import Trigger
+
+    from robodyn_ros.nodes.sim import make_node_class
+    dom = Domain()
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=dom.id)
+    node = listener = None
+    try:
+        rec = tmp_path / 'failed.mcap'
+        node = make_node_class()(context=ctx, parameter_overrides=[
+            Parameter('mode', value='max'), Parameter('record', value=str(rec))])
+        listener = rclpy.create_node('listener', context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        ex.add_node(listener)
+        states, diags = [], []
+        listener.create_subscription(JointState, 'joint_states', states.append, 1000)
+        listener.create_subscription(DiagnosticArray, 'diagnostics', diags.append, 100)
+        reset = listener.create_client(Trigger, '/robodyn_sim/reset')
+
+        def spin(pred, timeout=20.0, advance=True):
+            end = time.monotonic() + timeout
+            while time.monotonic() < end and not pred():
+                ex.spin_once(timeout_sec=0.01)
+                if advance:
+                    node.work()
+            return pred()
+        assert spin(lambda: node.pub['joint_states'].get_subscription_count()
+                    and node.pub['diagnostics'].get_subscription_count() and reset.service_is_ready(),
+                    advance=False)
+        integrate = node.sim._integrate
+
+        def blow_up(u, t1):
+            y, w, st = integrate(u, t1)
+            return (y * np.nan if t1 > 0.2 else y), w, st
+        node.sim._integrate = blow_up
+        assert spin(lambda: node.sim.failed)
+        t_fail = node.sim.t
+        assert t_fail == pytest.approx(0.2)
+        assert spin(lambda: any(d.status[0].level == b'\x02' for d in diags))
+        error = next(d for d in diags if d.status[0].level == b'\x02')
+        assert 'non-finite' in error.status[0].message
+        spin(lambda: False, timeout=0.3)                    # time stands still, the loop keeps going
+        assert node.sim.t == t_fail
+        assert all(np.all(np.isfinite(s.position)) and np.all(np.isfinite(s.velocity)) for s in states)
+        assert max(_stamp_ns(s) for s in states) == round(t_fail * 1e9)
+        node.sim._integrate = integrate
+        fut = reset.call_async(Trigger.Request())
+        assert spin(fut.done) and fut.result().success
+        assert spin(lambda: node.sim.t > 0.1)
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        if listener is not None:
+            listener.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        dom.release()
+    from robodyn_ros.cli.check import check_file
+    report = check_file(rec)                                  # the failed episode's file is clean
+    assert report['ok'], report['problems']
+    assert report['end_time_ns'] == round(t_fail * 1e9)
