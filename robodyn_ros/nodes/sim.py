@@ -245,7 +245,6 @@ def make_node_class():
             self.recorder = None
             self._timed_out_warned = set()
             self._last_logged = {}
-            self._wall_start = time.monotonic()
             self._start_period_clock()
 
             # -- publishers: state topics known from one output at the initial state
@@ -295,6 +294,8 @@ def make_node_class():
                 + (', scripted commands' if cfg.scripted_commands else
                    f', commands on {", ".join(t for t, _ in command_topics(self.scene.system).values())}')
                 + (f', recording to {self.recorder.path}' if self.recorder else ''))
+            # the run (real-time schedule, summary wall time) starts now, after the set-up
+            self._wall_start = self._anchor_wall = self._rtf_wall = time.monotonic()
 
         # -- set-up helpers -------------------------------------------------------------------
         def _publisher(self, topic):
@@ -336,11 +337,13 @@ def make_node_class():
         def _on_command(self, port, msg):
             """A command message: validate, hold (zero-order) and record; in lockstep run one period."""
             try:
-                values = command_values(port, msg)
+                try:
+                    values = command_values(port, msg)
+                except CommandError:
+                    self.sim.ports[port].rejected += 1   # refused before reaching the simulator
+                    raise
                 self.sim.set_command(port, values)
             except CommandError as e:
-                if 'frame_id' in str(e):
-                    self.sim.ports[port].rejected += 1
                 self._log_throttled('error', str(e), f'command rejected ({self.sim.rejected_commands} so far), '
                                                      f'last valid command stays: {e}')
             else:
@@ -411,7 +414,6 @@ def make_node_class():
             sim = self.sim
             if not sim.failed:
                 sim.failed = str(err)
-            np.set_printoptions(precision=17)
             self.get_logger().error(
                 f'simulation stopped at t={sim.t:.6f} s: {err}; last good state y={sim.y.tolist()}; '
                 f'still serving ~/reset and ~/pause')
