@@ -34,10 +34,11 @@ setup(
     ] + _config_files(),
     # numba: compiled kernels (robodyn_ros.kernels); pip-only (no rosdep key), optional at run time:
     # without it ArmSystem falls back to the numpy reference kernels
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'numba'],
+    # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba'],
     extras_require={
-        'test': ['pytest', 'pin', 'mujoco', 'mcap-ros2-support', 'rosbags',
-                 'colcon-common-extensions', 'matplotlib'],
+        'plot': ['matplotlib'],
+        'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib'],
     },
     zip_safe=True,
     maintainer='robodyn_ros developers',

@@ -43,7 +43,7 @@ def test_recording_counts_then_contents(stanford_run):
     assert topics['/clock']['count'] == 101
     assert topics['/effort_commands']['count'] == 100
     assert topics['/robot_description']['count'] == 1
-    assert topics['/diagnostics']['count'] == 2  # t = 0 and t = 1 s at 1 Hz
+    assert topics['/diagnostics']['count'] == 11  # every 0.1 s of simulated time, both ends included
     wrench_topics = [t for t in topics if t.startswith('/constraint_wrenches/')]
     assert len(wrench_topics) == n_joints
     assert 'transient_local' in topics['/robot_description']['offered_qos_profiles']
