@@ -252,6 +252,10 @@ def test_fused_path_declines_where_it_would_be_wrong():
         def rhs(self, t, y, u):
             return super().rhs(t, y, u) * 0.0
     assert Changed(model, backend='numba').fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is None
+    patched = ArmSystem(model, backend='numba')
+    real_rhs = patched.rhs
+    patched.rhs = lambda t, y, u: real_rhs(t, y, u) * 2.0
+    assert patched.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is None
 
 
 def test_fused_path_reports_non_finite_state_like_the_reference():

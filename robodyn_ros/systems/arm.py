@@ -151,9 +151,10 @@ class ArmSystem(System):
         return z, IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=1, projections=n_steps)
 
     def _fused_exact(self) -> bool:
-        """True when this class computes dy/dt, power, projection and q̇ exactly as ArmSystem."""
+        """True when this object computes dy/dt, power, projection and q̇ exactly as ArmSystem
+        (no subclass override, no method replaced on the instance)."""
         cls = type(self)
-        return all(getattr(cls, n) is getattr(ArmSystem, n)
+        return all(getattr(cls, n) is getattr(ArmSystem, n) and n not in vars(self)
                    for n in ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate'))
 
     def outputs(self, t, y, u, wrenches=True):
