@@ -92,7 +92,11 @@ def check_step(system: System, integrator: str, dt, y):
     system: supplies ``fastest_time_constant(y)`` (s); integrator: registry name; dt: its step
     (s); y: the state it starts from. Error-controlled and implicit integrators always pass
     (they adapt or are stable). Policy: refuse, do not sub-step silently — raises ValueError
-    naming the time constant, the largest stable step and the alternatives.
+    naming the time constant, the largest stable step and the alternatives. Beyond the declared
+    time constant, :func:`robodyn_ros.extremes.check_fixed_step` checks the modes of the
+    linearisation at y (finite differences) and the spin of a free base: it refuses a step that
+    amplifies one of them by more than ``extremes.REFUSE_GROWTH`` per step and warns
+    (``extremes.StepWarning``) on a slow spurious growth (explicit Euler on an oscillation).
     """
     name = str(integrator).lower()
     limit = STABILITY_LIMIT.get(name)
@@ -103,6 +107,8 @@ def check_step(system: System, integrator: str, dt, y):
         raise ValueError(f'{name} with dt={dt:g} s is unstable for this system: its fastest time constant is '
                          f'{tau:.3g} s ({type(system).__name__}; e.g. motor electrics L/R), so a stable {name} step is '
                          f'at most {limit * tau:.3g} s; use a smaller dt or an implicit integrator (radau, bdf)')
+    from .extremes import check_fixed_step
+    check_fixed_step(system, name, dt, y)
 
 
 class Simulator:
@@ -229,13 +235,18 @@ class Simulator:
         w0 = time.perf_counter()
         try:
             y1, work, st = self._integrate(u, t1)
-        except IntegrationError as e:
-            self.failed = f'integration failed at t={self.t:.6f} s: {e}'
+        except (IntegrationError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
+            # LinAlgError/FloatingPointError come from the system's own solves (a mass matrix or
+            # constraint system that became singular); all of them stop the run with the cause
+            what = 'integration failed' if isinstance(e, IntegrationError) else \
+                f'the equations of motion could not be solved ({type(e).__name__})'
+            self.failed = f'{what} at t={self.t:.6f} s: {e}{self._diagnosis(u)}'
             raise SimulationError(self.failed) from e
         self.diag.wall += time.perf_counter() - w0
         if not (np.all(np.isfinite(y1)) and math.isfinite(work)):
             self.failed = (f'state became non-finite between t={self.t:.6f} and {t1:.6f} s with '
-                           f'{self.settings["integrator"]} (dt={self.settings["dt"]}); last good state kept')
+                           f'{self.settings["integrator"]} (dt={self.settings["dt"]}); last good state kept'
+                           f'{self._diagnosis(u)}')
             raise SimulationError(self.failed)
         self.diag.steps += st.steps
         self.diag.rhs_evals += st.rhs_evals
@@ -246,6 +257,12 @@ class Simulator:
         self.t, self.y, self.diag.work = float(t1), y1, float(work)
         self.diag.sim_time = self.t - self._t0
         return self.y
+
+    def _diagnosis(self, u) -> str:
+        """``'; <likely cause>'`` of a failure, from the last good state (extremes.diagnose)."""
+        from .extremes import diagnose
+        text = diagnose(self.system, self.y, u, self.settings['integrator'], self.settings['dt'], self.t)
+        return f'; {text}' if text else ''
 
     def outputs(self, wrenches: bool = True) -> SystemOutputs:
         """Stage 4: what the system reports at the current state (wrench solve optional).
