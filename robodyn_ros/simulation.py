@@ -130,6 +130,8 @@ class Simulator:
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
         self.reset()
+        from .extremes import preflight
+        preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
         check_step(system, integrator, dt, self.y)
 
     # -- state ---------------------------------------------------------------------------
