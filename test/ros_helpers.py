@@ -81,20 +81,7 @@ def start_pd(domain: Domain, log_path, **kw) -> Proc:
 
 
 class RosClient(Probe):
-    """The test process's rclpy context, node and executor in a domain, plus a service call."""
-
-    def call(self, srv_type, name, request, timeout=10.0):
-        """Call a service and return its response (raises on timeout)."""
-        cli = self.node.create_client(srv_type, name)
-        try:
-            if not cli.wait_for_service(timeout_sec=timeout):
-                raise TimeoutError(f'service {name} not available')
-            fut = cli.call_async(request)
-            if not self.spin_until(fut.done, timeout):
-                raise TimeoutError(f'service {name} did not answer')
-            return fut.result()
-        finally:
-            self.node.destroy_client(cli)
+    """The test process's rclpy context, node and executor in a domain (see Probe)."""
 
 
 def diag_values(msg) -> dict:

@@ -347,15 +347,16 @@ def test_sigkill_leaves_every_complete_chunk_readable(tmp_path):
 
 
 def test_simulation_error_stops_the_node_cleanly_and_reset_recovers(tmp_path):
-    """In-process node: the state turns non-finite at t > 0.2 s. Nothing non-finite is published,
-    an ERROR diagnostic says why, time stops, ~/reset still answers and the run resumes."""
+    """In-process node started paused: ~/pause starts it; the state turns non-finite at t > 0.2 s.
+    Nothing non-finite is published, an ERROR diagnostic says why, time stops, ~/reset still
+    answers and the run resumes."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
-    from std_srvs.srv import Trigger
+    from std_srvs.srv import SetBool, Trigger
 
     from robodyn_ros.nodes.sim import make_node_class
     dom = Domain()
@@ -365,7 +366,8 @@ def test_simulation_error_stops_the_node_cleanly_and_reset_recovers(tmp_path):
     try:
         rec = tmp_path / 'failed.mcap'
         node = make_node_class()(context=ctx, parameter_overrides=[
-            Parameter('mode', value='max'), Parameter('record', value=str(rec))])
+            Parameter('mode', value='max'), Parameter('record', value=str(rec)),
+            Parameter('start_paused', value=True)])
         listener = rclpy.create_node('listener', context=ctx)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
@@ -374,6 +376,7 @@ def test_simulation_error_stops_the_node_cleanly_and_reset_recovers(tmp_path):
         listener.create_subscription(JointState, 'joint_states', states.append, 1000)
         listener.create_subscription(DiagnosticArray, 'diagnostics', diags.append, 100)
         reset = listener.create_client(Trigger, '/robodyn_sim/reset')
+        pause = listener.create_client(SetBool, '/robodyn_sim/pause')
 
         def spin(pred, timeout=20.0, advance=True):
             end = time.monotonic() + timeout
@@ -383,14 +386,18 @@ def test_simulation_error_stops_the_node_cleanly_and_reset_recovers(tmp_path):
                     node.work()
             return pred()
         assert spin(lambda: node.pub['joint_states'].get_subscription_count()
-                    and node.pub['diagnostics'].get_subscription_count() and reset.service_is_ready(),
-                    advance=False)
+                    and node.pub['diagnostics'].get_subscription_count() and reset.service_is_ready()
+                    and pause.service_is_ready(), advance=False)
+        spin(lambda: False, timeout=0.2)
+        assert node.sim.t == 0.0 and node.paused
         integrate = node.sim._integrate
 
         def blow_up(u, t1):
             y, w, st = integrate(u, t1)
             return (y * np.nan if t1 > 0.2 else y), w, st
         node.sim._integrate = blow_up
+        fut = pause.call_async(SetBool.Request(data=False))
+        assert spin(fut.done) and fut.result().success and not node.paused
         assert spin(lambda: node.sim.failed)
         t_fail = node.sim.t
         assert t_fail == pytest.approx(0.2)

@@ -33,13 +33,19 @@ def _max_mode_rtf(publish_rate: float, duration: float) -> dict:
     from ..nodes.probe import Domain, Probe, start_sim
     dom = Domain()
     probe = Probe(dom, 'robodyn_bench')
+    from std_srvs.srv import SetBool
     received = []
-    probe.subscribe_count('joint_states', received)
+    sub = probe.subscribe_count('joint_states', received)
     with tempfile.TemporaryFile() as log:
-        proc = start_sim(dom, {'scene': SCENE, 'mode': 'max', 'command_timeout': 0.0,
+        # start paused, resume once the probe's subscription is matched: the whole timed run
+        # builds and publishes its messages (paused time is left out of the node's summary)
+        proc = start_sim(dom, {'scene': SCENE, 'mode': 'max', 'command_timeout': 0.0, 'start_paused': True,
                                'publish_rate': float(publish_rate), 'duration': float(duration), **INTEGRATOR},
                          stdout=log)
         try:
+            if not probe.spin_until(lambda: sub.get_publisher_count() > 0, 60, proc):
+                raise RuntimeError('the sim node did not come up')
+            probe.call(SetBool, '/robodyn_sim/pause', SetBool.Request(data=False))
             probe.spin_until(lambda: proc.poll() is not None, 60 + 20 * duration)
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)

@@ -113,6 +113,19 @@ class Probe:
         while time.monotonic() < end:
             self.executor.spin_once(timeout_sec=min(0.02, max(end - time.monotonic(), 0.0)))
 
+    def call(self, srv_type, name: str, request, timeout: float = 10.0):
+        """Call service ``name`` and return the response (TimeoutError if it does not answer)."""
+        cli = self.node.create_client(srv_type, name)
+        try:
+            if not cli.wait_for_service(timeout_sec=timeout):
+                raise TimeoutError(f'service {name} not available')
+            fut = cli.call_async(request)
+            if not self.spin_until(fut.done, timeout):
+                raise TimeoutError(f'service {name} did not answer')
+            return fut.result()
+        finally:
+            self.node.destroy_client(cli)
+
     def subscribe_count(self, topic: str, sink: list, type_name='sensor_msgs/msg/JointState'):
         """Subscribe ``topic`` (depth 1000) appending the receive time of every message to ``sink``."""
         import importlib

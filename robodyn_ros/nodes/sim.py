@@ -63,6 +63,7 @@ PARAMETERS = {
     'duration': (0.0, 'simulated seconds to run, then exit; 0 = until shut down'),
     'record': ('', "MCAP file to record to; '' = no recording"),
     'scripted_commands': (False, "use the scene's scripted commands instead of the command topics"),
+    'start_paused': (False, 'start with simulation time paused; resume with ~/pause (data: false)'),
     'initial_positions': (None, "initial joint positions (nq values; unset = the scene's)"),
     'initial_velocities': (None, "initial joint velocities (nv values; unset = the scene's)"),
     'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
@@ -91,6 +92,7 @@ class Config:
     duration: float
     record: str
     scripted_commands: bool
+    start_paused: bool
     diagnostics_period: float
     y0: np.ndarray
 
@@ -149,8 +151,9 @@ def resolve_config(p: dict, scene) -> Config:
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
-    if not isinstance(p['scripted_commands'], bool):
-        raise ConfigError(f"parameter 'scripted_commands' must be true or false, got {p['scripted_commands']!r}")
+    for name in ('scripted_commands', 'start_paused'):
+        if not isinstance(p[name], bool):
+            raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
     if p['scripted_commands'] and mode == 'lockstep':
         raise ConfigError("scripted_commands needs mode realtime or max: lockstep advances on received commands")
     if p['scripted_commands'] and scene.script is None:
@@ -178,7 +181,7 @@ def resolve_config(p: dict, scene) -> Config:
                   max_lag=_number('max_lag', p['max_lag'], positive=True),
                   command_timeout=timeout or None,
                   duration=_number('duration', p['duration'], minimum=0.0),
-                  record=p['record'], scripted_commands=p['scripted_commands'],
+                  record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
                   diagnostics_period=_number('diagnostics_period', p['diagnostics_period'], positive=True),
                   y0=y0)
 
@@ -238,7 +241,8 @@ def make_node_class():
             except (ValueError, SimulationError) as e:
                 raise ConfigError(f'cannot build the simulator: {e}') from None
             self.period = 1.0 / cfg.publish_rate   # s of simulation time per control period
-            self.paused = False
+            self.paused = cfg.start_paused
+            self._paused_wall = 0.0   # wall seconds spent paused (left out of the summary's wall time)
             self.finished = False
             self.episode = 0
             self.recorders = []       # every McapRunSink opened (one per episode)
@@ -295,7 +299,7 @@ def make_node_class():
                    f', commands on {", ".join(t for t, _ in command_topics(self.scene.system).values())}')
                 + (f', recording to {self.recorder.path}' if self.recorder else ''))
             # the run (real-time schedule, summary wall time) starts now, after the set-up
-            self._wall_start = self._anchor_wall = self._rtf_wall = time.monotonic()
+            self._wall_start = self._anchor_wall = self._rtf_wall = self._pause_began = time.monotonic()
 
         # -- set-up helpers -------------------------------------------------------------------
         def _publisher(self, topic):
@@ -507,8 +511,12 @@ def make_node_class():
             """Pause (data=true) or resume (false) simulation time; commands are still held."""
             was = self.paused
             self.paused = bool(request.data)
+            now = time.monotonic()
+            if self.paused and not was:
+                self._pause_began = now
             if was and not self.paused:
-                self._anchor_wall, self._anchor_sim = time.monotonic(), self.sim.t
+                self._paused_wall += now - self._pause_began
+                self._anchor_wall, self._anchor_sim = now, self.sim.t
                 self._rtf_wall, self._rtf_sim = self._anchor_wall, self.sim.t
                 if self.cfg.mode == 'lockstep':
                     self._resend_state()
@@ -576,7 +584,8 @@ def make_node_class():
             from ..cli.run import summary
             for r in self.recorders:
                 r.close()
-            wall = time.monotonic() - self._wall_start
+            now = time.monotonic()
+            wall = now - self._wall_start - self._paused_wall - (now - self._pause_began if self.paused else 0.0)
             st = {'integrator': self.cfg.integrator, 'dt': self.cfg.dt, 'rtol': self.cfg.rtol,
                   'atol': self.cfg.atol}
             record = self.recorder.path if self.recorder else None
