@@ -31,6 +31,7 @@ import os
 
 import numpy as np
 
+from ..model import FREE as FREE_CODE
 from ..model import Model
 
 
@@ -72,35 +73,75 @@ __all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'pack_model', 'FUSED_METHO
 FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2}
 
 
-def pack_model(model: Model):
-    """The model as two arrays for the kernels: ``(mi (nb, 4) int64, mf (nb + 1, NF) float64)``.
+def merge_fixed(model: Model) -> dict:
+    """The tree with every FIXED non-root body welded into its parent (for ABA/RNEA/CRBA/energy).
+
+    A welded body's inertia is moved into its host body (``Xᵀ I X`` with X the host -> body
+    transform) and its children hang from the host with ``Xtree`` composed, so joint-space
+    results (``qdd``, ``tau``, ``M``, energies) are unchanged while the loops visit fewer bodies
+    (the massless ``tool`` link of a DH arm disappears, as Pinocchio turns it into a frame).
+    FIXED roots (welded to the world) stay. Returns the arrays :func:`pack_model` needs.
+    """
+    from ..model import FIXED as _FIXED
+    nb = model.nb
+    host = list(range(nb))
+    Xh = [np.eye(6)] * nb  # motion transform host(i) -> i
+    keep, new = [], {}
+    for i in range(nb):
+        p = int(model.parent[i])
+        if model.jtype[i] == _FIXED and p >= 0:
+            host[i] = host[p]
+            Xh[i] = model.Xtree[i] @ Xh[p]
+        else:
+            new[i] = len(keep)
+            keep.append(i)
+    I = {i: model.I[i].copy() for i in keep}
+    for i in range(nb):
+        if host[i] != i:
+            I[host[i]] += Xh[i].T @ model.I[i] @ Xh[i]
+    parent, Xtree = [], []
+    for i in keep:
+        p = int(model.parent[i])
+        parent.append(-1 if p < 0 else new[host[p]])
+        Xtree.append(model.Xtree[i] if p < 0 else model.Xtree[i] @ Xh[p])
+    return {'parent': np.array(parent, dtype=np.int64), 'jtype': model.jtype[keep], 'axis': model.axis[keep],
+            'Xtree': np.array(Xtree).reshape(-1, 6, 6), 'I': np.array([I[i] for i in keep]).reshape(-1, 6, 6),
+            'q_idx': model.q_idx[keep], 'v_idx': model.v_idx[keep], 'gravity': model.gravity}
+
+
+def pack_model(model: Model, merge: bool = False):
+    """The model as two arrays for the kernels: ``(mi (nb, 5) int64, mf (nb + 1, NF) float64)``.
 
     Column layout in :mod:`robodyn_ros.kernels.core`: per body parent, joint type, q and v
-    index; axis, Xtree as (E, r), mass, m·com, rotational inertia about the body origin; the
-    last row of mf holds gravity.
+    index, +z-axis flag; axis, Xtree as (E, r), mass, m·com, rotational inertia about the body
+    origin; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
+    (:func:`merge_fixed`).
     """
-    nb = model.nb
-    mi = np.empty((nb, 4), dtype=np.int64)
-    mi[:, 0] = model.parent
-    mi[:, 1] = model.jtype
-    mi[:, 2] = model.q_idx
-    mi[:, 3] = model.v_idx
-    NF = 28
-    mf = np.zeros((nb + 1, NF))
+    from ..model import FIXED as _FIXED
+    a = merge_fixed(model) if merge else {k: getattr(model, k) for k in
+                                          ('parent', 'jtype', 'axis', 'Xtree', 'I', 'q_idx', 'v_idx', 'gravity')}
+    nb = len(a['parent'])
+    mi = np.zeros((nb, 5), dtype=np.int64)
+    mi[:, 0] = a['parent']
+    mi[:, 1] = a['jtype']
+    mi[:, 2] = a['q_idx']
+    mi[:, 3] = a['v_idx']
+    mi[:, 4] = [int(a['jtype'][i] != _FIXED and a['jtype'][i] != FREE_CODE and tuple(a['axis'][i]) == (0.0, 0.0, 1.0))
+                for i in range(nb)]
+    mf = np.zeros((nb + 1, 28))
     for i in range(nb):
-        X = model.Xtree[i]
+        X = a['Xtree'][i]
         E = X[:3, :3]
         rx = -(E.T @ X[3:, :3])  # X[3:, :3] = -E r×
-        I = model.I[i]
-        m = I[5, 5]
+        I = a['I'][i]
         hx = I[:3, 3:]  # = h× with h = m c
-        mf[i, 0:3] = model.axis[i]
+        mf[i, 0:3] = a['axis'][i]
         mf[i, 3:12] = E.reshape(-1)
         mf[i, 12:15] = (rx[2, 1], rx[0, 2], rx[1, 0])
-        mf[i, 15] = m
+        mf[i, 15] = I[5, 5]
         mf[i, 16:19] = (hx[2, 1], hx[0, 2], hx[1, 0])
         mf[i, 19:28] = I[:3, :3].reshape(-1)
-    mf[nb, 0:3] = model.gravity
+    mf[nb, 0:3] = a['gravity']
     return np.ascontiguousarray(mi), np.ascontiguousarray(mf)
 
 
@@ -109,6 +150,9 @@ class CompiledModel:
 
     model: the kinematic tree. All methods take float64 arrays of the reference shapes
     (q (nq,), v/a/tau (nv,), f_ext (nb, 6) in body coordinates) and return new arrays.
+    Joint-space results use the tree with FIXED bodies welded into their parents
+    (``mi_r, mf_r``, :func:`merge_fixed`); per-body results (wrenches) and external forces
+    use the full tree (``mi, mf``).
     """
 
     def __init__(self, model: Model):
@@ -116,20 +160,26 @@ class CompiledModel:
             raise RuntimeError(f'compiled kernels unavailable: {UNAVAILABLE_REASON}')
         self.model = model
         self.mi, self.mf = pack_model(model)
+        self.mi_r, self.mf_r = pack_model(model, merge=True)
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
         self._zf = np.zeros((self.nb, 6))
 
     def aba(self, q, v, tau, f_ext=None):
         """Forward dynamics ``qdd`` (nv,) by the articulated-body algorithm."""
+        qdd = np.empty(self.nv)
         if f_ext is None:
-            return core.aba(self.mi, self.mf, q, v, tau)
-        return core.aba_fext(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float))
+            core.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
+        else:
+            core.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
+        return qdd
 
     def rnea(self, q, v, a, f_ext=None):
         """Inverse dynamics ``tau = M a + h`` (nv,)."""
         if f_ext is None:
-            return core.rnea_tau(self.mi, self.mf, q, v, a)
+            tau = np.empty(self.nv)
+            core.rnea_into(self.mi_r, self.mf_r, q, v, a, tau)
+            return tau
         return core.rnea(self.mi, self.mf, q, v, a, np.ascontiguousarray(f_ext, dtype=float), True)[0]
 
     def rnea_wrenches(self, q, v, a, f_ext=None):
@@ -139,7 +189,9 @@ class CompiledModel:
 
     def crba(self, q):
         """Joint-space inertia matrix ``M(q)`` (nv, nv)."""
-        return core.crba(self.mi, self.mf, q, self.nv)
+        H = np.zeros((self.nv, self.nv))
+        core.crba_into(self.mi_r, self.mf_r, q, H)
+        return H
 
     def joint_wrenches(self, q, v, tau, f_ext=None):
         """``(qdd (nv,), f (nb, 6))`` under applied forces tau (see ``dynamics.joint_wrenches``)."""
@@ -148,15 +200,15 @@ class CompiledModel:
 
     def energies(self, q, v):
         """``(kinetic, potential)`` energy (J)."""
-        return core.energies(self.mi, self.mf, q, v)
+        return core.energies(self.mi_r, self.mf_r, q, v)
 
     def kinetic_energy(self, q, v):
         """Kinetic energy (J)."""
-        return core.energies(self.mi, self.mf, q, v)[0]
+        return core.energies(self.mi_r, self.mf_r, q, v)[0]
 
     def potential_energy(self, q):
         """Gravitational potential energy (J), zero at the root origin."""
-        return core.energies(self.mi, self.mf, q, np.zeros(self.nv))[1]
+        return core.energies(self.mi_r, self.mf_r, q, np.zeros(self.nv))[1]
 
     def qdot(self, q, v):
         """Configuration rate ``dq/dt`` (nq,) (quaternion-aware)."""
@@ -175,7 +227,7 @@ class CompiledModel:
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid. Returns the
         index of the first non-finite step or -1.
         """
-        return core.integrate_arm(self.mi, self.mf, self.damping, tau_app, self.nq, FUSED_METHODS[method],
+        return core.integrate_arm(self.mi_r, self.mf_r, self.damping, tau_app, self.nq, FUSED_METHODS[method],
                                   z, float(dt), int(n_full), float(h_last))
 
 

@@ -18,7 +18,9 @@ The algorithms are those of :mod:`robodyn_ros.dynamics` (Featherstone 2008, book
 
 Packed model (built by :func:`robodyn_ros.kernels.pack_model`):
 
-* ``mi`` int64 (nb, 4): columns ``PARENT`` (-1 = root), ``JTYPE`` (model codes), ``QIDX``, ``VIDX``;
+* ``mi`` int64 (nb, 5): columns ``PARENT`` (-1 = root), ``JTYPE`` (model codes), ``QIDX``, ``VIDX``,
+  ``AXK`` (1 when a 1-DOF joint's axis is exactly +z, as in every DH joint: the cheaper forms
+  ``Rz(q)``, ``U = IA[:, 2]``, ``Sᵀ f = f_z`` are used; 0 otherwise);
 * ``mf`` float64 (nb + 1, NF): per body ``AX`` axis (3), ``ET`` Xtree's E (9, row major),
   ``RT`` Xtree's r (3), ``MASS``, ``HV`` = m c (3), ``IB`` rotational inertia about the body
   origin (9, row major); the extra last row holds gravity (3,) in columns ``0:3``.
@@ -43,7 +45,7 @@ from numba import njit
 from ..model import FIXED, FREE, PRISMATIC, REVOLUTE
 
 # columns of mi
-PARENT, JTYPE, QIDX, VIDX = 0, 1, 2, 3
+PARENT, JTYPE, QIDX, VIDX, AXK = 0, 1, 2, 3, 4
 # columns of mf
 AX, ET, RT, MASS, HV, IB, NF = 0, 3, 12, 15, 16, 19, 28
 # columns of a body row of W
@@ -116,9 +118,11 @@ def etxe(e, x):
 
 
 @njit(**_JIT)
-def xinertia_T_add(W, i, sr, sc, dr, dc):
-    """``W[dr, dc:dc+36] += X_iᵀ A X_i`` for a symmetric 6x6 A at ``W[sr, sc:sc+36]`` (row major).
+def xinertia_T_add(W, i, sr, sc, dr, dc, ur, uc, dinv):
+    """``W[dr, dc:dc+36] += X_iᵀ (A - U Uᵀ dinv) X_i`` for a symmetric 6x6 A at ``W[sr, sc:sc+36]``.
 
+    A is row major; ``U = W[ur, uc:uc+6]`` with ``dinv = 1/d`` gives the articulated inertia
+    ``Ia = IA - U d⁻¹ Uᵀ`` of a 1-DOF joint without storing it (``dinv = 0``: plain A, U unread).
     With ``X = Rot(E) Trans(r)``: first the blocks of ``Rot(E)ᵀ A Rot(E)``, ``P = Eᵀ A11 E``,
     ``Q = Eᵀ A12 E``, ``R = Eᵀ A22 E``; then, with ``Y = Q r×`` and ``Z = r× R``::
 
@@ -126,14 +130,37 @@ def xinertia_T_add(W, i, sr, sc, dr, dc):
 
     (``Trans(r) = [1 0; -r× 1]``), all in scalars (no stores between the stages).
     """
+    if dinv != 0.0:
+        u0, u1, u2 = W[ur, uc], W[ur, uc + 1], W[ur, uc + 2]
+        u3, u4, u5 = W[ur, uc + 3], W[ur, uc + 4], W[ur, uc + 5]
+    else:
+        u0 = u1 = u2 = u3 = u4 = u5 = 0.0
+    a00 = W[sr, sc] - u0 * u0 * dinv
+    a01 = W[sr, sc + 1] - u0 * u1 * dinv
+    a02 = W[sr, sc + 2] - u0 * u2 * dinv
+    a11 = W[sr, sc + 7] - u1 * u1 * dinv
+    a12 = W[sr, sc + 8] - u1 * u2 * dinv
+    a22 = W[sr, sc + 14] - u2 * u2 * dinv
+    b00 = W[sr, sc + 3] - u0 * u3 * dinv
+    b01 = W[sr, sc + 4] - u0 * u4 * dinv
+    b02 = W[sr, sc + 5] - u0 * u5 * dinv
+    b10 = W[sr, sc + 9] - u1 * u3 * dinv
+    b11 = W[sr, sc + 10] - u1 * u4 * dinv
+    b12 = W[sr, sc + 11] - u1 * u5 * dinv
+    b20 = W[sr, sc + 15] - u2 * u3 * dinv
+    b21 = W[sr, sc + 16] - u2 * u4 * dinv
+    b22 = W[sr, sc + 17] - u2 * u5 * dinv
+    c00 = W[sr, sc + 21] - u3 * u3 * dinv
+    c01 = W[sr, sc + 22] - u3 * u4 * dinv
+    c02 = W[sr, sc + 23] - u3 * u5 * dinv
+    c11 = W[sr, sc + 28] - u4 * u4 * dinv
+    c12 = W[sr, sc + 29] - u4 * u5 * dinv
+    c22 = W[sr, sc + 35] - u5 * u5 * dinv
     e = (W[i, E_], W[i, E_ + 1], W[i, E_ + 2], W[i, E_ + 3], W[i, E_ + 4], W[i, E_ + 5],
          W[i, E_ + 6], W[i, E_ + 7], W[i, E_ + 8])
-    P = etxe(e, (W[sr, sc], W[sr, sc + 1], W[sr, sc + 2], W[sr, sc + 6], W[sr, sc + 7], W[sr, sc + 8],
-                 W[sr, sc + 12], W[sr, sc + 13], W[sr, sc + 14]))
-    Q = etxe(e, (W[sr, sc + 3], W[sr, sc + 4], W[sr, sc + 5], W[sr, sc + 9], W[sr, sc + 10], W[sr, sc + 11],
-                 W[sr, sc + 15], W[sr, sc + 16], W[sr, sc + 17]))
-    R = etxe(e, (W[sr, sc + 21], W[sr, sc + 22], W[sr, sc + 23], W[sr, sc + 27], W[sr, sc + 28], W[sr, sc + 29],
-                 W[sr, sc + 33], W[sr, sc + 34], W[sr, sc + 35]))
+    P = etxe(e, (a00, a01, a02, a01, a11, a12, a02, a12, a22))
+    Q = etxe(e, (b00, b01, b02, b10, b11, b12, b20, b21, b22))
+    R = etxe(e, (c00, c01, c02, c01, c11, c12, c02, c12, c22))
     r0, r1, r2 = W[i, R_], W[i, R_ + 1], W[i, R_ + 2]
     # Z = r× R: column b is r × R[:, b]; H = Q + Z
     z0, z3, z6 = r1 * R[6] - r2 * R[3], r2 * R[0] - r0 * R[6], r0 * R[3] - r1 * R[0]
@@ -244,6 +271,24 @@ def joint_transform(mi, mf, q, i, W):
     """
     jt = mi[i, JTYPE]
     qi = mi[i, QIDX]
+    if mi[i, AXK] == 1:
+        if jt == REVOLUTE:  # E = Rz(q)ᵀ Et: rows c Et0 + s Et1, -s Et0 + c Et1, Et2
+            c = math.cos(q[qi])
+            s = math.sin(q[qi])
+            for b in range(3):
+                e0, e1 = mf[i, ET + b], mf[i, ET + 3 + b]
+                W[i, E_ + b] = c * e0 + s * e1
+                W[i, E_ + 3 + b] = c * e1 - s * e0
+                W[i, E_ + 6 + b] = mf[i, ET + 6 + b]
+                W[i, R_ + b] = mf[i, RT + b]
+        else:  # prismatic along z: r = rt + q Et[2, :]
+            qq = q[qi]
+            for b in range(3):
+                W[i, E_ + b] = mf[i, ET + b]
+                W[i, E_ + 3 + b] = mf[i, ET + 3 + b]
+                W[i, E_ + 6 + b] = mf[i, ET + 6 + b]
+                W[i, R_ + b] = mf[i, RT + b] + mf[i, ET + 6 + b] * qq
+        return
     if jt == REVOLUTE or jt == FREE:
         if jt == REVOLUTE:
             th = q[qi]
@@ -296,7 +341,9 @@ def joint_motion(mi, mf, x, i, W, dr, dc):
     s = mi[i, VIDX]
     for a in range(6):
         W[dr, dc + a] = 0.0
-    if jt == REVOLUTE:
+    if mi[i, AXK] == 1:
+        W[dr, dc + (2 if jt == REVOLUTE else 5)] = x[s]
+    elif jt == REVOLUTE:
         for a in range(3):
             W[dr, dc + a] = mf[i, AX + a] * x[s]
     elif jt == PRISMATIC:
@@ -322,7 +369,9 @@ def project_force(mi, mf, W, sr, sc, j, out, off):
     """``out[off + v_j : off + v_j + nv_j] = S_jᵀ W[sr, sc:sc+6]`` (a joint's share of a body force)."""
     jt = mi[j, JTYPE]
     t = off + mi[j, VIDX]
-    if jt == REVOLUTE:
+    if mi[j, AXK] == 1:
+        out[t] = W[sr, sc + (2 if jt == REVOLUTE else 5)]
+    elif jt == REVOLUTE:
         out[t] = mf[j, AX] * W[sr, sc] + mf[j, AX + 1] * W[sr, sc + 1] + mf[j, AX + 2] * W[sr, sc + 2]
     elif jt == PRISMATIC:
         out[t] = mf[j, AX] * W[sr, sc + 3] + mf[j, AX + 1] * W[sr, sc + 4] + mf[j, AX + 2] * W[sr, sc + 5]
@@ -408,26 +457,33 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
         s = mi[i, VIDX]
         if jt == REVOLUTE or jt == PRISMATIC:
             o = 0 if jt == REVOLUTE else 3
-            k0, k1, k2 = mf[i, AX], mf[i, AX + 1], mf[i, AX + 2]
-            for a in range(6):              # U = IA S
-                b = IA_ + 6 * a + o
-                W[i, U_ + a] = W[i, b] * k0 + W[i, b + 1] * k1 + W[i, b + 2] * k2
-            di = k0 * W[i, U_ + o] + k1 * W[i, U_ + o + 1] + k2 * W[i, U_ + o + 2]
-            ui = tau[s] - (k0 * W[i, P_ + o] + k1 * W[i, P_ + o + 1] + k2 * W[i, P_ + o + 2])
+            if mi[i, AXK] == 1:             # U = IA S = column o + 2
+                for a in range(6):
+                    W[i, U_ + a] = W[i, IA_ + 6 * a + o + 2]
+                di = W[i, U_ + o + 2]
+                ui = tau[s] - W[i, P_ + o + 2]
+            else:
+                k0, k1, k2 = mf[i, AX], mf[i, AX + 1], mf[i, AX + 2]
+                for a in range(6):
+                    b = IA_ + 6 * a + o
+                    W[i, U_ + a] = W[i, b] * k0 + W[i, b + 1] * k1 + W[i, b + 2] * k2
+                di = k0 * W[i, U_ + o] + k1 * W[i, U_ + o + 1] + k2 * W[i, U_ + o + 2]
+                ui = tau[s] - (k0 * W[i, P_ + o] + k1 * W[i, P_ + o + 1] + k2 * W[i, P_ + o + 2])
             W[i, D_] = di
             W[i, UV_] = ui
             if p >= 0:
-                # Ia = IA - U Uᵀ / d (in place), pa = pA + Ia c + U u / d
-                ud = ui / di
+                # Ia = IA - U Uᵀ/d (applied inside xinertia_T_add);
+                # pa = pA + Ia c + U u/d = pA + IA c + U (u - Uᵀc)/d
+                Uc = 0.0
                 for a in range(6):
-                    Ua = W[i, U_ + a] / di
-                    acc = W[i, P_ + a] + W[i, U_ + a] * ud
+                    Uc += W[i, U_ + a] * W[i, C_ + a]
+                coef = (ui - Uc) / di
+                for a in range(6):
+                    acc = W[i, P_ + a] + W[i, U_ + a] * coef
                     for b in range(6):
-                        x = W[i, IA_ + 6 * a + b] - Ua * W[i, U_ + b]
-                        W[i, IA_ + 6 * a + b] = x
-                        acc += x * W[i, C_ + b]
+                        acc += W[i, IA_ + 6 * a + b] * W[i, C_ + b]
                     W[s_, S2_ + a] = acc
-                xinertia_T_add(W, i, i, IA_, p, IA_)
+                xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 1.0 / di)
                 xforce_T_add(W, i, s_, S2_, p, P_)
         elif jt == FREE:
             # S = 1: U = D = IA, so Ia = 0 and pa = pA + u (the joint force)
@@ -438,7 +494,7 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
                     W[s_, S2_ + a] = W[i, P_ + a] + W[i, UV_ + a]
                 xforce_T_add(W, i, s_, S2_, p, P_)
         elif p >= 0:  # FIXED (c = 0): the welded body's IA and pA pass on unchanged
-            xinertia_T_add(W, i, i, IA_, p, IA_)
+            xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 0.0)
             xforce_T_add(W, i, i, P_, p, P_)
     for i in range(nb):                     # pass 3: accelerations
         p = mi[i, PARENT]
@@ -458,8 +514,11 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
                 Ua += W[i, U_ + a] * W[i, A_ + a]
             qi = (W[i, UV_] - Ua) / W[i, D_]
             qdd[s] = qi
-            for a in range(3):
-                W[i, A_ + o + a] += mf[i, AX + a] * qi
+            if mi[i, AXK] == 1:
+                W[i, A_ + o + 2] += qi
+            else:
+                for a in range(3):
+                    W[i, A_ + o + a] += mf[i, AX + a] * qi
         elif jt == FREE:
             # qdd = IA⁻¹ (u - IA ap) = IA⁻¹ u - ap, and a = ap + qdd = IA⁻¹ u
             chol6_solve(W, i, IA_, i, UV_, s_, S4_)
@@ -519,7 +578,7 @@ def crba_ws(mi, mf, H, W):
     for i in range(nb - 1, -1, -1):
         p = mi[i, PARENT]
         if p >= 0:
-            xinertia_T_add(W, i, i, IA_, p, IA_)
+            xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 0.0)
     for i in range(nb):
         jt = mi[i, JTYPE]
         ni = joint_nv(jt)
@@ -529,7 +588,9 @@ def crba_ws(mi, mf, H, W):
         # F = IC S, column k at W[s_, FC_ + 6k]
         for k in range(ni):
             for a in range(6):
-                if jt == REVOLUTE:
+                if mi[i, AXK] == 1:
+                    x = W[i, IA_ + 6 * a + (2 if jt == REVOLUTE else 5)]
+                elif jt == REVOLUTE:
                     b = IA_ + 6 * a
                     x = W[i, b] * mf[i, AX] + W[i, b + 1] * mf[i, AX + 1] + W[i, b + 2] * mf[i, AX + 2]
                 elif jt == PRISMATIC:
@@ -641,23 +702,20 @@ def normalize_into(mi, q):
 # one-call entry points (called from Python)
 # ----------------------------------------------------------------------------------------------
 @njit(**_JIT)
-def aba(mi, mf, q, v, tau):
-    """Forward dynamics ``qdd`` (nv,) without external forces."""
+def aba_into(mi, mf, q, v, tau, qdd):
+    """Forward dynamics into qdd (nv,), without external forces (the caller allocates qdd:
+    returning a numba-allocated array costs more than the algorithm on a small arm)."""
     W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
-    qdd = np.empty(tau.shape[0])
     aba_ws(mi, mf, q, v, tau, W, False, qdd, W)
-    return qdd
 
 
 @njit(**_JIT)
-def aba_fext(mi, mf, q, v, tau, fext):
-    """Forward dynamics ``qdd`` (nv,) with external body forces fext (nb, 6)."""
+def aba_fext_into(mi, mf, q, v, tau, fext, qdd):
+    """Forward dynamics into qdd (nv,) with external body forces fext (nb, 6)."""
     W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
-    qdd = np.empty(tau.shape[0])
     aba_ws(mi, mf, q, v, tau, fext, True, qdd, W)
-    return qdd
 
 
 @njit(**_JIT)
@@ -672,23 +730,19 @@ def rnea(mi, mf, q, v, acc, fext, has_fext):
 
 
 @njit(**_JIT)
-def rnea_tau(mi, mf, q, v, acc):
-    """Inverse dynamics ``tau`` (nv,) without external forces."""
+def rnea_into(mi, mf, q, v, acc, tau):
+    """Inverse dynamics into tau (nv,), without external forces."""
     W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
-    tau = np.empty(acc.shape[0])
     rnea_ws(mi, mf, q, v, acc, W, False, tau, W)
-    return tau
 
 
 @njit(**_JIT)
-def crba(mi, mf, q, nv):
-    """Joint-space inertia matrix ``M(q)`` (nv, nv)."""
+def crba_into(mi, mf, q, H):
+    """Joint-space inertia matrix into H (nv, nv), C order, zeroed by the caller."""
     W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
-    H = np.zeros((nv, nv))
     crba_ws(mi, mf, H, W)
-    return H
 
 
 @njit(**_JIT)
