@@ -671,10 +671,13 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
     BT = system.B.T
     Bq = getattr(system, 'Bq', BT)  # actuated joint positions = Bq q (= Bᵀ q when q and v share indices)
     minimal = getattr(system, 'minimal', None)
+    # the arm's own backend (compiled kernels when available, == reference to 1e-12)
+    rnea = system.inverse_dynamics if minimal is None and hasattr(system, 'inverse_dynamics') else \
+        (lambda q, v, a: dyn.rnea(model, q, v, a))
 
     def f(t, y):
         q = minimal(y)[0] if minimal is not None else system.split(y)[0]
-        return BT @ dyn.rnea(model, q, zeros, zeros) + K * (center - Bq @ q) + A * np.sin(w * t + phase)
+        return BT @ rnea(q, zeros, zeros) + K * (center - Bq @ q) + A * np.sin(w * t + phase)
     return f
 
 
