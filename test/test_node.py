@@ -226,8 +226,11 @@ def test_bad_commands_rejected_node_alive_states_finite_then_timeout_zeroes_effo
     # inputs go to zero in the first period that starts more than TIMEOUT after the command
     assert _stamp_ns(zero[0]) - _stamp_ns(first_good) == round(TIMEOUT * 1e9)
     assert all(list(s.effort) in (good, [0.0] * 6) for s in states[n0:])
-    assert client.spin_until(lambda: diags and int(diag_values(diags[-1])['rejected_commands']) >= 4, 15)
-    v = diag_values(diags[-1])
+    # the first diagnostics published after the timeout
+    late = lambda: [d for d in diags if _stamp_ns(d) >= _stamp_ns(zero[0])]  # noqa: E731
+    assert client.spin_until(late, 15)
+    v = diag_values(late()[0])
+    assert int(v['rejected_commands']) == 4
     assert v['effort_timed_out'] == 'true'
     assert node.alive()
     for s in states:
