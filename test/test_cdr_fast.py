@@ -1,0 +1,76 @@
+"""The CDR fast path (JointState, Clock, Float64MultiArray) writes exactly the generic encoder's bytes."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robodyn_ros import messages as M
+from robodyn_ros.recording import cdr
+
+
+def generic(type_name, msg) -> bytes:
+    enc = cdr._Encoder()
+    enc.message(type_name, msg)
+    return bytes(enc.buf)
+
+
+def _joint_states(rng):
+    out = []
+    for k in range(40):
+        n = int(rng.integers(0, 9))
+        names = [''.join(rng.choice(list('abcxyz_0123é→'), size=int(rng.integers(0, 12)))) for _ in range(n)]
+        arrays = []
+        for _ in range(3):
+            m = n if rng.random() < 0.7 else int(rng.integers(0, 5))
+            a = rng.normal(size=m) * 10.0 ** rng.integers(-300, 300)
+            kind = k % 3
+            arrays.append(a if kind == 0 else a.astype(np.float32) if kind == 1 else [float(x) for x in a])
+        t_ns = int(rng.integers(0, 2 ** 60))
+        msg = M.joint_state(t_ns, names, *[np.zeros(0)] * 3)
+        msg['position'], msg['velocity'], msg['effort'] = arrays
+        msg['header']['frame_id'] = '' if k % 4 else 'base_link'
+        msg['header']['stamp'] = {'sec': int(rng.integers(-2 ** 31, 2 ** 31)), 'nanosec': int(rng.integers(0, 2 ** 32))}
+        out.append(msg)
+    return out
+
+
+def test_joint_state_fast_path_is_byte_identical():
+    rng = np.random.default_rng(3)
+    msgs = _joint_states(rng)
+    taken = 0
+    for msg in msgs:
+        fast = cdr._fast_joint_state(msg)
+        taken += fast is not None
+        assert cdr.encode('sensor_msgs/msg/JointState', msg) == generic('sensor_msgs/msg/JointState', msg)
+        if fast is not None:
+            assert fast == generic('sensor_msgs/msg/JointState', msg)
+    assert taken == len(msgs)  # every one of these went the fast way
+    assert len(cdr._NAMES_CACHE) <= cdr._NAMES_CACHE_MAX
+
+
+def test_clock_and_float64_multi_array_fast_paths_are_byte_identical():
+    rng = np.random.default_rng(4)
+    for k in range(30):
+        t_ns = int(rng.integers(0, 2 ** 60))
+        clk = M.clock(t_ns)
+        assert cdr._fast_clock(clk) == generic('rosgraph_msgs/msg/Clock', clk)
+        data = rng.normal(size=int(rng.integers(0, 8)))
+        fa = M.float64_array(data, label='é' * (k % 3) + 'x' * (k % 5))
+        fa['layout']['data_offset'] = k
+        if k % 4 == 0:
+            fa['layout']['dim'] = fa['layout']['dim'] * 2
+        assert cdr._fast_float64_multi_array(fa) is not None
+        assert cdr.encode('std_msgs/msg/Float64MultiArray', fa) == generic('std_msgs/msg/Float64MultiArray', fa)
+
+
+@pytest.mark.parametrize('msg', [
+    {'header': {'stamp': {'sec': 1, 'nanosec': 2}}, 'name': ['a'], 'position': np.ones(1),
+     'velocity': np.ones(1), 'effort': np.ones(1)},                       # missing frame_id
+    {'header': {'stamp': {'sec': 1, 'nanosec': 2}, 'frame_id': ''}, 'name': ['a'],
+     'position': np.ones((1, 1)), 'velocity': np.ones(1), 'effort': np.ones(1)},  # 2-D array
+    {'header': {'stamp': {'sec': 1, 'nanosec': 2}, 'frame_id': ''}, 'name': ['a'],
+     'position': [1], 'velocity': np.ones(1), 'effort': np.ones(1)},     # int list
+])
+def test_unusual_messages_decline_the_fast_path_and_still_encode_generically(msg):
+    assert cdr._fast_joint_state(msg) is None
+    assert cdr.encode('sensor_msgs/msg/JointState', msg) == generic('sensor_msgs/msg/JointState', msg)
