@@ -1,0 +1,737 @@
+"""``robodyn bench precision``: what every integrator costs and achieves, per scene.
+
+For each scene, every integrator runs over a ladder of fixed steps (euler,
+semi_implicit_euler, rk4) or tolerances (rk45, dop853, radau, bdf, lsoda; ``atol = rtol``),
+and, where the scene has more than one formulation (a free base: minimal / augmented; a
+prescribed end point: complement / kkt), once per formulation. A run is the product's own loop:
+a :class:`~robodyn_ros.simulation.Simulator` advanced in publication periods of the scene
+(``publish_rate``) with the scene's scripted commands held over each period, exactly as
+``robodyn run`` does. Error-controlled integrators restart at every period (the commands may
+jump there), so at loose tolerances their cost has a floor of one step per period.
+
+Per run it records:
+
+* ``wall_per_sim_s`` — wall seconds spent in ``Simulator.advance`` per simulated second (the
+  machine-dependent cost; the scripted commands and the diagnostics are not counted);
+* ``rhs_evals`` — evaluations of the right-hand side (finite-difference Jacobians included),
+  and accepted / rejected steps (rejected unknown for radau, bdf, lsoda);
+* ``error`` — the final-state error ``max_i |y_i − y_ref,i| / (1 + |y_ref,i|)`` in minimal
+  coordinates ``[q; v]`` (so formulations compare against one reference; quaternion signs
+  aligned), against a closed form where the scene has one (``closed_form``), otherwise against
+  DOP853 at rtol = atol = 1e-13, whose convergence is checked against DOP853 at 1e-12: their
+  difference is reported as the reference's error estimate, and errors below it are floor values;
+* ``energy_drift`` — the largest ``|E − E0 − W|`` over the periods divided by the largest of
+  ``|E0|, |E|, |W|`` over the run (W = work done by inputs and dissipation), ``momentum_drift`` — the largest change of linear
+  (N·s) and angular (N·m·s) momentum of a free-floating system in orbit without base thrust,
+  ``constraint_residual`` — the largest constraint residual reported by the system (m, or m/s
+  for the rolling constraints), sampled at up to ``SAMPLES`` instants;
+* ``status`` — ``ok``, ``refused`` (the simulator refused the step before starting: the
+  message names the unstable mode), ``failed`` (stopped with the cause: non-finite state,
+  solver failure) or ``budget`` (stopped after ``--budget`` wall seconds); a warning the
+  simulator issued (e.g. explicit Euler amplifying an oscillation) is kept in ``note``.
+
+Outputs, in ``--out`` (default ``docs/precision``): ``<scene>.csv`` (one row per run),
+``<scene>.md`` (the table, the reference, and the cheapest run for each of 1e-3, 1e-6, 1e-9),
+``<scene>.png`` (work-precision diagram: error against rhs evaluations and against wall time,
+log–log, one line per method and formulation) and ``summary.md`` (the cheapest runs of every
+scene). The measurements are also cached for ``robodyn advise`` (see :mod:`robodyn_ros.advise`).
+
+``--quick`` uses the short ladder ``robodyn advise`` runs when it has no measurements.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+HELP = 'work-precision: error vs cost of every integrator and formulation per scene (CSV, markdown, PNG)'
+
+#: scenes measured when none are named (those that exist in this install)
+DEFAULT_SCENES = ('betancur_pendulum', 'huston_p19_2_3', 'stanford_arm', 'betancur_platform',
+                  'huston_prescribed_planar3', 'unfried_free_flyer')
+#: fixed steps (s) per method; steps longer than the publication period are left out
+FIXED_LADDERS = {
+    'full': {'euler': (1e-2, 3e-3, 1e-3, 3e-4, 1e-4),
+             'semi_implicit_euler': (1e-2, 3e-3, 1e-3, 3e-4, 1e-4),
+             'rk4': (2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4)},
+    'quick': {'euler': (1e-2, 1e-3), 'semi_implicit_euler': (1e-2, 1e-3), 'rk4': (1e-2, 3e-3, 1e-3)},
+}
+#: relative tolerances of the error-controlled methods (atol = ATOL_FACTOR * rtol)
+ADAPTIVE_LADDERS = {'full': (1e-3, 1e-5, 1e-7, 1e-9, 1e-11), 'quick': (1e-4, 1e-6, 1e-8, 1e-10)}
+ATOL_FACTOR = 1.0
+#: simulated seconds per run
+HORIZONS = {'full': 2.0, 'quick': 0.5}
+#: wall seconds after which a run is stopped (status 'budget') and longer runs of that method skipped
+BUDGETS = {'full': 120.0, 'quick': 20.0}
+#: the reference and its convergence check (DOP853)
+REFERENCE_RTOL, CHECK_RTOL = 1e-13, 1e-12
+#: accuracies for which the markdown names the cheapest run
+TARGETS = (1e-3, 1e-6, 1e-9)
+#: instants (evenly spread) at which outputs (momentum, constraint residual) are sampled
+SAMPLES = 20
+#: formulations a scene part may select: (part kind, key, values, preferred for the reference)
+FORMULATION_KEYS = {'free_base': ('minimal', 'augmented'), 'prescribed_arm': ('complement', 'kkt')}
+#: error-controlled methods
+ADAPTIVE = ('rk45', 'dop853', 'radau', 'bdf', 'lsoda')
+FIXED = ('euler', 'semi_implicit_euler', 'rk4')
+
+CSV_FIELDS = ('scene', 'formulation', 'integrator', 'kind', 'dt', 'rtol', 'atol', 'horizon', 'status', 'error',
+              'error_floor', 'wall_per_sim_s', 'rhs_evals', 'rhs_per_sim_s', 'steps', 'rejected_steps',
+              'energy_drift', 'momentum_drift', 'constraint_residual', 'note')
+
+
+@dataclass
+class Run:
+    """One measured run (a row of the CSV; see the module docstring for the fields)."""
+
+    scene: str
+    formulation: str
+    integrator: str
+    kind: str
+    dt: float | None
+    rtol: float | None
+    atol: float | None
+    horizon: float
+    status: str = 'ok'
+    error: float = math.nan
+    error_floor: bool = False
+    wall_per_sim_s: float = math.nan
+    rhs_evals: int = 0
+    rhs_per_sim_s: float = math.nan
+    steps: int = 0
+    rejected_steps: int | None = 0
+    energy_drift: float = math.nan
+    momentum_drift: float = math.nan
+    constraint_residual: float = math.nan
+    note: str = ''
+    y: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def setting(self) -> str:
+        """``dt=0.001`` or ``rtol=1e-06``."""
+        return f'dt={self.dt:g}' if self.kind == 'fixed' else f'rtol={self.rtol:g}'
+
+    @property
+    def label(self) -> str:
+        """Method and formulation, for plot legends."""
+        return self.integrator + (f' ({self.formulation})' if self.formulation else '')
+
+    def row(self) -> dict:
+        """The CSV row."""
+        d = {k: getattr(self, k) for k in CSV_FIELDS}
+        d['rejected_steps'] = '' if self.rejected_steps is None else self.rejected_steps
+        for k in ('dt', 'rtol', 'atol'):
+            d[k] = '' if d[k] is None else d[k]
+        return d
+
+    @classmethod
+    def from_row(cls, d: dict) -> 'Run':
+        """Inverse of :meth:`row` (CSV or JSON)."""
+        def num(x, conv=float):
+            return None if x in ('', None) else conv(x)
+        kw = {}
+        for f in dataclasses.fields(cls):
+            if f.name == 'y' or f.name not in d:
+                continue
+            x = d[f.name]
+            if f.name in ('dt', 'rtol', 'atol'):
+                kw[f.name] = num(x)
+            elif f.name in ('rhs_evals', 'steps'):
+                kw[f.name] = int(float(x))
+            elif f.name == 'rejected_steps':
+                kw[f.name] = num(x, lambda s: int(float(s)))
+            elif f.name == 'error_floor':
+                kw[f.name] = x in (True, 'True', 'true', '1', 1)
+            elif f.name in ('horizon', 'error', 'wall_per_sim_s', 'rhs_per_sim_s', 'energy_drift',
+                            'momentum_drift', 'constraint_residual'):
+                kw[f.name] = math.nan if x in ('', None) else float(x)
+            else:
+                kw[f.name] = x
+        return cls(**kw)
+
+
+@dataclass
+class Reference:
+    """The reference final state of a scene: ``kind`` 'closed form' or 'dop853 rtol=1e-13';
+    ``y`` (comparable coordinates); ``error_estimate``: its estimated error (difference to the
+    convergence check run); ``check``: words on how it was checked; ``formulation`` it used."""
+
+    kind: str
+    y: np.ndarray
+    error_estimate: float
+    check: str
+    formulation: str = ''
+
+
+# ---------------------------------------------------------------------------------------------
+# scenes, formulations, closed forms
+# ---------------------------------------------------------------------------------------------
+def _load(name_or_path):
+    """Load a scene with warnings silenced (a stretched-arm warning belongs to the run)."""
+    from ..scene import load_scene
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        return load_scene(name_or_path)
+
+
+def formulations(scene) -> list:
+    """``[(formulation, Scene)]``: the scene in each formulation its parts offer.
+
+    The first entry is the preferred one for the reference (minimal, complement); a scene with
+    one formulation gives ``[('', scene)]``. Variants are re-parsed from the scene's YAML with
+    the part's ``formulation`` key changed.
+    """
+    import yaml
+    from ..scene import parse_scene
+    parts = scene.data.get('parts', [])
+    for i, p in enumerate(parts):
+        if isinstance(p, dict) and p.get('kind') in FORMULATION_KEYS:
+            values = FORMULATION_KEYS[p['kind']]
+            out = []
+            for f in values:
+                data = dict(scene.data)
+                data['parts'] = [dict(q) for q in parts]
+                data['parts'][i]['formulation'] = f
+                text = yaml.safe_dump(data, sort_keys=False)
+                with warnings.catch_warnings():
+                    warnings.simplefilter('ignore')
+                    out.append((f, parse_scene(text, file=scene.path, path=scene.path)))
+            return out
+    return [('', scene)]
+
+
+def scene_formulation(scene) -> str:
+    """The formulation the scene file itself selects ('' when it has no choice)."""
+    for p in scene.data.get('parts', []):
+        if isinstance(p, dict) and p.get('kind') in FORMULATION_KEYS:
+            return p.get('formulation', FORMULATION_KEYS[p['kind']][0] if p['kind'] == 'free_base' else 'complement')
+    return ''
+
+
+def comparable(system, y) -> np.ndarray:
+    """The state in minimal coordinates ``[q; v]`` (plus extra states such as motor currents),
+    with a free base's quaternion sign fixed (w >= 0), so formulations can be compared."""
+    y = np.asarray(y, dtype=float)
+    minimal = getattr(system, 'minimal', None)
+    if minimal is None:
+        return y.copy()
+    q, v = minimal(y)
+    q = np.array(q, dtype=float)
+    model = getattr(system, 'model', None)
+    from ..model import FREE
+    if model is not None and model.nb and model.jtype[0] == FREE and q[6] < 0:
+        q[3:7] = -q[3:7]
+    return np.concatenate([q, np.asarray(v, dtype=float)])
+
+
+def state_error(y, y_ref) -> float:
+    """Mixed absolute/relative final-state error ``max_i |y_i − y_ref,i| / (1 + |y_ref,i|)``."""
+    y, y_ref = np.asarray(y, dtype=float), np.asarray(y_ref, dtype=float)
+    if y.shape != y_ref.shape:
+        raise ValueError(f'state shapes differ: {y.shape} vs {y_ref.shape}')
+    return float(np.max(np.abs(y - y_ref) / (1.0 + np.abs(y_ref)))) if y.size else 0.0
+
+
+def closed_form(scene):
+    """``f(t) -> comparable state`` of the exact solution, for scenes that have one, else None.
+
+    Differential-drive platform without an arm, identical motors with ``L = 0``, no friction,
+    driven from rest at yaw 0 with one constant voltage V on both motors (within the supply):
+    it runs straight along x with ``v(t) = v_ss (1 − exp(−t/τ))``, ``v_ss = r V / (N K)``,
+    ``τ = m_eff R r² / (2 N² K²)``, ``m_eff = m + (I_s,l + I_s,r) / r²`` (the module docstring
+    of :mod:`robodyn_ros.systems.diffdrive`), so ``x = v_ss (t − τ (1 − exp(−t/τ)))`` and
+    both wheels turn by ``x / r``.
+    """
+    from ..systems.diffdrive import DiffDriveSystem
+    s = scene.system
+    if not isinstance(s, DiffDriveSystem) or s.has_arm or s.n_current:
+        return None
+    m_l, m_r = s.motors
+    if m_l != m_r or m_l.viscous_friction or m_l.coulomb_friction:
+        return None
+    cmd = (scene.data.get('commands') or {}).get('wheel_voltage')
+    if set((scene.data.get('commands') or {})) - {'wheel_voltage'}:
+        return None
+    if not cmd or cmd.get('profile') != 'constant' or len(set(cmd['value'])) != 1:
+        return None
+    V = float(cmd['value'][0])
+    if abs(V) > m_l.supply_voltage:
+        return None
+    if np.any(scene.y0 != 0.0):
+        return None
+    r, K, N, R = s.params.wheel_radius, m_l.torque_constant, m_l.gear_ratio, m_l.resistance
+    m_eff = s._m + float(np.sum(s._Is)) / r ** 2
+    v_ss = r * V / (N * K)
+    tau = m_eff * R * r ** 2 / (2.0 * N ** 2 * K ** 2)
+    nv = s.nv
+
+    def exact(t):
+        e = math.exp(-t / tau)
+        x = v_ss * (t - tau * (1.0 - e))
+        xd = v_ss * (1.0 - e)
+        y = np.zeros(s.ny)
+        y[0], y[3], y[4] = x, x / r, x / r
+        y[nv + 0], y[nv + 3], y[nv + 4] = xd, xd / r, xd / r
+        return y
+    exact.description = (f'closed form: straight run, v_ss = {v_ss:.4g} m/s, tau = {tau:.4g} s '
+                         f'(r V / (N K), m_eff R r² / (2 N² K²))')
+    return exact
+
+
+# ---------------------------------------------------------------------------------------------
+# one run
+# ---------------------------------------------------------------------------------------------
+class _Budget(Exception):
+    """A run exceeded its wall-time budget."""
+
+
+def _momentum(extra) -> np.ndarray | None:
+    keys = ('momentum_linear_x', 'momentum_linear_y', 'momentum_linear_z',
+            'momentum_angular_com_x', 'momentum_angular_com_y', 'momentum_angular_com_z')
+    if not all(k in extra for k in keys):
+        return None
+    return np.array([float(extra[k]) for k in keys])
+
+
+def simulate(scene, integrator: str, dt=None, rtol=None, atol=None, horizon=1.0, budget=math.inf,
+             formulation: str = '', sample: bool = True) -> Run:
+    """Run ``scene`` for ``horizon`` s with one integrator setting and measure it (a :class:`Run`).
+
+    scene: a loaded Scene; integrator: registry name; dt (fixed) or rtol/atol (adaptive);
+    horizon: simulated seconds (rounded to whole publication periods); budget: wall seconds
+    before the run is stopped with status 'budget'; formulation: label recorded; sample: also
+    sample outputs for momentum and constraint drift. Never raises for a refused or failed run.
+    """
+    from ..integrators import INTEGRATORS
+    from ..simulation import SimulationError, Simulator
+    spec = INTEGRATORS[integrator]
+    kind = spec.kind
+    rate = float(scene.settings.get('publish_rate', 100.0))
+    n = max(1, int(round(horizon * rate)))
+    run = Run(scene=scene.name, formulation=formulation, integrator=integrator, kind=kind,
+              dt=dt if kind == 'fixed' else None, rtol=rtol if kind == 'adaptive' else None,
+              atol=atol if kind == 'adaptive' else None, horizon=n / rate)
+    system = scene.system
+    if hasattr(system, 'reset_episode'):
+        system.reset_episode()
+    notes = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        try:
+            sim = Simulator(system, scene.y0, integrator=integrator, dt=dt, rtol=rtol, atol=atol)
+        except ValueError as e:
+            run.status, run.note = 'refused', str(e)
+            return run
+        momentum_ok = getattr(system, 'environment', '') == 'orbit' and not \
+            (scene.data.get('commands') or {}).get('base_wrench')
+        sample_at = set(np.linspace(0, n, min(SAMPLES, n) + 1).round().astype(int).tolist()) if sample else set()
+        p0, mom, res, has_res = None, 0.0, 0.0, False
+        e_max, e_scale = 0.0, 1e-12
+        t_start = sim.t
+        w0 = time.perf_counter()
+        try:
+            for k in range(n + 1):
+                if k in sample_at:
+                    out = sim.outputs(wrenches=False)
+                    ex = out.extra
+                    if 'constraint_residual' in ex:
+                        has_res = True
+                        res = max(res, abs(float(ex['constraint_residual'])))
+                    p = _momentum(ex) if momentum_ok else None
+                    if p is not None:
+                        p0 = p if p0 is None else p0
+                        mom = max(mom, float(np.max(np.abs(p - p0))))
+                if k == n:
+                    break
+                if scene.script is not None:
+                    for port, values in scene.script(sim.t, sim.y).items():
+                        sim.set_command(port, values)
+                sim.advance(t_start + (k + 1) / rate)
+                e = sim.energy_report()
+                e_max = max(e_max, abs(e['drift']))
+                e_scale = max(e_scale, abs(e['energy0']), abs(e['energy']), abs(e['work']))
+                if time.perf_counter() - w0 > budget:
+                    raise _Budget()
+        except SimulationError as e:
+            run.status, run.note = 'failed', str(e)
+        except _Budget:
+            run.status = 'budget'
+            run.note = f'stopped after {budget:g} s wall at t = {sim.t:.4g} s'
+        for w in caught:
+            if issubclass(w.category, UserWarning):
+                text = str(w.message)
+                if text not in notes:
+                    notes.append(text)
+    d = sim.diag
+    sim_time = max(sim.t - t_start, 1e-300)
+    run.wall_per_sim_s = d.wall / sim_time
+    run.rhs_evals = int(d.rhs_evals)
+    run.rhs_per_sim_s = d.rhs_evals / sim_time
+    run.steps = int(d.steps)
+    run.rejected_steps = d.rejected_steps
+    run.energy_drift = e_max / e_scale
+    run.momentum_drift = mom if p0 is not None else math.nan
+    run.constraint_residual = res if has_res else math.nan
+    if run.status == 'ok':
+        run.y = comparable(system, sim.y)
+    if notes:
+        run.note = '; '.join(([run.note] if run.note else []) + notes)
+    return run
+
+
+# ---------------------------------------------------------------------------------------------
+# a scene
+# ---------------------------------------------------------------------------------------------
+def reference(scene, horizon: float, variants=None) -> Reference:
+    """The reference final state of ``scene`` after ``horizon`` s (closed form or DOP853 1e-13).
+
+    variants: ``formulations(scene)`` if already built. The closed form is checked against
+    DOP853 at 1e-12; the DOP853 reference against DOP853 at 1e-12 (the difference is its error
+    estimate).
+    """
+    variants = variants or formulations(scene)
+    form, sc = variants[0]
+    rate = float(sc.settings.get('publish_rate', 100.0))
+    T = max(1, int(round(horizon * rate))) / rate
+    check = simulate(sc, 'dop853', rtol=CHECK_RTOL, atol=CHECK_RTOL, horizon=horizon, formulation=form,
+                     sample=False)
+    exact = closed_form(sc)
+    if exact is not None:
+        y = exact(T)
+        diff = state_error(check.y, y) if check.y is not None else math.nan
+        return Reference('closed form', y, 0.0, f'{exact.description}; DOP853 rtol={CHECK_RTOL:g} agrees to {diff:.2g}',
+                         form)
+    ref = simulate(sc, 'dop853', rtol=REFERENCE_RTOL, atol=REFERENCE_RTOL, horizon=horizon, formulation=form,
+                   sample=False)
+    if ref.y is None or check.y is None:
+        raise RuntimeError(f'{scene.name}: the DOP853 reference run failed: {ref.note or check.note}')
+    est = state_error(check.y, ref.y)
+    return Reference(f'DOP853 rtol=atol={REFERENCE_RTOL:g}', ref.y, est,
+                     f'differs from DOP853 rtol={CHECK_RTOL:g} by {est:.2g} (its error estimate)', form)
+
+
+def ladder(scene, mode: str = 'full', integrators=None) -> list:
+    """``[(integrator, dt, rtol, atol)]`` of a scene: fixed steps up to one publication period."""
+    from ..integrators import INTEGRATORS
+    period = 1.0 / float(scene.settings.get('publish_rate', 100.0))
+    names = list(integrators) if integrators else [n for n in (FIXED + ADAPTIVE) if n in INTEGRATORS]
+    out = []
+    for name in names:
+        spec = INTEGRATORS[name]
+        if spec.kind == 'fixed':
+            steps = FIXED_LADDERS[mode].get(name, FIXED_LADDERS[mode]['rk4'])
+            out += [(name, h, None, None) for h in steps if h <= period * (1 + 1e-12)]
+        else:
+            out += [(name, None, r, ATOL_FACTOR * r) for r in ADAPTIVE_LADDERS[mode]]
+    return out
+
+
+class Progress:
+    """A one-line ``\\r`` progress bar on a terminal (plain lines otherwise; silent if quiet)."""
+
+    def __init__(self, total: int, stream=None, quiet=False, width=30):
+        self.total, self.done, self.width, self.quiet = max(total, 1), 0, width, quiet
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, 'isatty') and self.stream.isatty()
+        self.t0 = time.perf_counter()
+
+    def step(self, text: str):
+        """Count one unit of work done and show ``text``."""
+        self.done += 1
+        if self.quiet:
+            return
+        frac = self.done / self.total
+        bar = '#' * int(round(frac * self.width))
+        line = (f'[{bar:<{self.width}}] {self.done:3d}/{self.total} {time.perf_counter() - self.t0:6.0f} s  '
+                f'{text}')
+        if self.tty:
+            self.stream.write('\r' + line[:118].ljust(118))
+            if self.done == self.total:
+                self.stream.write('\n')
+        else:
+            self.stream.write(line + '\n')
+        self.stream.flush()
+
+
+@dataclass
+class SceneResult:
+    """Everything measured on one scene."""
+
+    scene: str
+    horizon: float
+    rate: float
+    mode: str
+    reference: Reference
+    runs: list
+    own_formulation: str = ''
+    machine: str = ''
+
+
+def run_scene(name, mode='full', horizon=None, budget=None, integrators=None, formulations_only=None,
+              progress=None) -> SceneResult:
+    """Measure one scene over its ladder (see the module docstring).
+
+    name: bundled scene name or path; mode: 'full' | 'quick'; horizon: simulated seconds
+    (default ``HORIZONS[mode]``); budget: wall seconds per run (default ``BUDGETS[mode]``);
+    integrators: restrict to these names; formulations_only: restrict to these formulations;
+    progress: a :class:`Progress` (counted once per run and once for the reference).
+    """
+    scene = _load(name)
+    horizon = HORIZONS[mode] if horizon is None else float(horizon)
+    budget = BUDGETS[mode] if budget is None else float(budget)
+    variants = formulations(scene)
+    keep = None if not formulations_only else set(formulations_only) | {''}
+    ref = reference(scene, horizon, variants)
+    if progress:
+        progress.step(f'{scene.name}: reference ({ref.kind})')
+    runs = []
+    for form, sc in variants:
+        if keep is not None and form not in keep:
+            continue
+        over_budget, warm = set(), set()
+        period = 1.0 / float(sc.settings.get('publish_rate', 100.0))
+        for integ, dt, rtol, atol in ladder(sc, mode, integrators):
+            if integ not in warm:  # first use: imports, compiled kernels, caches; not measured
+                warm.add(integ)
+                simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=period, sample=False)
+            if integ in over_budget:
+                r = Run(scene=sc.name, formulation=form, integrator=integ,
+                        kind='fixed' if dt is not None else 'adaptive', dt=dt, rtol=rtol, atol=atol,
+                        horizon=horizon, status='skipped', note='a cheaper setting of this method ran out of budget')
+            else:
+                r = simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=horizon, budget=budget, formulation=form)
+                if r.status == 'budget':
+                    over_budget.add(integ)
+            if r.y is not None:
+                r.error = state_error(r.y, ref.y)
+                r.error_floor = r.error <= max(ref.error_estimate, 0.0)
+            runs.append(r)
+            if progress:
+                progress.step(f'{sc.name} {r.label} {r.setting}: {r.status}'
+                              + (f' err {r.error:.1e}' if r.status == 'ok' else ''))
+    from .timing import machine_line
+    return SceneResult(scene=scene.name, horizon=runs[0].horizon if runs else horizon,
+                       rate=float(scene.settings.get('publish_rate', 100.0)), mode=mode, reference=ref, runs=runs,
+                       own_formulation=scene_formulation(scene), machine=machine_line())
+
+
+def count_runs(name, mode='full', integrators=None, formulations_only=None) -> int:
+    """Number of progress units :func:`run_scene` will report for a scene (runs + reference)."""
+    scene = _load(name)
+    variants = [v for v in formulations(scene) if not formulations_only or not v[0] or v[0] in formulations_only]
+    return 1 + sum(len(ladder(sc, mode, integrators)) for _, sc in variants)
+
+
+# ---------------------------------------------------------------------------------------------
+# choosing
+# ---------------------------------------------------------------------------------------------
+def cost_key(r):
+    """Sort key of a run's cost: wall seconds per simulated second, then rhs evaluations."""
+    w = r['wall_per_sim_s'] if isinstance(r, dict) else r.wall_per_sim_s
+    n = r['rhs_per_sim_s'] if isinstance(r, dict) else r.rhs_per_sim_s
+    return (w if math.isfinite(w) else math.inf, n if math.isfinite(n) else math.inf)
+
+
+def cheapest(runs, tol: float, formulation=None):
+    """The cheapest successful run whose error is at most ``tol`` (None if none is).
+
+    runs: :class:`Run` objects; tol: accuracy (the final-state error measure); formulation:
+    only runs of this formulation (None = any). Cost is :func:`cost_key`.
+    """
+    ok = [r for r in runs if r.status == 'ok' and math.isfinite(r.error) and r.error <= tol
+          and (formulation is None or r.formulation == formulation)]
+    return min(ok, key=cost_key) if ok else None
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+# ---------------------------------------------------------------------------------------------
+def _g(x, fmt='.2e'):
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return '—'
+    return format(x, fmt)
+
+
+def write_csv(res: SceneResult, path: str) -> None:
+    """One row per run (CSV_FIELDS)."""
+    with open(path, 'w', newline='') as f:
+        w = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+        w.writeheader()
+        for r in res.runs:
+            w.writerow(r.row())
+
+
+def read_csv(path: str) -> list:
+    """The runs of a CSV written by :func:`write_csv`."""
+    with open(path, newline='') as f:
+        return [Run.from_row(d) for d in csv.DictReader(f)]
+
+
+def cheapest_line(res: SceneResult, tol: float) -> str:
+    """``rk4 dt=0.002`` with its error and cost, or why none qualifies."""
+    r = cheapest(res.runs, tol)
+    if r is None:
+        return f'none measured (best error {min((x.error for x in res.runs if x.status == "ok"), default=math.nan):.1e})'
+    return (f'{r.label} {r.setting} — error {r.error:.1e}, {r.wall_per_sim_s:.3g} s wall per simulated s, '
+            f'{r.rhs_per_sim_s:.0f} rhs/s')
+
+
+def markdown(res: SceneResult, png: str | None = None) -> str:
+    """The scene's markdown: heading, reference, cheapest runs, the table and the diagram."""
+    from .timing import table
+    ref = res.reference
+    lines = [f'## {res.scene}', '',
+             f'Horizon {res.horizon:g} s in {res.rate:g} Hz publication periods; {res.mode} ladder; reference: '
+             f'{ref.kind} ({ref.check}). Error = max_i |y_i − y_ref,i| / (1 + |y_ref,i|) over [q; v] in minimal '
+             'coordinates; wall = wall seconds per simulated second on the machine below.', '']
+    if res.own_formulation:
+        lines += [f'The scene file selects the **{res.own_formulation}** formulation; the reference uses '
+                  f'{ref.formulation}.', '']
+    lines += ['Cheapest run (least wall time per simulated second) reaching each accuracy:', '']
+    for tol in TARGETS:
+        lines.append(f'* **{tol:g}**: {cheapest_line(res, tol)}')
+    lines.append('')
+    if png:
+        lines += [f'![work-precision diagram of {res.scene}]({png})', '']
+    rows = []
+    for r in res.runs:
+        err = _g(r.error, '.1e') + (' (floor)' if r.error_floor and r.status == 'ok' else '')
+        rows.append([r.integrator, r.formulation or '—', r.setting, r.status, err, _g(r.wall_per_sim_s, '.3g'),
+                     r.rhs_evals, r.steps, '?' if r.rejected_steps is None else r.rejected_steps,
+                     _g(r.energy_drift, '.1e'), _g(r.momentum_drift, '.1e'), _g(r.constraint_residual, '.1e')])
+    lines.append(table(['integrator', 'formulation', 'setting', 'status', 'error', 'wall s/s', 'rhs evals', 'steps',
+                        'rejected', 'energy drift', 'momentum drift', 'constraint residual'], rows))
+    notes = [(r, r.note) for r in res.runs if r.note and r.status != 'ok']
+    if notes:
+        lines += ['', 'Runs that did not finish:', '']
+        for r, n in notes:
+            lines.append(f'* {r.label} {r.setting} — {r.status}: {n}')
+    lines += ['', f'Machine: {res.machine}', '']
+    return '\n'.join(lines)
+
+
+def plot(res: SceneResult, path: str) -> None:
+    """Work-precision diagram: error vs rhs evaluations and vs wall time, log–log, one line per method."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
+    groups = {}
+    for r in res.runs:
+        if r.status == 'ok' and math.isfinite(r.error):
+            groups.setdefault(r.label, []).append(r)
+    markers = 'osD^v<>pXh*'
+    floor = max(res.reference.error_estimate, 1e-16)
+    for k, (label, rs) in enumerate(sorted(groups.items())):
+        rs = sorted(rs, key=lambda r: r.rhs_per_sim_s)
+        err = [max(r.error, 1e-16) for r in rs]
+        style = dict(marker=markers[k % len(markers)], linestyle='-' if not rs[0].formulation or
+                     rs[0].formulation == res.reference.formulation else '--', label=label)
+        axes[0].loglog([r.rhs_per_sim_s for r in rs], err, **style)
+        axes[1].loglog([max(r.wall_per_sim_s, 1e-6) for r in rs], err, **style)
+    for ax, xl in zip(axes, ('rhs evaluations per simulated second', 'wall seconds per simulated second')):
+        ax.set_xlabel(xl)
+        ax.grid(True, which='both', alpha=0.3)
+        if res.reference.error_estimate > 0:
+            ax.axhline(floor, color='grey', linestyle=':', linewidth=1)
+        for tol in TARGETS:
+            ax.axhline(tol, color='k', linewidth=0.5, alpha=0.4)
+    axes[0].set_ylabel('final-state error')
+    axes[0].set_title(f'{res.scene}: error vs rhs evaluations')
+    axes[1].set_title(f'error vs wall time ({res.horizon:g} s horizon)')
+    axes[1].legend(fontsize=8, loc='best')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def summary_markdown(results) -> str:
+    """The cheapest run for each target accuracy of every scene, as one table."""
+    from .timing import table
+    rows = []
+    for res in results:
+        cells = [res.scene]
+        for tol in TARGETS:
+            r = cheapest(res.runs, tol)
+            cells.append('—' if r is None else f'{r.label} {r.setting} ({r.wall_per_sim_s:.2g} s/s)')
+        rows.append(cells)
+    return table(['scene'] + [f'≤ {t:g}' for t in TARGETS], rows)
+
+
+def write_scene(res: SceneResult, out: str) -> dict:
+    """Write ``<scene>.csv``, ``<scene>.md``, ``<scene>.png`` in ``out``; returns their paths."""
+    os.makedirs(out, exist_ok=True)
+    paths = {ext: os.path.join(out, f'{res.scene}.{ext}') for ext in ('csv', 'md', 'png')}
+    write_csv(res, paths['csv'])
+    plot(res, paths['png'])
+    with open(paths['md'], 'w') as f:
+        f.write(markdown(res, png=f'{res.scene}.png'))
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------
+# command line
+# ---------------------------------------------------------------------------------------------
+def add_arguments(p):
+    """Options of the precision benchmark."""
+    p.add_argument('scenes', nargs='*', help=f'bundled scene names or files (default: {", ".join(DEFAULT_SCENES)})')
+    p.add_argument('--out', default=os.path.join('docs', 'precision'), help='output directory (default docs/precision)')
+    p.add_argument('--horizon', type=float, default=None,
+                   help=f'simulated seconds per run (default {HORIZONS["full"]:g}; --quick {HORIZONS["quick"]:g})')
+    p.add_argument('--quick', action='store_true', help='short ladder and horizon (what robodyn advise runs)')
+    p.add_argument('--budget', type=float, default=None,
+                   help=f'wall seconds per run before it is stopped (default {BUDGETS["full"]:g}; --quick '
+                        f'{BUDGETS["quick"]:g})')
+    p.add_argument('--integrators', nargs='*', default=None, help='only these integrators')
+    p.add_argument('--formulations', nargs='*', default=None, help='only these formulations (e.g. minimal kkt)')
+    p.add_argument('--no-cache', action='store_true', help='do not store the measurements for robodyn advise')
+    p.add_argument('--quiet', action='store_true', help='no progress bar')
+    return p
+
+
+def main(args) -> int:
+    """Measure the scenes, write CSV/markdown/PNG per scene and a summary; 0 on success."""
+    from ..integrators import INTEGRATORS
+    from ..scene import SceneError, list_scenes
+    mode = 'quick' if args.quick else 'full'
+    bundled = [n for n, _ in list_scenes()]
+    names = list(args.scenes) or [n for n in DEFAULT_SCENES if n in bundled]
+    bad = [i for i in (args.integrators or []) if i not in INTEGRATORS]
+    if bad:
+        print(f'robodyn bench precision: unknown integrator(s) {bad}; valid: {", ".join(INTEGRATORS)}', file=sys.stderr)
+        return 2
+    try:
+        total = sum(count_runs(n, mode, args.integrators, args.formulations) for n in names)
+    except SceneError as e:
+        print(f'robodyn bench precision: {e}', file=sys.stderr)
+        return 2
+    progress = Progress(total, quiet=args.quiet)
+    results = []
+    for name in names:
+        res = run_scene(name, mode, args.horizon, args.budget, args.integrators, args.formulations, progress)
+        paths = write_scene(res, args.out)
+        results.append(res)
+        if not args.no_cache:
+            from ..advise import store
+            store(name, res)
+        if not args.quiet:
+            print(f'{res.scene}: wrote {paths["csv"]}, {paths["md"]}, {paths["png"]}', file=sys.stderr)
+    summary = summary_markdown(results)
+    with open(os.path.join(args.out, 'summary.md'), 'w') as f:
+        f.write('# Cheapest integrator per accuracy\n\n' + summary + '\n')
+    print(summary)
+    return 0
+
+
+if __name__ == '__main__':  # pragma: no cover
+    import argparse
+    _p = argparse.ArgumentParser(prog='python -m robodyn_ros.bench.precision', description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sys.exit(main(add_arguments(_p).parse_args()))
