@@ -1,0 +1,66 @@
+"""Shared fixtures for the dynamics tests: a seeded family of random kinematic trees."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from robodyn_ros.model import build_model, random_tree
+
+#: number of random trees in the ``trees`` fixture (tests assert that they saw all of them)
+N_TREES = 24
+
+
+def _with_fixed(model, fixed_links, name):
+    """Rebuild ``model`` from its LinkSpecs with the joints of ``fixed_links`` made FIXED."""
+    specs = [dataclasses.replace(s, joint_type='fixed') if s.name in fixed_links else s for s in model.specs]
+    return build_model(specs, gravity=model.gravity, name=name)
+
+
+def make_trees():
+    """``N_TREES`` seeded models ``(label, model)``: chains and branched trees with 1..12 bodies,
+    revolute and prismatic joints, a few gravity directions, and three trees with FIXED joints in
+    the middle of the tree (built from LinkSpecs)."""
+    out = []
+    fractions = (0.0, 0.3, 0.6, 1.0)
+    for k in range(21):
+        rng = np.random.default_rng(1000 + k)
+        nb = 1 + k % 12
+        chain = k % 3 == 0
+        frac = fractions[k % 4]
+        g = (0.0, 0.0, -9.81) if k % 5 else tuple(9.81 * rng.normal(size=3) / np.sqrt(3.0))
+        m = random_tree(nb, rng, prismatic_fraction=frac, chain=chain, gravity=g)
+        out.append((f'seed{1000 + k}-nb{nb}-{"chain" if chain else "tree"}-p{frac}', m))
+    # FIXED joints mid-tree: a chain with a welded middle link, a branched tree with two welds
+    # (one of them a leaf), and a chain where two consecutive joints are welded
+    m = random_tree(7, np.random.default_rng(2001), prismatic_fraction=0.3, chain=True)
+    out.append(('fixed-mid-chain7', _with_fixed(m, {'l3'}, 'fixed_mid_chain')))
+    m = random_tree(10, np.random.default_rng(2002), prismatic_fraction=0.3, chain=False)
+    leaf = [n for i, n in enumerate(m.link_names) if i not in set(m.parent.tolist())][-1]
+    out.append(('fixed-tree10', _with_fixed(m, {'l2', leaf}, 'fixed_tree')))
+    m = random_tree(8, np.random.default_rng(2003), prismatic_fraction=0.5, chain=True)
+    out.append(('fixed-double-chain8', _with_fixed(m, {'l4', 'l5'}, 'fixed_double')))
+    assert len(out) == N_TREES
+    return out
+
+
+@pytest.fixture(scope='session')
+def trees():
+    """The seeded random trees of :func:`make_trees`."""
+    return make_trees()
+
+
+def random_state(model, rng, scale=1.0):
+    """A random ``(q, v, a)`` for a model with 1-DOF joints only (q = v coordinates)."""
+    assert model.nq == model.nv
+    q = rng.uniform(-np.pi, np.pi, size=model.nq) * scale
+    v = rng.normal(size=model.nv) * scale
+    a = rng.normal(size=model.nv) * scale
+    return q, v, a
+
+
+@pytest.fixture(scope='session')
+def state_of():
+    """The :func:`random_state` helper (fixtures are the way test modules share code here)."""
+    return random_state
