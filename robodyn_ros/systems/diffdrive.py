@@ -186,6 +186,15 @@ class PlatformParams:
         return 0.5 * self.wheel_spin_inertia if self.wheel_diametral_inertia is None else self.wheel_diametral_inertia
 
 
+def _compiled(model):
+    """numba kernels for ``model`` (:mod:`robodyn_ros.kernels`) when available, else None (numpy)."""
+    try:
+        from .. import kernels
+    except ImportError:
+        return None
+    return kernels.CompiledModel(model) if getattr(kernels, 'AVAILABLE', False) else None
+
+
 class DiffDriveSystem(System):
     """Differential-drive platform with two DC motors, optionally carrying an articulated arm.
 
@@ -219,6 +228,8 @@ class DiffDriveSystem(System):
         self.arm_joint_names = [n for n in m.dof_joint_names if n not in
                                 ('base_x', 'base_y', 'base_yaw', 'left_wheel_joint', 'right_wheel_joint')]
         self.joint_names = ['left_wheel_joint', 'right_wheel_joint'] + self.arm_joint_names
+        #: names of the entries of q (and v): the planar pose, the wheels, the arm joints
+        self.coordinate_names = ['x', 'y', 'yaw'] + self.joint_names
         self._arm_idx = np.array([m.v_idx[m.joint_names.index(n)] for n in self.arm_joint_names], dtype=int)
         self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(int)
         actuated = list(self.arm_joint_names if arm_actuated is None else arm_actuated)
@@ -240,6 +251,8 @@ class DiffDriveSystem(System):
         self._armature[[_IL, _IR]] = [mot.reflected_inertia for mot in self.motors]
         self._wheels = (m.body('left_wheel'), m.body('right_wheel'))
         self._chassis_body = m.body('base_link')
+        self._km = _compiled(m) if self.has_arm else None  # fast CRBA/RNEA for the mobile manipulator
+        self._zero_v = np.zeros(self.nv)
         self._planar_inertia()
 
     # -- construction ----------------------------------------------------------------------
@@ -362,6 +375,9 @@ class DiffDriveSystem(System):
             h = np.zeros(5)
             h[0:2] = -v[_ITH] ** 2 * np.array([c * self._S[0] - s * self._S[1], s * self._S[0] + c * self._S[1]])
             return M, h
+        if self._km is not None:
+            M = self._km.crba(q) + np.diag(self._armature)
+            return M, (self._km.rnea(q, v, self._zero_v) if bias else None)
         M = dyn.crba(self.model, q) + np.diag(self._armature)
         return M, (dyn.bias_forces(self.model, q, v) if bias else None)
 
@@ -417,7 +433,9 @@ class DiffDriveSystem(System):
         return kkt_solve(M, self.generalized_forces(y, u, electrical[2]) - h, K, k)
 
     def rhs(self, t, y, u):
-        """``[q̇; v̇; di/dt]``."""
+        """``[q̇; v̇; di/dt]`` (all NaN for a non-finite state: the integrator's guard reports it)."""
+        if not np.all(np.isfinite(y)):
+            return np.full(self.ny, np.nan)
         _, v = self.split(y)
         el = self.electrical(y, u)
         a, _, _ = self.solve(y, u, el)
@@ -504,7 +522,12 @@ class DiffDriveSystem(System):
         M, _ = self.mass_and_bias(q, v, bias=False)
         ic = self.currents_state(y)
         mag = sum(0.5 * self.motors[k].inductance * ic[n] ** 2 for n, k in enumerate(self._cur))
-        pot = dyn.potential_energy(self.model, q) if self.has_arm else 0.0
+        if not self.has_arm:
+            pot = 0.0
+        elif self._km is not None:
+            pot = self._km.energies(q, v)[1]
+        else:
+            pot = dyn.potential_energy(self.model, q)
         return {'kinetic': 0.5 * float(v @ M @ v), 'potential': float(pot), 'magnetic': float(mag)}
 
     def total_energy(self, y):
