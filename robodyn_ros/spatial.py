@@ -154,16 +154,16 @@ def rpy_to_R(rpy):
 
 
 def R_to_rpy(R):
-    """Rotation matrix to URDF roll-pitch-yaw; exact inverse of :func:`rpy_to_R` off gimbal lock."""
-    sp = -R[2, 0]
-    sp = min(1.0, max(-1.0, sp))
-    p = np.arcsin(sp)
-    if abs(sp) < 1.0 - 1e-12:
-        r = np.arctan2(R[2, 1], R[2, 2])
-        y = np.arctan2(R[1, 0], R[0, 0])
-    else:  # gimbal lock: put everything in yaw
-        r = 0.0
-        y = np.arctan2(-R[0, 1], R[1, 1])
+    """Rotation matrix to URDF roll-pitch-yaw; the exact inverse of :func:`rpy_to_R`.
+
+    Every angle comes from an ``arctan2`` (no ``arcsin``), so it stays accurate next to pitch
+    ±90°; exactly at gimbal lock, yaw is set to 0 and the rotation is carried by roll.
+    """
+    cp = np.hypot(R[0, 0], R[1, 0])
+    y = np.arctan2(R[1, 0], R[0, 0]) if cp > 1e-12 else 0.0
+    cy, sy = np.cos(y), np.sin(y)  # Rz(-y) R = Ry(p) Rx(r)
+    p = np.arctan2(-R[2, 0], cy * R[0, 0] + sy * R[1, 0])
+    r = np.arctan2(sy * R[0, 2] - cy * R[1, 2], cy * R[1, 1] - sy * R[0, 1])
     return np.array([r, p, y])
 
 
