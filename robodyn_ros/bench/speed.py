@@ -18,8 +18,9 @@ Sections (each can be skipped with ``--skip``):
   in child processes;
 * ``node``     the ROS node's figures from ``robodyn_ros.bench.node.bench_node()`` when present.
 
-Timings are the minimum over interleaved repeats (median in brackets where shown); they are
-figures to read, never asserted by tests.
+Per-call timings are CPU time of this process, the minimum over interleaved repeats; run
+figures (real-time factors) are wall time with the CPU-time figure beside them. They are figures
+to read, never asserted by tests.
 """
 from __future__ import annotations
 
@@ -207,12 +208,30 @@ def section_kernels(args, names) -> str:
                          fmt_ratio(tc, tp), fmt_ratio(tn, tc), f'{agree[op]:.1e}' if op in agree else '—'])
         if not pin_md:
             notes.append(f'{name}: Pinocchio column empty ({why})')
-    text = ['### Per-call time (called from Python; minimum of interleaved repeats)\n',
+    text = ['### Per-call time (called from Python; CPU time, minimum of interleaved repeats)\n',
             table(['scene', 'bodies/dof', 'op', 'numpy reference', 'compiled', 'Pinocchio', 'compiled / Pinocchio',
                    'numpy / compiled', 'max rel. diff compiled vs numpy'], rows)]
     text += ['', 'ID = RNEA, M = CRBA, FD = ABA; Pinocchio on `pin.buildModelFromXML(to_urdf(model))`, '
-             'random state (seed 0).'] + [f'- {n}' for n in notes]
+             'random state (seed 0).', _call_floor(args)] + [f'- {n}' for n in notes]
     return '\n'.join(text)
+
+
+def _call_floor(args) -> str:
+    """The cost of the Python call itself: FD of a 1-link model, compiled and Pinocchio."""
+    from .. import kernels
+    from ..model import random_tree
+    m = random_tree(1, np.random.default_rng(0))
+    z = np.zeros(1)
+    fns = {'compiled': (lambda: km.aba(z, z, z)) if kernels.AVAILABLE else None}
+    km = kernels.CompiledModel(m) if kernels.AVAILABLE else None
+    pin_md, _ = _pin_model(m)
+    if pin_md:
+        import pinocchio as pin
+        pm, pd = pin_md
+        fns['pin'] = lambda: pin.aba(pm, pd, z, z, z)
+    t = per_call(fns, repeat=args.repeat)
+    return (f'Cost of the call itself (FD of a 1-link model): compiled {fmt_time(t["compiled"][0] if t["compiled"] else None)}, '
+            f'Pinocchio {fmt_time(t["pin"][0] if t.get("pin") else None)}.')
 
 
 def _rel(x, y) -> float:
@@ -323,13 +342,13 @@ def section_rtf(args, names) -> str:
             run_robodyn(name, 0.05)  # warm-up (compiled code, caches)
             t_rec = best_of(lambda: run_robodyn(name, dur, record=True)[0], args.repeat if args.quick else 3)
             t_norec = best_of(lambda: run_robodyn(name, dur, record=False)[0], 1 if args.quick else 3)
-            ref_h = min(REFERENCE_HORIZON, dur)
+            ref_h = min(REFERENCE_HORIZON, dur / 10.0)
             t_ref = best_of(lambda: run_robodyn(name, ref_h, record=True, backend='numpy')[0], 1)
         except Exception as e:
             notes.append(f'{name}: RK4 at {RTF_DT * 1e3:g} ms not run ({type(e).__name__}: {e})')
             continue
-        row = [name, f'{dur / t_rec[0]:.0f} ({dur / t_rec[1]:.0f})', f'{dur / t_norec[0]:.0f}',
-               f'{ref_h / t_ref[0]:.1f}']
+        row = [name, f'{dur / t_rec[0]:.0f} ({dur / t_rec[1]:.0f})', f'{dur / t_rec[2]:.0f}',
+               f'{dur / t_norec[0]:.0f}', f'{ref_h / t_ref[0]:.1f}']
         model = scene.system.model if isinstance(scene.system, ArmSystem) and \
             type(scene.system).rhs is ArmSystem.rhs else None
         if model is None:
@@ -342,25 +361,27 @@ def section_rtf(args, names) -> str:
             if pin_md is not None:
                 pm, pd = pin_md
                 t = best_of(lambda: pin_rk4_loop(pm, pd, q0, v0, model.damping, dur), 1 if args.quick else 2)
-                row.append(f'{dur / t[0]:.0f}')
+                row.append(f'{dur / t[0]:.0f} (CPU {dur / t[2]:.0f})')
             else:
                 row.append(f'n/a ({why})')
             m, why = mujoco_model(to_urdf(model))
             if m is not None and m.nq == model.nq:
                 t1 = best_of(lambda: mujoco_loop(m, q0, v0, dur, 1), 1 if args.quick else 2)
                 t10 = best_of(lambda: mujoco_loop(m, q0, v0, dur, 10), 1 if args.quick else 2)
-                row += [f'{dur / t1[0]:.0f}', f'{dur / t10[0]:.0f}']
+                row += [f'{dur / t1[0]:.0f} (CPU {dur / t1[2]:.0f})', f'{dur / t10[0]:.0f}']
             else:
                 why = why or f'MuJoCo model has nq={m.nq}, ours {model.nq}'
                 row += ['n/a', 'n/a']
                 notes.append(f'{name}: no MuJoCo reference ({why})')
         rows.append(row)
     text = [f'### Real-time factor: {dur:g} s simulated, RK4 at {RTF_DT * 1e3:g} ms, headless\n',
-            table(['scene', 'robodyn compiled + MCAP joint states 100 Hz (median)', 'robodyn compiled, no recording',
-                   f'robodyn numpy reference + MCAP ({min(REFERENCE_HORIZON, dur):g} s run)',
+            table(['scene', 'robodyn compiled + MCAP joint states 100 Hz: wall (median)', 'same, CPU time',
+                   'robodyn compiled, no recording',
+                   f'robodyn numpy reference + MCAP ({min(REFERENCE_HORIZON, dur / 10.0):g} s run)',
                    'Python RK4 loop over pin.aba', 'MuJoCo RK4, mj_step per step from Python',
                    'MuJoCo RK4, mj_step(nstep=10) per 10 ms'], rows),
-            '', 'RTF = simulated / wall time (higher is faster). robodyn runs: Simulator + run_headless with the '
+            '', 'RTF = simulated / wall time (higher is faster; "CPU": simulated / CPU time of this process, '
+            'which leaves out time other processes held the cores). robodyn runs: Simulator + run_headless with the '
             "scene's scripted commands, fused compiled RK4 per 10 ms period, joint_states + /clock + commands + "
             '1 Hz diagnostics written by McapRunSink (no wrenches). References integrate the same arm (URDF '
             'export) unforced (gravity + damping), without recording.'] + [f'- {n}' for n in notes]
@@ -387,7 +408,7 @@ def section_scaling(args, names) -> str:
         if km:
             z = np.concatenate([q, v, [0.0]])
             zero = np.zeros(model.nv)
-            n_in = 100
+            n_in = 1000
             fns['in-loop'] = lambda: km.integrate_arm('euler', z.copy(), zero, 1e-6, n_in, 0.0)
         if pin_md:
             import pinocchio as pin
@@ -405,7 +426,8 @@ def section_scaling(args, names) -> str:
             table(['links', 'numpy reference', 'compiled, from Python', 'compiled, inside the fused loop', 'Pinocchio'],
                   rows),
             '', 'Target: 64 links at most 10× 8 links. "inside the fused loop": one explicit-Euler step '
-            '(ABA + q̇ + power) per call of `integrate_arm`, 100 steps per call, no Python in between.']
+            '(ABA + q̇ + power) per call of `integrate_arm`, 1000 steps per call, no Python in between. '
+            'Per-call figures are CPU time (see above).']
     return '\n'.join(text)
 
 

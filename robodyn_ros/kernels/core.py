@@ -567,38 +567,90 @@ def rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W):
 
 
 @njit(**_JIT)
+def rbi_T_add(W, i, sr, sc, dr, dc):
+    """Composite rigid-body inertia ``+= X_iᵀ I X_i`` in 10-number form ``[m, h (3), Ī (6: 00 01 02 11 12 22)]``.
+
+    A rigid (composite) inertia stays rigid, so instead of the 6x6 sandwich: with ``g = Eᵀ h``,
+    ``m' = m``, ``h' = g + m r`` and ``Ī' = Eᵀ Ī E - (r gᵀ + g rᵀ) - m r rᵀ + (2 g·r + m |r|²) 1``
+    (from ``a× b× = b aᵀ - (a·b) 1`` in the general formula of :func:`xinertia_T_add`).
+    """
+    m = W[sr, sc]
+    h0, h1, h2 = W[sr, sc + 1], W[sr, sc + 2], W[sr, sc + 3]
+    i00, i01, i02 = W[sr, sc + 4], W[sr, sc + 5], W[sr, sc + 6]
+    i11, i12, i22 = W[sr, sc + 7], W[sr, sc + 8], W[sr, sc + 9]
+    e = (W[i, E_], W[i, E_ + 1], W[i, E_ + 2], W[i, E_ + 3], W[i, E_ + 4], W[i, E_ + 5],
+         W[i, E_ + 6], W[i, E_ + 7], W[i, E_ + 8])
+    P = etxe(e, (i00, i01, i02, i01, i11, i12, i02, i12, i22))
+    g0 = e[0] * h0 + e[3] * h1 + e[6] * h2
+    g1 = e[1] * h0 + e[4] * h1 + e[7] * h2
+    g2 = e[2] * h0 + e[5] * h1 + e[8] * h2
+    r0, r1, r2 = W[i, R_], W[i, R_ + 1], W[i, R_ + 2]
+    d = 2.0 * (g0 * r0 + g1 * r1 + g2 * r2) + m * (r0 * r0 + r1 * r1 + r2 * r2)
+    W[dr, dc] += m
+    W[dr, dc + 1] += g0 + m * r0
+    W[dr, dc + 2] += g1 + m * r1
+    W[dr, dc + 3] += g2 + m * r2
+    W[dr, dc + 4] += P[0] - 2.0 * r0 * g0 - m * r0 * r0 + d
+    W[dr, dc + 5] += P[1] - (r0 * g1 + g0 * r1) - m * r0 * r1
+    W[dr, dc + 6] += P[2] - (r0 * g2 + g0 * r2) - m * r0 * r2
+    W[dr, dc + 7] += P[4] - 2.0 * r1 * g1 - m * r1 * r1 + d
+    W[dr, dc + 8] += P[5] - (r1 * g2 + g1 * r2) - m * r1 * r2
+    W[dr, dc + 9] += P[8] - 2.0 * r2 * g2 - m * r2 * r2 + d
+
+
+@njit(**_JIT)
 def crba_ws(mi, mf, H, W):
-    """Composite-rigid-body joint-space inertia (book Table 6.2) into H (nv, nv) (C order), zeroed by caller."""
+    """Composite-rigid-body joint-space inertia (book Table 6.2) into H (nv, nv) (C order), zeroed by caller.
+
+    Composite inertias ``IC`` are kept in the 10-number rigid form at ``W[i, IA_:IA_+10]``
+    (:func:`rbi_T_add`); ``F = IC S`` per joint column, carried to the root by ``Xupᵀ``.
+    """
     nb = mi.shape[0]
     nv = H.shape[0]
     Hf = H.reshape(nv * nv)
     s_ = nb
     for i in range(nb):
-        rigid_inertia(mf, i, W, i, IA_)
+        W[i, IA_] = mf[i, MASS]
+        for a in range(3):
+            W[i, IA_ + 1 + a] = mf[i, HV + a]
+        W[i, IA_ + 4], W[i, IA_ + 5], W[i, IA_ + 6] = mf[i, IB], mf[i, IB + 1], mf[i, IB + 2]
+        W[i, IA_ + 7], W[i, IA_ + 8], W[i, IA_ + 9] = mf[i, IB + 4], mf[i, IB + 5], mf[i, IB + 8]
     for i in range(nb - 1, -1, -1):
         p = mi[i, PARENT]
         if p >= 0:
-            xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 0.0)
+            rbi_T_add(W, i, i, IA_, p, IA_)
     for i in range(nb):
         jt = mi[i, JTYPE]
         ni = joint_nv(jt)
         if ni == 0:
             continue
         s = mi[i, VIDX]
-        # F = IC S, column k at W[s_, FC_ + 6k]
-        for k in range(ni):
-            for a in range(6):
-                if mi[i, AXK] == 1:
-                    x = W[i, IA_ + 6 * a + (2 if jt == REVOLUTE else 5)]
-                elif jt == REVOLUTE:
-                    b = IA_ + 6 * a
-                    x = W[i, b] * mf[i, AX] + W[i, b + 1] * mf[i, AX + 1] + W[i, b + 2] * mf[i, AX + 2]
-                elif jt == PRISMATIC:
-                    b = IA_ + 6 * a + 3
-                    x = W[i, b] * mf[i, AX] + W[i, b + 1] * mf[i, AX + 1] + W[i, b + 2] * mf[i, AX + 2]
+        m = W[i, IA_]
+        h0, h1, h2 = W[i, IA_ + 1], W[i, IA_ + 2], W[i, IA_ + 3]
+        I00, I01, I02 = W[i, IA_ + 4], W[i, IA_ + 5], W[i, IA_ + 6]
+        I11, I12, I22 = W[i, IA_ + 7], W[i, IA_ + 8], W[i, IA_ + 9]
+        for k in range(ni):                 # F = IC S, column k at W[s_, FC_ + 6k]
+            if jt == FREE:
+                w0, w1, w2 = (1.0 if k == 0 else 0.0), (1.0 if k == 1 else 0.0), (1.0 if k == 2 else 0.0)
+                u0, u1, u2 = (1.0 if k == 3 else 0.0), (1.0 if k == 4 else 0.0), (1.0 if k == 5 else 0.0)
+            elif mi[i, AXK] == 1:
+                w0, w1, w2, u0, u1 = 0.0, 0.0, 0.0, 0.0, 0.0
+                if jt == REVOLUTE:
+                    w2, u2 = 1.0, 0.0
                 else:
-                    x = W[i, IA_ + 6 * a + k]
-                W[s_, FC_ + 6 * k + a] = x
+                    w2, u2 = 0.0, 1.0
+            elif jt == REVOLUTE:
+                w0, w1, w2, u0, u1, u2 = mf[i, AX], mf[i, AX + 1], mf[i, AX + 2], 0.0, 0.0, 0.0
+            else:
+                w0, w1, w2, u0, u1, u2 = 0.0, 0.0, 0.0, mf[i, AX], mf[i, AX + 1], mf[i, AX + 2]
+            # IC [w; u] = [Ī w + h × u; m u - h × w]
+            o = FC_ + 6 * k
+            W[s_, o] = I00 * w0 + I01 * w1 + I02 * w2 + (h1 * u2 - h2 * u1)
+            W[s_, o + 1] = I01 * w0 + I11 * w1 + I12 * w2 + (h2 * u0 - h0 * u2)
+            W[s_, o + 2] = I02 * w0 + I12 * w1 + I22 * w2 + (h0 * u1 - h1 * u0)
+            W[s_, o + 3] = m * u0 - (h1 * w2 - h2 * w1)
+            W[s_, o + 4] = m * u1 - (h2 * w0 - h0 * w2)
+            W[s_, o + 5] = m * u2 - (h0 * w1 - h1 * w0)
         for k in range(ni):                 # diagonal block S_iᵀ F
             project_force(mi, mf, W, s_, FC_ + 6 * k, i, Hf, (s + k) * nv)
         j = i
@@ -614,8 +666,8 @@ def crba_ws(mi, mf, H, W):
             nj = joint_nv(mi[j, JTYPE])
             for k in range(ni):
                 project_force(mi, mf, W, s_, FC_ + 6 * k, j, Hf, (s + k) * nv)
-                for m in range(nj):
-                    H[t + m, s + k] = H[s + k, t + m]
+                for m2 in range(nj):
+                    H[t + m2, s + k] = H[s + k, t + m2]
 
 
 @njit(**_JIT)
