@@ -52,7 +52,7 @@ Differential-drive platform (seed 001; :mod:`robodyn_ros.systems.diffdrive`)::
                 inductance: 0.0, gear_ratio: 1.0, rotor_inertia: 0.0,    # motors: {left: {..},
                 viscous_friction: 0.0, coulomb_friction: 0.0,            #          right: {..}}
                 coulomb_velocity: 0.05, supply_voltage: 24.0}
-        baumgarte_alpha: 20.0             # optional, 1/s, velocity-level constraint stabilisation
+        baumgarte_alpha: 0.0              # optional, 1/s, velocity-level Baumgarte (projection always)
 
 Its state is ``q = [x, y, yaw, left_wheel, right_wheel, arm joints...]``, ``v = q̇`` (the
 initial velocity must roll without slip), then one current per motor with ``inductance > 0``;
