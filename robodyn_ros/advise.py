@@ -1,7 +1,7 @@
 """``robodyn advise``: the integrator and step or tolerance that meet an accuracy at least cost.
 
 The answer comes from measurements, not from a formula: the work-precision runs of
-:mod:`robodyn_ros.bench.precision` (final-state error against a reference, wall time per
+:mod:`robodyn_ros.bench.precision` (final-state error against a reference, CPU and wall time per
 simulated second, rhs evaluations) for that scene on this machine. They are cached, one JSON
 file per scene and machine::
 
@@ -15,7 +15,8 @@ too; with no cache entry, :func:`advise` runs the quick ladder (``bench precisio
 about a minute per scene) and stores it. A full-ladder entry is never replaced by a quick one.
 
 The choice (:func:`choose`): among successful runs whose error is at most the tolerance, the one
-with the least wall time per simulated second (ties: fewer rhs evaluations per simulated second).
+with the least CPU time per simulated second (``bench.precision.cost_key``; ties: fewer rhs
+evaluations per simulated second).
 Only measured settings are offered (no interpolation between ladder points), and the error is
 the measure the benchmark uses (``bench.precision.state_error`` over its horizon).
 """
@@ -35,7 +36,7 @@ __all__ = ['CACHE_FORMAT', 'cache_dir', 'machine_id', 'scene_hash', 'cache_key',
            'choose', 'Advice', 'advise', 'format_advice', 'run_command']
 
 #: bump when the cached JSON layout or the meaning of its figures changes
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 
 
 def cache_dir() -> Path:
@@ -203,7 +204,7 @@ def run_command(scene: str, run) -> str:
 
 def _describe(r) -> str:
     return (f'{r.integrator} {r.setting}' + (f' [{r.formulation}]' if r.formulation else '') +
-            f': error {r.error:.2g}, {r.wall_per_sim_s:.3g} s wall per simulated s, {r.rhs_per_sim_s:.0f} rhs/s')
+            f': error {r.error:.2g}, {r.cpu_per_sim_s:.3g} CPU s per simulated s, {r.rhs_per_sim_s:.0f} rhs/s')
 
 
 def format_advice(adv: Advice, scene_arg: str | None = None) -> str:
