@@ -93,7 +93,7 @@ import numpy as np
 
 from .. import constraints as con
 from .. import dynamics as dyn
-from ..model import FIXED, FREE, REVOLUTE, Model, ModelError
+from ..model import FIXED, REVOLUTE, Model, ModelError
 from ..spatial import inertia_parts, quat_mul, quat_to_R, rot_axis, skew
 from .base import SystemOutputs
 from .freeflyer import _cross, _FreeBaseCommon, level_quaternion, momentum_about_com, table_rows
@@ -306,8 +306,7 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
     def rhs(self, t, y, u):
         """``[ẋ; ẇ]``."""
         x, w = self.split(y)
-        a, _, info, *_ = self.solve(y, u)
-        self.last_info = info
+        a = self.solve(y, u)[0]
         return np.concatenate([self.config_rate(x, w), a])
 
     def project(self, y):

@@ -41,7 +41,7 @@ import numpy as np
 
 from .. import constraints as con
 from .. import dynamics as dyn
-from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, LinkSpec, Model, ModelError, build_model, to_urdf
+from ..model import FREE, REVOLUTE, LinkSpec, Model, ModelError, build_model, to_urdf
 from ..spatial import quat_to_R, skew
 from .base import InputPort, System, SystemOutputs
 
@@ -217,12 +217,11 @@ class _FreeBaseCommon(System):
             self.B[6 + dof_index[n], k] = 1.0
             self.Bq[k, 7 + dof_index[n]] = 1.0
         units = ['N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated]
-        self.inputs = {'effort': InputPort('effort', len(actuated), tuple(actuated), '/'.join(sorted(set(units))) or '-'),
+        unit = '/'.join(sorted(set(units))) or '-'
+        self.inputs = {'effort': InputPort('effort', len(actuated), tuple(actuated), unit),
                        'base_wrench': InputPort('base_wrench', 6, BASE_WRENCH_LABELS, 'N/N·m')}
-        self._dof_bodies = [i for i in range(model.nb) if model.jtype[i] in (REVOLUTE, PRISMATIC)]
         self.mass = model.total_mass()
         self.weight = self.mass * float(np.linalg.norm(model.gravity))
-        self.last_info = con.SolveInfo(0, 0, np.inf, np.inf)
 
     # -- shared helpers ------------------------------------------------------------------
     @property
@@ -381,9 +380,7 @@ class FreeFlyerSystem(_FreeBaseCommon):
         q, v = self.split(y)
         out = np.empty(self.ny)
         out[:self.nq] = dyn.qdot(self.model, q, v)
-        a, _, info = self.solve(q, v, self.generalized_forces(y, u), self._f_ext(u))
-        self.last_info = info
-        out[self.nq:] = a
+        out[self.nq:] = self.solve(q, v, self.generalized_forces(y, u), self._f_ext(u))[0]
         return out
 
     def table_wrench(self, q, v, lam):
