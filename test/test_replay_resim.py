@@ -177,3 +177,16 @@ def test_sim_node_exits_with_status_2_on_a_bad_parameter():
         dom.release()
     assert r.returncode == 2, r.stderr
     assert "sim: parameter 'mode' must be one of realtime, max, lockstep" in r.stderr
+
+
+def test_initial_position_override_uses_minimal_coordinates_for_augmented_systems():
+    """unfried_free_flyer is augmented (extended coordinates); overrides are minimal q (12 values)."""
+    from robodyn_ros.nodes.sim import resolve_config
+    from robodyn_ros.scene import load_scene
+    scene = load_scene('unfried_free_flyer')
+    nq0, _ = scene.system.initial_state_sizes
+    assert nq0 == 12 and scene.system.nq != nq0  # the state really is in other coordinates
+    q = np.array([0.1, -0.2, 0.3, 0.0, 0.0, np.sin(0.2), np.cos(0.2), 0.1, 0.2, -0.3, 0.4, 0.5])
+    cfg = resolve_config(_params(initial_positions=q.tolist()), scene)
+    np.testing.assert_allclose(cfg.y0, scene.system.initial_state(q, None), atol=1e-12)
+    assert not np.allclose(cfg.y0, scene.y0)

@@ -165,14 +165,25 @@ def resolve_config(p: dict, scene) -> Config:
     y0 = np.array(scene.y0, dtype=float)
     names = getattr(system, 'joint_names', None)
     joints = ', '.join(names) if names else 'configuration coordinates'
-    if p['initial_positions'] is not None:
-        y0[:system.nq] = _vector('initial_positions', p['initial_positions'], system.nq, joints)
-    if p['initial_velocities'] is not None:
-        nv = getattr(system, 'nv', None)
-        if nv is None:
-            raise ConfigError(f"parameter 'initial_velocities': {type(system).__name__} does not say how many "
-                              f"velocities it has; set 'initial_state' ({system.ny} values) instead")
-        y0[system.nq:system.nq + nv] = _vector('initial_velocities', p['initial_velocities'], nv, joints)
+    if p['initial_positions'] is not None or p['initial_velocities'] is not None:
+        # overrides are in the coordinates the scene's initial_state uses (minimal ones for the
+        # augmented free-flyer); the system maps them to its state, as the scene loader does
+        nq0, nv0 = getattr(system, 'initial_state_sizes', (system.nq, getattr(system, 'nv', None)))
+        given = (scene.data or {}).get('initial_state') or {}
+        q0 = given.get('q')
+        v0 = given.get('v')
+        if p['initial_positions'] is not None:
+            q0 = _vector('initial_positions', p['initial_positions'], nq0, joints)
+        if p['initial_velocities'] is not None:
+            if nv0 is None:
+                raise ConfigError(f"parameter 'initial_velocities': {type(system).__name__} does not say how many "
+                                  f"velocities it has; set 'initial_state' ({system.ny} values) instead")
+            v0 = _vector('initial_velocities', p['initial_velocities'], nv0, joints)
+        try:
+            y0 = system.initial_state(None if q0 is None else np.asarray(q0, dtype=float),
+                                      None if v0 is None else np.asarray(v0, dtype=float))
+        except ValueError as e:
+            raise ConfigError(f'initial_positions/initial_velocities: {e}') from None
     if p['initial_state'] is not None:
         y0 = _vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
     return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol,
