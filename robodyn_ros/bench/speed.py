@@ -42,6 +42,8 @@ SECTIONS = ('kernels', 'rtf', 'scaling', 'memory', 'compile', 'node')
 RTF_DT, RTF_RATE = 1e-3, 100.0
 #: simulated seconds of the numpy-reference RTF run (it is ~100x slower than the compiled one)
 REFERENCE_HORIZON = 0.5
+#: simulated seconds for systems without a compiled path (their numpy constraint solvers are slow)
+NUMPY_SYSTEM_HORIZON = 1.0
 CHAIN_SIZES = (8, 16, 32, 64)
 
 
@@ -229,9 +231,9 @@ def _call_floor(args) -> str:
         import pinocchio as pin
         pm, pd = pin_md
         fns['pin'] = lambda: pin.aba(pm, pd, z, z, z)
-    t = per_call(fns, repeat=args.repeat)
-    return (f'Cost of the call itself (FD of a 1-link model): compiled {fmt_time(t["compiled"][0] if t["compiled"] else None)}, '
-            f'Pinocchio {fmt_time(t["pin"][0] if t.get("pin") else None)}.')
+    t = {k: (v[0] if v else None) for k, v in per_call(fns, repeat=args.repeat).items()}
+    return (f'Cost of the call itself (FD of a 1-link model): compiled {fmt_time(t["compiled"])}, '
+            f'Pinocchio {fmt_time(t.get("pin"))}.')
 
 
 def _rel(x, y) -> float:
@@ -338,17 +340,25 @@ def section_rtf(args, names) -> str:
         except Exception as e:
             notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
             continue
+        fused = isinstance(scene.system, ArmSystem) and scene.system._fused_exact()
+        # systems without the compiled path (constraint solvers in numpy) run a shorter horizon once
+        d = dur if fused else min(dur, NUMPY_SYSTEM_HORIZON)
         try:
             run_robodyn(name, 0.05)  # warm-up (compiled code, caches)
-            t_rec = best_of(lambda: run_robodyn(name, dur, record=True)[0], args.repeat if args.quick else 3)
-            t_norec = best_of(lambda: run_robodyn(name, dur, record=False)[0], 1 if args.quick else 3)
+            n_rec, n_norec = ((args.repeat if args.quick else 3), (1 if args.quick else 3)) if fused else (1, 1)
+            t_rec = best_of(lambda: run_robodyn(name, d, record=True)[0], n_rec)
+            t_norec = best_of(lambda: run_robodyn(name, d, record=False)[0], n_norec)
             ref_h = min(REFERENCE_HORIZON, dur / 10.0)
-            t_ref = best_of(lambda: run_robodyn(name, ref_h, record=True, backend='numpy')[0], 1)
+            t_ref = best_of(lambda: run_robodyn(name, ref_h, record=True, backend='numpy')[0], 1) if fused else None
         except Exception as e:
-            notes.append(f'{name}: RK4 at {RTF_DT * 1e3:g} ms not run ({type(e).__name__}: {e})')
+            why = ' '.join(str(e).split())[:300]
+            notes.append(f'{name}: RK4 at {RTF_DT * 1e3:g} ms not run ({type(e).__name__}: {why})')
             continue
-        row = [name, f'{dur / t_rec[0]:.0f} ({dur / t_rec[1]:.0f})', f'{dur / t_rec[2]:.0f}',
-               f'{dur / t_norec[0]:.0f}', f'{ref_h / t_ref[0]:.1f}']
+        horizon = '' if d == dur else f' ({d:g} s run)'
+        row = [name, f'{d / t_rec[0]:.1f} ({d / t_rec[1]:.1f}){horizon}' if not fused else
+               f'{d / t_rec[0]:.0f} ({d / t_rec[1]:.0f})', f'{d / t_rec[2]:.0f}' if fused else f'{d / t_rec[2]:.1f}',
+               f'{d / t_norec[0]:.0f}' if fused else f'{d / t_norec[0]:.1f}',
+               f'{ref_h / t_ref[0]:.1f}' if t_ref else 'same (no compiled path)']
         model = scene.system.model if isinstance(scene.system, ArmSystem) and \
             type(scene.system).rhs is ArmSystem.rhs else None
         if model is None:
@@ -456,9 +466,9 @@ def memory_child(duration: float, scene_name='stanford_arm') -> dict:
         wall = time.perf_counter() - t0
         size = os.path.getsize(path)
     samples = probe.samples + [rss_bytes()]
-    warm = samples[min(2, len(samples) - 1)]  # after 10 % of the run
-    return {'duration': duration, 'wall': wall, 'rss_warm': warm, 'rss_end': samples[-1],
-            'rss_max_after_warm': max(samples[min(2, len(samples) - 1):]), 'peak_rss': peak_rss_bytes(),
+    k = min(1, len(samples) - 1)  # samples every 5 %: index 1 is after 10 % of the run
+    return {'duration': duration, 'wall': wall, 'rss_warm': samples[k], 'rss_end': samples[-1],
+            'rss_max_after_warm': max(samples[k:]), 'peak_rss': peak_rss_bytes(),
             'mcap_bytes': size, 'messages': sink.count}
 
 
