@@ -107,7 +107,6 @@ from scipy.linalg import cho_factor, cho_solve, eigh
 from .. import dynamics as dyn
 from ..constraints import KKT_RCOND, baumgarte_rhs, kkt_solve, null_space_basis
 from ..model import REVOLUTE, LinkSpec, ModelError, build_model, to_urdf
-from ..spatial import skew
 from .base import InputPort, System, SystemOutputs
 from .motor import DCMotor
 
@@ -255,7 +254,6 @@ class DiffDriveSystem(System):
         self._armature = np.zeros(self.nv)
         self._armature[[_IL, _IR]] = [mot.reflected_inertia for mot in self.motors]
         self._wheels = (m.body('left_wheel'), m.body('right_wheel'))
-        self._chassis_body = m.body('base_link')
         self._km = _compiled(m) if self.has_arm else None  # fast CRBA/RNEA for the mobile manipulator
         self._zero_v = np.zeros(self.nv)
         self._planar_inertia()
