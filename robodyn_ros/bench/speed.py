@@ -179,6 +179,8 @@ def section_kernels(args, names) -> str:
         rng = np.random.default_rng(0)
         q, v, a = _random_state(model, rng)
         km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
+        kg = kernels.CompiledModel(model, specialize=True) if kernels.AVAILABLE else None
+        kg = kg if kg is not None and kg.gen is not None else None
         pin_md, why = _pin_model(model)
         if pin_md is not None:
             import pinocchio as pin
@@ -203,18 +205,27 @@ def section_kernels(args, names) -> str:
             agree = {'ID': _rel(km.rnea(q, v, a), dyn.rnea(model, q, v, a)),
                      'M': _rel(km.crba(q), dyn.crba(model, q)),
                      'FD': _rel(km.aba(q, v, a), dyn.aba(model, q, v, a))}
+        if kg:
+            agree['FD (generated)'] = _rel(kg.aba(q, v, a), dyn.aba(model, q, v, a))
         for op, (f_np, f_c, f_pin) in ops.items():
-            t = per_call({'numpy': f_np, 'compiled': f_c, 'pin': f_pin}, repeat=args.repeat)
-            tn, tc, tp = (t[k][0] if t[k] else None for k in ('numpy', 'compiled', 'pin'))
-            rows.append([name, f'{model.nb}/{model.nv}', op, fmt_time(tn), fmt_time(tc), fmt_time(tp),
-                         fmt_ratio(tc, tp), fmt_ratio(tn, tc), f'{agree[op]:.1e}' if op in agree else '—'])
+            f_g = (lambda: kg.aba(q, v, a)) if (op == 'FD' and kg) else None
+            t = per_call({'numpy': f_np, 'compiled': f_c, 'generated': f_g, 'pin': f_pin}, repeat=args.repeat)
+            tn, tc, tg, tp = (t[k][0] if t[k] else None for k in ('numpy', 'compiled', 'generated', 'pin'))
+            dev = f'{agree[op]:.1e}' if op in agree else '—'
+            if tg is not None:
+                dev += f' (generated {agree["FD (generated)"]:.1e})'
+            rows.append([name, f'{model.nb}/{model.nv}', op, fmt_time(tn), fmt_time(tc), fmt_time(tg), fmt_time(tp),
+                         fmt_ratio(tc, tp), fmt_ratio(tg, tp), fmt_ratio(tn, tc), dev])
         if not pin_md:
             notes.append(f'{name}: Pinocchio column empty ({why})')
     text = ['### Per-call time (called from Python; CPU time, minimum of interleaved repeats)\n',
-            table(['scene', 'bodies/dof', 'op', 'numpy reference', 'compiled', 'Pinocchio', 'compiled / Pinocchio',
-                   'numpy / compiled', 'max rel. diff compiled vs numpy'], rows)]
+            table(['scene', 'bodies/dof', 'op', 'numpy reference', 'compiled', 'generated (method of Zs)', 'Pinocchio',
+                   'compiled / Pinocchio', 'generated / Pinocchio', 'numpy / compiled',
+                   'max rel. diff vs numpy'], rows)]
     text += ['', 'ID = RNEA, M = CRBA, FD = ABA; Pinocchio on `pin.buildModelFromXML(to_urdf(model))`, '
-             'random state (seed 0).', _call_floor(args)] + [f'- {n}' for n in notes]
+             'random state (seed 0). "generated": forward dynamics generated for that tree '
+             '(`ArmSystem(backend="generated")`, robodyn_ros.kernels.codegen; not for FREE joints).',
+             _call_floor(args)] + [f'- {n}' for n in notes]
     return '\n'.join(text)
 
 
@@ -350,6 +361,10 @@ def section_rtf(args, names) -> str:
             t_norec = best_of(lambda: run_robodyn(name, d, record=False)[0], n_norec)
             ref_h = min(REFERENCE_HORIZON, dur / 10.0)
             t_ref = best_of(lambda: run_robodyn(name, ref_h, record=True, backend='numpy')[0], 1) if fused else None
+            t_gen = None
+            if fused:
+                run_robodyn(name, 0.05, backend='generated')  # warm-up (generation, compilation)
+                t_gen = best_of(lambda: run_robodyn(name, d, record=True, backend='generated')[0], n_rec)
         except Exception as e:
             why = ' '.join(str(e).split())[:300]
             notes.append(f'{name}: RK4 at {RTF_DT * 1e3:g} ms not run ({type(e).__name__}: {why})')
@@ -357,6 +372,7 @@ def section_rtf(args, names) -> str:
         horizon = '' if d == dur else f' ({d:g} s run)'
         row = [name, f'{d / t_rec[0]:.1f} ({d / t_rec[1]:.1f}){horizon}' if not fused else
                f'{d / t_rec[0]:.0f} ({d / t_rec[1]:.0f})', f'{d / t_rec[2]:.0f}' if fused else f'{d / t_rec[2]:.1f}',
+               f'{d / t_gen[0]:.0f} (CPU {d / t_gen[2]:.0f})' if t_gen else '—',
                f'{d / t_norec[0]:.0f}' if fused else f'{d / t_norec[0]:.1f}',
                f'{ref_h / t_ref[0]:.1f}' if t_ref else 'same (no compiled path)']
         model = scene.system.model if isinstance(scene.system, ArmSystem) and \
@@ -386,7 +402,7 @@ def section_rtf(args, names) -> str:
         rows.append(row)
     text = [f'### Real-time factor: {dur:g} s simulated, RK4 at {RTF_DT * 1e3:g} ms, headless\n',
             table(['scene', 'robodyn compiled + MCAP joint states 100 Hz: wall (median)', 'same, CPU time',
-                   'robodyn compiled, no recording',
+                   'robodyn generated + MCAP', 'robodyn compiled, no recording',
                    f'robodyn numpy reference + MCAP ({min(REFERENCE_HORIZON, dur / 10.0):g} s run)',
                    'Python RK4 loop over pin.aba', 'MuJoCo RK4, mj_step per step from Python',
                    'MuJoCo RK4, mj_step(nstep=10) per 10 ms'], rows),
@@ -531,8 +547,12 @@ from robodyn_ros.bench.speed import run_robodyn
 warnings.simplefilter('ignore')
 run_robodyn('stanford_arm', 0.1, record=True)
 t3 = time.perf_counter()
+spec = None
+if kernels.AVAILABLE:
+    run_robodyn('stanford_arm', 0.1, record=True, backend='generated')
+    spec = time.perf_counter() - t3
 print(json.dumps({'import': t1 - t0, 'warmup': t2 - t1, 'first_run': t3 - t2, 'available': kernels.AVAILABLE,
-                  'cache': kernels.CACHE_DIR}))
+                  'cache': kernels.CACHE_DIR, 'specialize': spec}))
 '''
 
 
@@ -547,7 +567,7 @@ def section_compile(args, names) -> str:
     """Cold (empty numba cache) and warm start of the compiled kernels, and the numpy-only start."""
     rows = []
     with tempfile.TemporaryDirectory() as d:
-        env = dict(os.environ, NUMBA_CACHE_DIR=d)
+        env = dict(os.environ, NUMBA_CACHE_DIR=d, ROBODYN_GENERATED_DIR=os.path.join(d, 'generated'))
         env.pop('ROBODYN_BACKEND', None)
         try:
             cold = _start(env)
@@ -558,10 +578,11 @@ def section_compile(args, names) -> str:
     for label, r in (('cold cache (first start of an install)', cold), ('warm cache (every later start)', warm),
                      ('ROBODYN_BACKEND=numpy (no numba)', ref)):
         rows.append([label, fmt_time(r['import']), fmt_time(r['warmup']), fmt_time(r['first_run']),
-                     fmt_time(r['import'] + r['warmup'] + r['first_run'])])
+                     fmt_time(r['import'] + r['warmup'] + r['first_run']), fmt_time(r.get('specialize'))])
     return '\n'.join([
         '### First-run cost of the compiled kernels (child processes)\n',
-        table(['start', 'import kernels', 'load/compile all kernels', 'first 0.1 s stanford_arm run', 'total'], rows),
+        table(['start', 'import kernels', 'load/compile all kernels', 'first 0.1 s stanford_arm run', 'total',
+               'then the same run with backend=generated (generate + compile/load)'], rows),
         '', f'numba caches the machine code on disk (here a temporary NUMBA_CACHE_DIR; normally '
         f'`{_default_cache()}`), so only the first start of an install pays the compilation.'])
 

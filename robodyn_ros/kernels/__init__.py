@@ -23,7 +23,9 @@ compiles (a few seconds, see ``robodyn bench speed``) and writes the machine cod
 source in ``robodyn_ros/kernels/__pycache__``; later starts load it. If that directory is not
 writable (a system-wide install), the cache goes to ``$NUMBA_CACHE_DIR`` when set, else to
 ``$XDG_CACHE_HOME/robodyn_ros/numba`` (``~/.cache/robodyn_ros/numba``); :data:`CACHE_DIR`
-says which one is in use. Set ``ROBODYN_BACKEND=numpy`` to switch the compiled path off.
+says which one is in use. Set ``ROBODYN_BACKEND=numpy`` to switch the compiled path off, or
+``ROBODYN_BACKEND=generated`` to make ArmSystems use scene-specialised code
+(:mod:`robodyn_ros.kernels.codegen`, cached under ``~/.cache/robodyn_ros/generated``).
 """
 from __future__ import annotations
 
@@ -152,10 +154,13 @@ class CompiledModel:
     (q (nq,), v/a/tau (nv,), f_ext (nb, 6) in body coordinates) and return new arrays.
     Joint-space results use the tree with FIXED bodies welded into their parents
     (``mi_r, mf_r``, :func:`merge_fixed`); per-body results (wrenches) and external forces
-    use the full tree (``mi, mf``).
+    use the full tree (``mi, mf``). specialize: also generate (or load from the disk cache) the
+    model's own forward dynamics by the method of Zs (:mod:`robodyn_ros.kernels.codegen`), used
+    by :meth:`aba` without external forces and by :meth:`integrate_arm`; ignored (``gen`` is
+    None) for trees with FREE joints.
     """
 
-    def __init__(self, model: Model):
+    def __init__(self, model: Model, specialize: bool = False):
         if not AVAILABLE:
             raise RuntimeError(f'compiled kernels unavailable: {UNAVAILABLE_REASON}')
         self.model = model
@@ -164,12 +169,19 @@ class CompiledModel:
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
         self._zf = np.zeros((self.nb, 6))
+        self.gen = None
+        if specialize:
+            from . import codegen
+            self.gen = codegen.specialize(model)
 
     def aba(self, q, v, tau, f_ext=None):
         """Forward dynamics ``qdd`` (nv,) by the articulated-body algorithm."""
         qdd = np.empty(self.nv)
         if f_ext is None:
-            core.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
+            if self.gen is not None:
+                self.gen.aba(q, v, tau, qdd)
+            else:
+                core.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
         else:
             core.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
         return qdd
@@ -227,8 +239,9 @@ class CompiledModel:
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid. Returns the
         index of the first non-finite step or -1.
         """
-        return core.integrate_arm(self.mi_r, self.mf_r, self.damping, tau_app, self.nq, FUSED_METHODS[method],
-                                  z, float(dt), int(n_full), float(h_last))
+        run = core.integrate_arm if self.gen is None else self.gen.integrate_arm
+        return run(self.mi_r, self.mf_r, self.damping, tau_app, self.nq, FUSED_METHODS[method],
+                   z, float(dt), int(n_full), float(h_last))
 
 
 def warmup(model: Model | None = None) -> float:

@@ -12,7 +12,7 @@ from ..model import PRISMATIC, REVOLUTE, Model
 from .base import InputPort, System, SystemOutputs
 
 
-BACKENDS = ('numpy', 'numba')
+BACKENDS = ('numpy', 'numba', 'generated')
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
 
@@ -30,19 +30,21 @@ class ArmSystem(System):
 
     model: the kinematic tree; actuated: names of the driven joints (default: every 1-DOF
     joint); the others are passive (zero effort) but still damped by the model's damping.
-    backend: ``'numpy'`` (the reference kernels of :mod:`robodyn_ros.dynamics`) or ``'numba'``
-    (the compiled :mod:`robodyn_ros.kernels`, equal to 1e-12, plus :meth:`fused_advance`);
-    default :func:`default_backend`.
+    backend: ``'numpy'`` (the reference kernels of :mod:`robodyn_ros.dynamics`), ``'numba'``
+    (the compiled :mod:`robodyn_ros.kernels`, equal to 1e-12, plus :meth:`fused_advance`) or
+    ``'generated'`` (as numba, with forward dynamics and the fused loop generated for this
+    model by :mod:`robodyn_ros.kernels.codegen`: a few seconds on first use of a model, cached
+    on disk; trees with FREE joints stay generic); default :func:`default_backend`.
     """
 
     def __init__(self, model: Model, actuated=None, backend=None):
         backend = default_backend() if backend is None else str(backend).lower()
         if backend not in BACKENDS:
             raise ValueError(f'unknown backend {backend!r}; valid: {", ".join(BACKENDS)}')
-        if backend == 'numba' and not kernels.AVAILABLE:
-            raise ValueError(f'backend numba unavailable: {kernels.UNAVAILABLE_REASON}')
+        if backend != 'numpy' and not kernels.AVAILABLE:
+            raise ValueError(f'backend {backend} unavailable (no numba): {kernels.UNAVAILABLE_REASON}')
         self.backend = backend
-        self._km = kernels.CompiledModel(model) if backend == 'numba' else None
+        self._km = kernels.CompiledModel(model, specialize=backend == 'generated') if backend != 'numpy' else None
         self._grids = {}
         # a subclass that changes the dynamics keeps the reference path (see fused_advance)
         self._fused_class_ok = all(getattr(type(self), n) is getattr(ArmSystem, n) for n in _FUSED_METHODS_OF)
