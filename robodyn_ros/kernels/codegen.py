@@ -374,11 +374,17 @@ def specialize(model):
         if src is None:
             _LOADED[key] = None
             return None
-        os.makedirs(GENERATED_DIR, exist_ok=True)
-        tmp = f'{path}.{os.getpid()}.tmp'
-        with open(tmp, 'w') as f:
-            f.write(src)
-        os.replace(tmp, path)  # atomic: concurrent starts see a whole file or none
+        try:
+            os.makedirs(GENERATED_DIR, exist_ok=True)
+            tmp = f'{path}.{os.getpid()}.tmp'
+            with open(tmp, 'w') as f:
+                f.write(src)
+            os.replace(tmp, path)  # atomic: concurrent starts see a whole file or none
+        except OSError as e:  # no writable cache: the generic kernels do the work
+            import warnings
+            warnings.warn(f'robodyn_ros: cannot write generated kernels to {GENERATED_DIR} ({e}); '
+                          'using the generic compiled kernels', RuntimeWarning, stacklevel=2)
+            return None
     name = f'robodyn_gen_{key}'
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
