@@ -816,8 +816,10 @@ def extremes_markdown(results) -> str:
     """The README table: one row per extreme."""
     lines = ['| extreme | behaviour | what the simulator does (measured) | published values finite |',
              '|---|---|---|---|']
+    def cell(text):  # a '|' inside a cell (|λ|) would end it
+        return str(text).replace('|', '\\|')
     for r in results:
-        lines.append(f'| {r.extreme} | {r.behaviour} | {r.what} | {"yes" if r.finite else "**NO**"} |')
+        lines.append(f'| {cell(r.extreme)} | {cell(r.behaviour)} | {cell(r.what)} | {"yes" if r.finite else "**NO**"} |')
     return '\n'.join(lines)
 
 

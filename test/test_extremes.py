@@ -276,5 +276,7 @@ def test_a_failed_run_records_no_non_finite_value(tmp_path):
 
 def test_extremes_table_has_a_row_per_extreme():
     rows = [ex.Extreme(fn.__name__, fn.__doc__.split('.')[0], 'b', 'w') for fn in ex.EXTREMES]
+    rows[0].what = 'dt·|λ| = 5'
     text = ex.extremes_markdown(rows)
     assert len(ex.EXTREMES) == 11 and text.count('\n') == 11 + 1
+    assert 'dt·\\|λ\\| = 5' in text  # a pipe inside a cell is escaped
