@@ -636,22 +636,30 @@ def markdown(res: SceneResult, png: str | None = None) -> str:
 
 
 def plot(res: SceneResult, path: str) -> None:
-    """Work-precision diagram: error vs rhs evaluations and vs wall time, log–log, one line per method."""
+    """Work-precision diagram: error vs rhs evaluations and vs CPU time, log–log, one line per method
+    and formulation (colour and marker per integrator, dashed for the formulation the reference
+    did not use; horizontal lines at the target accuracies, dotted at the reference's error)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5), sharey=True)
     groups = {}
     for r in res.runs:
         if r.status == 'ok' and math.isfinite(r.error):
             groups.setdefault(r.label, []).append(r)
+    order = list(FIXED + ADAPTIVE)
+    colors = plt.get_cmap('tab10').colors
     markers = 'osD^v<>pXh*'
     floor = max(res.reference.error_estimate, 1e-16)
-    for k, (label, rs) in enumerate(sorted(groups.items())):
+    for label, rs in sorted(groups.items(), key=lambda kv: (order.index(kv[1][0].integrator)
+                                                              if kv[1][0].integrator in order else 99, kv[0])):
         rs = sorted(rs, key=lambda r: r.rhs_per_sim_s)
         err = [max(r.error, 1e-16) for r in rs]
-        style = dict(marker=markers[k % len(markers)], linestyle='-' if not rs[0].formulation or
-                     rs[0].formulation == res.reference.formulation else '--', label=label)
+        k = order.index(rs[0].integrator) if rs[0].integrator in order else len(order)
+        other = rs[0].formulation and rs[0].formulation != res.reference.formulation
+        # one colour and marker per integrator; dashed for the formulation the reference did not use
+        style = dict(color=colors[k % len(colors)], marker=markers[k % len(markers)],
+                     linestyle='--' if other else '-', markerfacecolor='none' if other else None, label=label)
         axes[0].loglog([r.rhs_per_sim_s for r in rs], err, **style)
         axes[1].loglog([max(cost_key(r)[0], 1e-6) for r in rs], err, **style)
     for ax, xl in zip(axes, ('rhs evaluations per simulated second', 'CPU seconds per simulated second')):
@@ -664,7 +672,7 @@ def plot(res: SceneResult, path: str) -> None:
     axes[0].set_ylabel('final-state error')
     axes[0].set_title(f'{res.scene}: error vs rhs evaluations')
     axes[1].set_title(f'error vs CPU time ({res.horizon:g} s horizon)')
-    axes[1].legend(fontsize=8, loc='best')
+    axes[1].legend(fontsize=8, loc='center left', bbox_to_anchor=(1.02, 0.5))
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
