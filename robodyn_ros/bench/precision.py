@@ -694,6 +694,22 @@ def summary_markdown(results) -> str:
     return table(['scene'] + [f'≤ {t:g}' for t in TARGETS], rows)
 
 
+def write_summary(out: str, results=()) -> str:
+    """Write ``summary.md`` in ``out`` for every scene measured into it (``results`` of this run,
+    the others read back from their CSV files), in DEFAULT_SCENES order; returns the table."""
+    done = {res.scene: res.runs for res in results}
+    for f in os.listdir(out):
+        if f.endswith('.csv') and f[:-4] not in done:
+            done[f[:-4]] = read_csv(os.path.join(out, f))
+    rank = {n: k for k, n in enumerate(DEFAULT_SCENES)}
+    summary = summary_markdown(sorted(done.items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0])))
+    with open(os.path.join(out, 'summary.md'), 'w') as f:
+        f.write('# Cheapest integrator per accuracy\n\nLeast CPU time per simulated second among the measured '
+                'runs whose final-state error is at most the accuracy (see each scene\'s page for the runs).\n\n'
+                + summary + '\n')
+    return summary
+
+
 def write_scene(res: SceneResult, out: str) -> dict:
     """Write ``<scene>.csv``, ``<scene>.md``, ``<scene>.png`` in ``out``; returns their paths."""
     os.makedirs(out, exist_ok=True)
@@ -752,16 +768,7 @@ def main(args) -> int:
             store(name, res)
         if not args.quiet:
             print(f'{res.scene}: wrote {paths["csv"]}, {paths["md"]}, {paths["png"]}', file=sys.stderr)
-    # the summary covers every scene measured into this directory, by this run or an earlier one
-    done = {res.scene for res in results}
-    earlier = sorted(f[:-4] for f in os.listdir(args.out) if f.endswith('.csv') and f[:-4] not in done)
-    table_rows = [(res.scene, res.runs) for res in results] + \
-        [(name, read_csv(os.path.join(args.out, f'{name}.csv'))) for name in earlier]
-    summary = summary_markdown(table_rows)
-    with open(os.path.join(args.out, 'summary.md'), 'w') as f:
-        f.write('# Cheapest integrator per accuracy\n\nLeast CPU time per simulated second among the measured '
-                'runs whose final-state error is at most the accuracy (see each scene\'s page for the runs).\n\n'
-                + summary + '\n')
+    summary = write_summary(args.out, results)
     print(summary)
     return 0
 
