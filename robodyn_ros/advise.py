@@ -203,8 +203,9 @@ def run_command(scene: str, run) -> str:
 
 
 def _describe(r) -> str:
+    err = f'error {r.error:.2g}' + (' (at the reference\'s own accuracy)' if r.error_floor else '')
     return (f'{r.integrator} {r.setting}' + (f' [{r.formulation}]' if r.formulation else '') +
-            f': error {r.error:.2g}, {r.cpu_per_sim_s:.3g} CPU s per simulated s, {r.rhs_per_sim_s:.0f} rhs/s')
+            f': {err}, {r.cpu_per_sim_s:.3g} CPU s per simulated s, {r.rhs_per_sim_s:.0f} rhs/s')
 
 
 def format_advice(adv: Advice, scene_arg: str | None = None) -> str:
@@ -218,7 +219,8 @@ def format_advice(adv: Advice, scene_arg: str | None = None) -> str:
         most = adv.most_accurate
         lines.append(f'  no measured setting reaches it; the most accurate was '
                      f'{_describe(most) if most else "none (every run failed)"}')
-        lines.append('  try a tighter setting (robodyn bench precision --integrators dop853 radau) or a looser tolerance')
+        lines.append('  try a tighter setting (robodyn bench precision --integrators dop853 radau) '
+                     'or a looser tolerance')
     else:
         b = adv.best
         lines.append(f'  cheapest: {_describe(b)}')

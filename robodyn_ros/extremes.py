@@ -128,7 +128,9 @@ def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_ST
         ym = y.copy()
         yp[j] += h
         ym[j] -= h
-        J[:, j] = (np.asarray(system.rhs(t, yp, u), dtype=float) - np.asarray(system.rhs(t, ym, u), dtype=float)) / (2.0 * h)
+        fp = np.asarray(system.rhs(t, yp, u), dtype=float)
+        fm = np.asarray(system.rhs(t, ym, u), dtype=float)
+        J[:, j] = (fp - fm) / (2.0 * h)
     return J
 
 
@@ -549,19 +551,22 @@ def extreme_spin(horizon: float = 0.5) -> Extreme:
             ok, _ = _advance(sim, horizon)
             q, v = sc.system.minimal(sim.y)
             err = float(np.max(np.abs(v[:3] - _torque_free_omega(omega0, sim.t))) / 100.0)
-            d[integ] = {'ok': ok, 'omega_error': err, 'momentum_change': float(np.max(np.abs(_momentum_vector(sim) - L0))),
-                        'energy_drift': abs(sim.energy_report()['relative_drift']), 'quat_norm': float(np.linalg.norm(q[3:7]))}
+            d[integ] = {'ok': ok, 'omega_error': err,
+                        'momentum_change': float(np.max(np.abs(_momentum_vector(sim) - L0))),
+                        'energy_drift': abs(sim.energy_report()['relative_drift']),
+                        'quat_norm': float(np.linalg.norm(q[3:7]))}
             finite &= published_finite(sim)
         data[form] = d
     m = data['minimal']
     what = (f'RK4 at dt = 0.05 s is refused (h·ω beyond the stability limit: {_mode_words(m["rk4_0.05_refused"])}). '
             f'Over {horizon:g} s (8 turns) against the torque-free closed form: RK4 at 1 ms relative ω error '
             f'{m["rk4"]["omega_error"]:.1g}, DOP853 at 1e-10 {m["dop853"]["omega_error"]:.1g}; angular momentum kept '
-            f'to {max(m["rk4"]["momentum_change"], m["dop853"]["momentum_change"]):.1g} N·m·s of 80, quaternion norm 1 '
+            f'to {max(m["rk4"]["momentum_change"], m["dop853"]["momentum_change"]):.1g} N·m·s of 80, '
+            'quaternion norm 1 '
             f'(projection every step); the augmented formulation gives the same to '
             f'{max(data["augmented"]["rk4"]["omega_error"], data["augmented"]["dop853"]["omega_error"]):.1g}.')
-    return Extreme('spin', 'free-flying base spinning at 100 rad/s', 'stays within its error (refuses too large a step)',
-                   what, data, finite)
+    return Extreme('spin', 'free-flying base spinning at 100 rad/s',
+                   'stays within its error (refuses too large a step)', what, data, finite)
 
 
 def _momentum_vector(sim) -> np.ndarray:
@@ -594,7 +599,8 @@ def extreme_stretched_arm(horizon: float = 1.5) -> Extreme:
                 ok, fail = False, str(e)
         ex = sim.outputs().extra
         data[form] = {'ok': ok, 'failure': fail, 'rank': ex['constraint_rank'], 'singular': ex['singular'],
-                      'residual': worst, 'final_residual': ex['constraint_residual'], 'sigma_ratio': ex['constraint_sigma_ratio'],
+                      'residual': worst, 'final_residual': ex['constraint_residual'],
+                      'sigma_ratio': ex['constraint_sigma_ratio'],
                       'warned': any(issubclass(w.category, ConstraintWarning) for w in caught)}
         finite &= published_finite(sim)
     c = data['complement']
@@ -602,7 +608,8 @@ def extreme_stretched_arm(horizon: float = 1.5) -> Extreme:
             f'constraint_rank {c["rank"]} and singular = true, and both formulations switch to damped least '
             f'squares: the run continues, E follows the path within {c["residual"]:.2g} m (reported as '
             'constraint_residual), the driving force stays finite.')
-    return Extreme('stretched_arm', 'fully stretched arm under prescribed end-point motion (singular constraint matrix)',
+    return Extreme('stretched_arm',
+                   'fully stretched arm under prescribed end-point motion (singular constraint matrix)',
                    'adapts (damped least squares, error reported)', what, data, finite)
 
 
@@ -626,7 +633,8 @@ def extreme_mass_ratio(horizon: float = 1.0) -> Extreme:
     worst = max(v['rk4']['error'] for v in data.values())
     what = (f'No special treatment is needed (ABA is exact in any mass ratio; the light link\'s pendulum mode '
             f'is not faster): RK4 at 1 ms stays within {worst:.1g} rad of a DOP853 1e-12 reference over '
-            f'{horizon:g} s, energy drift ≤ {max(v["rk4"]["energy_drift"] for v in data.values()):.1g}, in both orders.')
+            f'{horizon:g} s, energy drift ≤ {max(v["rk4"]["energy_drift"] for v in data.values()):.1g}, '
+            'in both orders.')
     return Extreme('mass_ratio', '1e6 mass ratio between neighbouring links', 'stays within its error', what, data,
                    finite)
 
@@ -678,7 +686,8 @@ def extreme_long_horizon(horizon: float = 1e4) -> Extreme:
         for k in range(100):
             ok, _ = _advance(sim, (k + 1) * horizon / 100, rate=100 / horizon)
             errs.append(abs(s.total_energy(sim.y) - s.total_energy(y0)) / scale)
-        data[integ] = {'t': sim.t, 'energy_error_first_half': max(errs[:50]), 'energy_error_second_half': max(errs[50:]),
+        data[integ] = {'t': sim.t, 'energy_error_first_half': max(errs[:50]),
+                       'energy_error_second_half': max(errs[50:]),
                        'energy_error_final': errs[-1], 'warned': bool(warns)}
         finite &= published_finite(sim)
     what = (f'Steps start at t0 + k·dt (no accumulated sum): the runs end at t = {data["rk4"]["t"]:g} s exactly. '
@@ -750,7 +759,8 @@ def extreme_huge_commands() -> Extreme:
     finite = published_finite(sim)
     sim2, _, _ = _quiet_sim(arm.system, arm.y0, 'dop853', rtol=1e-6, atol=1e-8)
     ok2, _ = _advance(sim2, 0.005, command={'effort': [1e6] * 6})
-    data['dop853_effort'] = {'ok': ok2, 'steps': sim2.diag.steps, 'max_speed': float(np.max(np.abs(sim2.y[arm.system.nq:])))}
+    data['dop853_effort'] = {'ok': ok2, 'steps': sim2.diag.steps,
+                             'max_speed': float(np.max(np.abs(sim2.y[arm.system.nq:])))}
     finite &= published_finite(sim2)
     sat = _scene_variant('betancur_platform', ('value: [6.0, 6.0]', 'value: [10000.0, 10000.0]'))
     sim3, _, _ = _quiet_sim(sat.system, sat.y0, 'rk4', dt=5e-3)
@@ -766,7 +776,8 @@ def extreme_huge_commands() -> Extreme:
     what = ('The simulator integrates what it is given (arm joints have no effort limit in the model). 1e6 N·m on '
             'every Stanford-arm joint: RK4 at 1 ms stops within the first period with "state became non-finite" '
             'and a diagnosis naming the command (largest command effort = 1e+06) and the state rate '
-            f'(|dy/dt| = 3e9), keeping the last good state (t = {data["rk4_effort"]["t"]:g} s); DOP853 adapts ({data["dop853_effort"]["steps"]} steps for 5 ms, joint speeds '
+            f'(|dy/dt| = 3e9), keeping the last good state (t = {data["rk4_effort"]["t"]:g} s); DOP853 adapts '
+            f'({data["dop853_effort"]["steps"]} steps for 5 ms, joint speeds '
             f'{data["dop853_effort"]["max_speed"]:.1g} rad/s). 1e4 V on the platform: clipped to the 12 V supply and '
             'reported (voltage_saturated = true); with no supply limit the response is linear and stays within '
             f'{data["unlimited"]["error"]:.1g} of the closed form ({data["unlimited"]["speed"]:.3g} m/s after 1 s).')
@@ -800,7 +811,8 @@ def extreme_nothing_moves(horizon: float = 0.5) -> Extreme:
     exact = [k for k, v in data.items() if v == 0.0]
     rest = {k: v for k, v in data.items() if v != 0.0}
     what = (f'After {horizon:g} s: {", ".join(exact)} exactly at rest (0.0); '
-            + ', '.join(f'{k} within {v:.1g} (the Baumgarte term acting on the round-off of C(x0))' for k, v in rest.items())
+            + ', '.join(f'{k} within {v:.1g} (the Baumgarte term acting on the round-off of C(x0))'
+                        for k, v in rest.items())
             + '.')
     return Extreme('nothing_moves', 'zero gravity, zero damping, no input', 'stays within its error (nothing moves)',
                    what, data, finite)
@@ -819,7 +831,8 @@ def extremes_markdown(results) -> str:
     def cell(text):  # a '|' inside a cell (|λ|) would end it
         return str(text).replace('|', '\\|')
     for r in results:
-        lines.append(f'| {cell(r.extreme)} | {cell(r.behaviour)} | {cell(r.what)} | {"yes" if r.finite else "**NO**"} |')
+        finite = 'yes' if r.finite else '**NO**'
+        lines.append(f'| {cell(r.extreme)} | {cell(r.behaviour)} | {cell(r.what)} | {finite} |')
     return '\n'.join(lines)
 
 

@@ -66,7 +66,8 @@ def _fast_platform():
     """betancur_platform with a 10x torque constant (τ = 0.79 s instead of 79 s, so the response is
     far from linear over 1 s) published at 1 Hz (one advance per second: no solver restarts)."""
     text = load_scene('betancur_platform').text
-    text = text.replace('torque_constant: 0.061', 'torque_constant: 0.61').replace('publish_rate: 100', 'publish_rate: 1')
+    text = text.replace('torque_constant: 0.061', 'torque_constant: 0.61')
+    text = text.replace('publish_rate: 100', 'publish_rate: 1')
     return parse_scene(text, file='fast_platform.yaml')
 
 

@@ -25,7 +25,8 @@ Per run it records:
   difference (at least 1e-13 per step taken) is reported as the reference's error estimate,
   and errors below it are floor values;
 * ``energy_drift`` — the largest ``|E − E0 − W|`` over the periods divided by the largest of
-  ``|E0|, |E|, |W|`` over the run (W = work done by inputs and dissipation), ``momentum_drift`` — the largest change of linear
+  ``|E0|, |E|, |W|`` over the run (W = work done by inputs and dissipation),
+  ``momentum_drift`` — the largest change of linear
   (N·s) and angular (N·m·s) momentum of a free-floating system in orbit without base thrust,
   ``constraint_residual`` — the largest constraint residual reported by the system (m, or m/s
   for the rolling constraints), sampled at up to ``SAMPLES`` instants;
@@ -592,7 +593,8 @@ def cheapest_line(res: SceneResult, tol: float) -> str:
     """``rk4 dt=0.002`` with its error and cost, or why none qualifies."""
     r = cheapest(res.runs, tol)
     if r is None:
-        return f'none measured (best error {min((x.error for x in res.runs if x.status == "ok"), default=math.nan):.1e})'
+        best = min((x.error for x in res.runs if x.status == 'ok'), default=math.nan)
+        return f'none measured (best error {best:.1e})'
     return (f'{r.label} {r.setting} — error {r.error:.1e}, {r.cpu_per_sim_s:.3g} CPU s per simulated s, '
             f'{r.rhs_per_sim_s:.0f} rhs/s')
 
@@ -621,7 +623,8 @@ def markdown(res: SceneResult, png: str | None = None) -> str:
     for r in res.runs:
         err = _g(r.error, '.1e') + (' (floor)' if r.error_floor and r.status == 'ok' else '')
         rows.append([r.integrator, r.formulation or '—', r.setting, r.status, err, _g(r.cpu_per_sim_s, '.3g'),
-                     _g(r.wall_per_sim_s, '.3g'), r.rhs_evals, r.steps, '?' if r.rejected_steps is None else r.rejected_steps,
+                     _g(r.wall_per_sim_s, '.3g'), r.rhs_evals, r.steps,
+                     '?' if r.rejected_steps is None else r.rejected_steps,
                      _g(r.energy_drift, '.1e'), _g(r.momentum_drift, '.1e'), _g(r.constraint_residual, '.1e')])
     lines.append(table(['integrator', 'formulation', 'setting', 'status', 'error', 'CPU s/s', 'wall s/s', 'rhs evals',
                         'steps',
