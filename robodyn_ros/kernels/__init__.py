@@ -61,15 +61,15 @@ try:
     import numba  # noqa: F401
     if CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
         numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
-    from . import core
+    from . import constrained, core
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
 except ImportError as _e:  # numba missing: the numpy reference is used
-    core = None
+    core = constrained = None
     AVAILABLE = False
     UNAVAILABLE_REASON = str(_e)
 
-__all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'pack_model', 'FUSED_METHODS', 'warmup']
+__all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_model', 'FUSED_METHODS', 'warmup']
 
 #: integrator names the fused loop implements -> method code in :mod:`.core`
 FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2}
@@ -222,6 +222,16 @@ class CompiledModel:
         """Gravitational potential energy (J), zero at the root origin."""
         return core.energies(self.mi_r, self.mf_r, q, np.zeros(self.nv))[1]
 
+    def body_poses(self, q):
+        """World poses of the body frames ``(R (nb, 3, 3), p (nb, 3))`` (``dynamics.body_poses``)."""
+        return constrained.poses(self.mi, self.mf, np.ascontiguousarray(q, dtype=float))
+
+    def momentum(self, q, v):
+        """``(p (3,), L (3,), c (3,))``: linear momentum, angular momentum about the centre of mass
+        and the centre of mass, world coordinates (``freeflyer.momentum_about_com``)."""
+        return constrained.momentum(self.mi, self.mf, np.ascontiguousarray(q, dtype=float),
+                                    np.ascontiguousarray(v, dtype=float))
+
     def qdot(self, q, v):
         """Configuration rate ``dq/dt`` (nq,) (quaternion-aware)."""
         return core.qdot(self.mi, q, v)
@@ -242,6 +252,61 @@ class CompiledModel:
         run = core.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, tau_app, self.nq, FUSED_METHODS[method],
                    z, float(dt), int(n_full), float(h_last))
+
+
+class CompiledSystem:
+    """A constrained or floating-base system packed for :mod:`robodyn_ros.kernels.constrained`.
+
+    kind: ``constrained.DIFFDRIVE | FREEFLYER | AUGMENTED | PRESCRIBED``; ip, fp: the system's
+    parameters in the layout of that kind; model: its kinematic tree (None for the augmented
+    formulation, which has its own kinematics); nq: configuration size of the system's state.
+    ``km`` is the :class:`CompiledModel` of the tree (or None). The system builds the input
+    vector ``u`` of its layout once per call.
+    """
+
+    def __init__(self, kind: int, ip, fp, model: Model | None, nq: int):
+        if not AVAILABLE:
+            raise RuntimeError(f'compiled kernels unavailable: {UNAVAILABLE_REASON}')
+        self.kind = int(kind)
+        self.ip = np.ascontiguousarray(ip, dtype=np.int64)
+        self.fp = np.ascontiguousarray(fp, dtype=np.float64)
+        self.nq = int(nq)
+        self.km = CompiledModel(model) if model is not None else None
+        if self.km is not None:
+            self.tree = (self.km.mi, self.km.mf, self.km.mi_r, self.km.mf_r)
+        else:
+            mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 28))
+            self.tree = (mi, mf, mi, mf)
+        self.stat = np.zeros(4)
+
+    def evaluate(self, t, y, u):
+        """``[dy/dt; input power]`` (ny + 1,) at (t, y) under the input vector u.
+
+        Raises ``numpy.linalg.LinAlgError`` when a mass matrix is not positive definite.
+        """
+        z = np.empty(y.shape[0] + 1)
+        z[:-1] = y
+        z[-1] = 0.0
+        dz = np.empty_like(z)
+        if constrained.evaluate(self.kind, self.ip, self.fp, *self.tree, u, self.nq, float(t), z, dz,
+                                self.stat) != constrained.OK:
+            raise np.linalg.LinAlgError('mass matrix is not positive definite')
+        return dz
+
+    def project(self, y):
+        """The system's projection of y (ny,) in place; returns y."""
+        if constrained.project(self.kind, self.ip, self.fp, *self.tree, self.nq, y) != constrained.OK:
+            raise np.linalg.LinAlgError('mass matrix is not positive definite')
+        return y
+
+    def integrate(self, method: str, z, u, t0, dt, n_full, h_last) -> int:
+        """Fused fixed-step integration of ``z = [y, W]`` in place (:func:`constrained.integrate`).
+
+        Returns its code: -1, the first non-finite step, or ``-2 - k`` for a singular mass
+        matrix in step k. ``stat`` (4,) collects the prescribed-path singularity counters.
+        """
+        return constrained.integrate(self.kind, self.ip, self.fp, *self.tree, u, self.nq, FUSED_METHODS[method],
+                                     z, float(t0), float(dt), int(n_full), float(h_last), self.stat)
 
 
 def warmup(model: Model | None = None) -> float:

@@ -1,28 +1,17 @@
 """A fixed-base articulated arm (any tree of revolute/prismatic/fixed joints), torque driven."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from .. import dynamics as dyn
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
 from ..model import PRISMATIC, REVOLUTE, Model
-from .base import InputPort, System, SystemOutputs
+from .base import BACKENDS, InputPort, System, SystemOutputs, default_backend  # noqa: F401
 
 
-BACKENDS = ('numpy', 'numba', 'generated')
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
-
-
-def default_backend() -> str:
-    """``'numba'`` when the compiled kernels are importable, else ``'numpy'`` (env ``ROBODYN_BACKEND``)."""
-    env = os.environ.get('ROBODYN_BACKEND', '').lower()
-    if env in BACKENDS:
-        return env if env == 'numpy' or kernels.AVAILABLE else 'numpy'
-    return 'numba' if kernels.AVAILABLE else 'numpy'
 
 
 class ArmSystem(System):

@@ -93,6 +93,7 @@ import numpy as np
 
 from .. import constraints as con
 from .. import dynamics as dyn
+from .. import kernels
 from ..model import FIXED, REVOLUTE, Model, ModelError
 from ..spatial import inertia_parts, quat_mul, quat_to_R, rot_axis, skew
 from .base import SystemOutputs
@@ -116,6 +117,8 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
     """
 
     formulation = 'augmented'
+    _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'solve', '_kinematics', '_constraints',
+                         '_base_wrench', 'arm_torques')
 
     def __init__(self, model: Model, **kw):
         super().__init__(model, **kw)
@@ -155,6 +158,31 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
         # slices of x and w
         self.sq, self.sth, self.sc = slice(0, 4), slice(4, 4 + self.nj), slice(4 + self.nj, self.nq)
         self.sw, self.sthd, self.scd = slice(0, 3), slice(3, self.nr), slice(self.nr, self.nv)
+        self._compiled_class = AugmentedFreeFlyerSystem
+        if self.backend != 'numpy':
+            stab = {'baumgarte': 0, 'projection': 1, 'none': 2}[self.stabilisation]
+            ip = [nb, self.nj, int(self.table), stab, self.n_constraints, 0, 0, 0] + list(model.parent) + list(self.dof)
+            fp = [self.alpha, self.beta, 0.0 if self.table_height is None else self.table_height, con.KKT_RCOND,
+                  *model.gravity, 0.0]
+            for arr in (self.m, self.com, self.Ic, self.Etree, self.r, model.axis, model.damping[6:]):
+                fp += list(np.asarray(arr, dtype=float).reshape(-1))
+            self._cs = kernels.CompiledSystem(kernels.constrained.AUGMENTED, ip, fp, None, self.nq)
+
+    def _u_vec(self, u):
+        """``[(B u_effort)[6:] (nj), base wrench (6)]``."""
+        uv = np.empty(self.nj + 6)
+        uv[:self.nj] = (self.B @ u['effort'])[6:]
+        uv[self.nj:] = u['base_wrench']
+        return uv
+
+    def _base_origin(self, y):
+        """World position of the base_link origin (3,) of state y: ``c_0 − R_0 com_0``."""
+        x = y[:self.nq]
+        return x[self.sc][0:3] - quat_to_R(x[self.sq]) @ self.com[0]
+
+    def _fused_supported(self) -> bool:
+        # the position projection (Gauss–Newton on the CoMs) stays in numpy
+        return self.stabilisation != 'projection'
 
     # -- conversions ---------------------------------------------------------------------
     def from_minimal(self, q, v):
@@ -280,6 +308,19 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
 
         Returns ``(ẇ (nv,), λ (m,), SolveInfo, kinematics tuple, C, C_q)``.
         """
+        cs = self._compiled()
+        if cs is not None:
+            self._sync_height(cs, y)
+            nb, nc, nr, nv = self.nb, self.n_constraints, self.nr, self.nv
+            a, lam, info = np.empty(nv), np.empty(nc), np.empty(kernels.constrained.NINFO)
+            R, E, om, J = np.empty((nb, 3, 3)), np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty((nb, 3, nr))
+            beta, C, Cq, M = np.empty((nb, 3)), np.zeros(nc), np.zeros((nc, nv)), np.empty((nv, nv))
+            if kernels.constrained.au_solve(cs.ip, cs.fp, self._u_vec(u), np.ascontiguousarray(y, dtype=float),
+                                            True, a, lam, info, R, E, om, J, beta, C, Cq, M):
+                raise np.linalg.LinAlgError('mass matrix is not positive definite')
+            info = con.SolveInfo(m=nc, rank=int(info[0]), sigma_min=float(info[1]), sigma_max=float(info[2]),
+                                 residual=float(info[3]))
+            return a, lam, info, (R, E, om, J, beta), C, Cq, M
         x, w = self.split(y)
         nb, nr = self.nb, self.nr
         R, E, om, J, beta = self._kinematics(x, w)
@@ -305,6 +346,10 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
 
     def rhs(self, t, y, u):
         """``[ẋ; ẇ]``."""
+        cs = self._compiled()
+        if cs is not None:
+            self._sync_height(cs, y)
+            return cs.evaluate(t, y, self._u_vec(u))[:self.ny]
         x, w = self.split(y)
         a = self.solve(y, u)[0]
         return np.concatenate([self.config_rate(x, w), a])

@@ -5,6 +5,79 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+BACKENDS = ('numpy', 'numba', 'generated')
+
+
+def default_backend() -> str:
+    """``'numba'`` when the compiled kernels are importable, else ``'numpy'`` (env ``ROBODYN_BACKEND``)."""
+    import os
+
+    from .. import kernels
+    env = os.environ.get('ROBODYN_BACKEND', '').lower()
+    if env in BACKENDS:
+        return env if env == 'numpy' or kernels.AVAILABLE else 'numpy'
+    return 'numba' if kernels.AVAILABLE else 'numpy'
+
+
+def resolve_backend(backend) -> str:
+    """A validated backend name: None -> :func:`default_backend`; raises ValueError for an unknown
+    name or a compiled backend without numba."""
+    from .. import kernels
+    backend = default_backend() if backend is None else str(backend).lower()
+    if backend not in BACKENDS:
+        raise ValueError(f'unknown backend {backend!r}; valid: {", ".join(BACKENDS)}')
+    if backend != 'numpy' and not kernels.AVAILABLE:
+        raise ValueError(f'backend {backend} unavailable (no numba): {kernels.UNAVAILABLE_REASON}')
+    return backend
+
+
+def keeps_methods(obj, base: type, names) -> bool:
+    """True when ``obj`` computes ``names`` exactly as class ``base`` does: no subclass override,
+    no method replaced on the instance (the condition for a compiled path to stand in for them)."""
+    cls = type(obj)
+    return all(getattr(cls, n) is getattr(base, n) for n in names) and obj.__dict__.keys().isdisjoint(names)
+
+
+def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_vec, ny):
+    """Integrate ``z = [y, W]`` from t0 to t1 in one call of the compiled loop, or None to decline.
+
+    The shared fast path of the systems on :class:`robodyn_ros.kernels.CompiledSystem` (the
+    Simulator's ``fused_advance`` protocol, see ``ArmSystem.fused_advance``): same method, step
+    grid (``FixedStepIntegrator.step_grid``), projection after every step and work quadrature as
+    ``Simulator._integrate`` with the system's own methods. cs: the packed system; grids: a
+    per-system cache dt -> grid integrator; u_vec: the system's input vector for the call.
+    Returns ``(z1 (ny + 1,), IntegratorStats)``; raises ``IntegrationError`` like the reference
+    when the state becomes non-finite, ``numpy.linalg.LinAlgError`` for a singular mass matrix.
+    """
+    from .. import kernels
+    from ..integrators import IntegrationError, IntegratorStats, make_integrator
+    if integrator_name not in kernels.FUSED_METHODS:
+        return None
+    z = np.array(z0, dtype=np.float64)
+    if z.shape != (ny + 1,):
+        return None
+    if not np.isfinite(z).all():
+        raise IntegrationError(integrator_name, t0, 'initial state is non-finite at components '
+                               f'{np.flatnonzero(~np.isfinite(z))[:8].tolist()}')
+    grid = grids.get(dt)
+    if grid is None:
+        grid = grids[dt] = make_integrator('rk4', dt=dt)
+    n_full, h_last = grid.step_grid(float(t0), float(t1)) if t1 > t0 else (0, 0.0)
+    n_steps = n_full + (1 if h_last > 0.0 else 0)
+    k = cs.integrate(integrator_name, z, u_vec, t0, dt, n_full, h_last)
+    if k != -1:
+        step = k if k >= 0 else -2 - k
+        t = t0 + step * dt
+        h = dt if step < n_full else h_last
+        if k <= -2:
+            raise np.linalg.LinAlgError(f'mass matrix not positive definite in the step from t={t:.12g} s')
+        raise IntegrationError(
+            integrator_name, t + h,
+            f'state became non-finite (components {np.flatnonzero(~np.isfinite(z))[:8].tolist()}) in the '
+            f'step from t={t:.12g} s with h={h:.6g} s; reduce dt or check the model')
+    evals = 4 if integrator_name == 'rk4' else 1
+    return z, IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=1, projections=n_steps)
+
 
 @dataclass(frozen=True)
 class InputPort:

@@ -105,9 +105,10 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, eigh
 
 from .. import dynamics as dyn
-from ..constraints import KKT_RCOND, baumgarte_rhs, kkt_solve, null_space_basis
+from .. import kernels
+from ..constraints import KKT_RCOND, SolveInfo, baumgarte_rhs, kkt_solve, null_space_basis
 from ..model import REVOLUTE, LinkSpec, ModelError, build_model, to_urdf
-from .base import InputPort, System, SystemOutputs
+from .base import InputPort, System, SystemOutputs, compiled_fused_advance, keeps_methods, resolve_backend
 from .motor import DCMotor
 
 __all__ = ['Body', 'PlatformParams', 'DiffDriveSystem', 'PLATFORM_LINKS', 'SIDES']
@@ -190,13 +191,9 @@ class PlatformParams:
         return 0.5 * self.wheel_spin_inertia if self.wheel_diametral_inertia is None else self.wheel_diametral_inertia
 
 
-def _compiled(model):
-    """numba kernels for ``model`` (:mod:`robodyn_ros.kernels`) when available, else None (numpy)."""
-    try:
-        from .. import kernels
-    except ImportError:
-        return None
-    return kernels.CompiledModel(model) if getattr(kernels, 'AVAILABLE', False) else None
+#: the methods whose DiffDriveSystem versions the compiled kernels reproduce
+_COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'electrical', 'generalized_forces', 'solve',
+                     'mass_and_bias', 'constraint_jacobian', 'planar_mass_matrix')
 
 
 class DiffDriveSystem(System):
@@ -205,7 +202,11 @@ class DiffDriveSystem(System):
     params: :class:`PlatformParams`; arm_specs: LinkSpecs of an arm whose root-attached links
     hang from ``base_link`` (their origins already in base_link coordinates; ``None`` = no arm);
     arm_root: the name those specs use for their base frame; arm_actuated: arm joints driven by
-    the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom.
+    the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom; backend:
+    ``'numpy'`` (the methods below, the reference) or ``'numba'`` (``'generated'`` is taken as
+    numba): :mod:`robodyn_ros.kernels.constrained` evaluates the right-hand side, projection and
+    constrained solve (equal to 1e-12) and :meth:`fused_advance` runs whole periods of fixed steps
+    in one call; default :func:`robodyn_ros.systems.base.default_backend`.
 
     State ``y = [q (nv), v (nv), i (n_L)]`` with q, v as in (D1) and one current per motor with
     ``L > 0`` (left first). Inputs: ``wheel_voltage`` ``[left, right]`` (V) and, with an arm
@@ -213,10 +214,12 @@ class DiffDriveSystem(System):
     """
 
     def __init__(self, params: PlatformParams | None = None, arm_specs=None, arm_root='base_link',
-                 arm_actuated=None, gravity=(0.0, 0.0, -9.81), name='diff_drive'):
+                 arm_actuated=None, gravity=(0.0, 0.0, -9.81), name='diff_drive', backend=None):
+        self.backend = resolve_backend(backend)
         self.params = p = params or PlatformParams()
         self.motors = tuple(p.motors)
         self.has_arm = bool(arm_specs)
+        self.arm_specs, self.arm_root = list(arm_specs or []), arm_root  # as given (rebuild with another backend)
         specs = self._platform_specs(p, dynamic=True)
         arm = self._rehome_arm(arm_specs or [], arm_root)
         self.model = build_model(specs + arm, gravity=gravity, name=name, root='odom')
@@ -254,9 +257,52 @@ class DiffDriveSystem(System):
         self._armature = np.zeros(self.nv)
         self._armature[[_IL, _IR]] = [mot.reflected_inertia for mot in self.motors]
         self._wheels = (m.body('left_wheel'), m.body('right_wheel'))
-        self._km = _compiled(m) if self.has_arm else None  # fast CRBA/RNEA for the mobile manipulator
+        compiled = self.backend != 'numpy'
+        self._km = kernels.CompiledModel(m) if compiled else None  # CRBA/RNEA/wrenches of the tree
         self._zero_v = np.zeros(self.nv)
         self._planar_inertia()
+        self._cs = self._pack() if compiled else None
+        self._grids = {}
+
+    def _pack(self):
+        """The packed system for :mod:`robodyn_ros.kernels.constrained` (layout ``DIFFDRIVE``)."""
+        p = self.params
+        cur = [self._cur.index(k) if k in self._cur else -1 for k in range(2)]
+        ip = [self.nv, int(self.has_arm), cur[0], cur[1], int(self.B.shape[1] > 0)]
+        fp = [p.wheel_radius, p.half_track, p.baumgarte_alpha, self._m, self._S[0], self._S[1], self._J,
+              self._Is[0], self._Is[1], KKT_RCOND]
+        for mot in self.motors:
+            fp += [mot.torque_constant, mot.resistance, mot.inductance, mot.gear_ratio, mot.viscous_friction,
+                   mot.coulomb_friction, mot.coulomb_velocity, mot.supply_voltage]
+        fp += list(self._armature) + list(self.model.damping.astype(float))
+        return kernels.CompiledSystem(kernels.constrained.DIFFDRIVE, ip, fp, self.model, self.nq)
+
+    def _compiled(self):
+        """The packed system when the compiled path stands in for this object's methods, else None."""
+        if self._cs is None or self._km is None or not keeps_methods(self, DiffDriveSystem, _COMPILED_METHODS):
+            return None
+        return self._cs
+
+    def _u_vec(self, u):
+        """Input vector of the kernels: ``[V_left, V_right, B u_effort (nv)]``."""
+        uv = np.zeros(2 + self.nv)
+        uv[:2] = u['wheel_voltage']
+        if self.B.shape[1]:
+            uv[2:] = self.B @ u['effort']
+        return uv
+
+    def fused_advance(self, integrator_name, dt, t0, z0, t1, u):
+        """Integrate ``z = [y, W]`` from t0 to t1 in one compiled call, or None to decline.
+
+        The Simulator's fast path (see ``ArmSystem.fused_advance``): the same fixed-step method,
+        step grid, velocity projection after every step and work quadrature as the reference path
+        with :meth:`rhs`, :meth:`input_power` and :meth:`project`. Declines on the numpy backend,
+        for error-controlled integrators and when a method was overridden.
+        """
+        cs = self._compiled()
+        if cs is None:
+            return None
+        return compiled_fused_advance(cs, self._grids, integrator_name, dt, t0, z0, t1, self._u_vec(u), self.ny)
 
     # -- construction ----------------------------------------------------------------------
     @staticmethod
@@ -346,6 +392,10 @@ class DiffDriveSystem(System):
 
     def project(self, y):
         """Mass-orthogonal projection of the velocities onto ``K(q) v = 0`` (in place)."""
+        cs = self._compiled()
+        if cs is not None:
+            return cs.project(y) if y.flags.c_contiguous and y.dtype == np.float64 else \
+                cs.project(np.ascontiguousarray(y, dtype=np.float64))
         q, v = self.split(y)
         K, _ = self.constraint_jacobian(q, v)
         if np.abs(K @ v).max() > 0.0:
@@ -427,6 +477,14 @@ class DiffDriveSystem(System):
         Returns ``(a (nv,), λ (4,) = [F_long_l, F_lat_l, F_long_r, F_lat_r] (N), SolveInfo)`` of
         ``M a = Q − h + Kᵀ λ``, ``K a = −K̇ v − α K v`` (see the module docstring).
         """
+        cs = self._compiled()
+        if cs is not None:
+            a, lam, info, el = np.empty(self.nv), np.empty(4), np.empty(kernels.constrained.NINFO), np.empty(6)
+            if kernels.constrained.dd_solve(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, self._u_vec(u),
+                                            np.ascontiguousarray(y, dtype=np.float64), True, a, lam, info, el):
+                raise np.linalg.LinAlgError('mass matrix is not positive definite')
+            return a, lam, SolveInfo(m=4, rank=int(info[0]), sigma_min=float(info[1]), sigma_max=float(info[2]),
+                                     residual=float(info[3]))
         q, v = self.split(y)
         if electrical is None:
             electrical = self.electrical(y, u)
@@ -437,6 +495,9 @@ class DiffDriveSystem(System):
 
     def rhs(self, t, y, u):
         """``[q̇; v̇; di/dt]`` (all NaN for a non-finite state: the integrator's guard reports it)."""
+        cs = self._compiled()
+        if cs is not None:
+            return cs.evaluate(t, y, self._u_vec(u))[:self.ny]
         if not np.all(np.isfinite(y)):
             return np.full(self.ny, np.nan)
         _, v = self.split(y)
@@ -460,7 +521,7 @@ class DiffDriveSystem(System):
         """
         q, v = self.split(y)
         m = self.model
-        R, p = dyn.body_poses(m, q)
+        R, p = self._km.body_poses(q) if self._km is not None else dyn.body_poses(m, q)
         th = q[_ITH]
         heading = np.array([np.cos(th), np.sin(th), 0.0])
         left = np.array([-np.sin(th), np.cos(th), 0.0])
@@ -473,7 +534,10 @@ class DiffDriveSystem(System):
             f_ext[b, :3] = R[b].T @ np.cross(r, F)
             f_ext[b, 3:] = R[b].T @ F
             out[f'{side}_wheel_contact'] = (f'{side}_wheel_contact', np.array([0.0, 0.0, 0.0, F_long, F_lat, 0.0]))
-        _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
+        if self._km is not None:
+            _, f = self._km.rnea_wrenches(np.ascontiguousarray(q), np.ascontiguousarray(v), a, f_ext)
+        else:
+            _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
         for i in range(m.nb):
             jn = m.joint_names[i]
             if jn in ('base_x', 'base_y'):

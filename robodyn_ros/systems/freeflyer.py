@@ -41,9 +41,10 @@ import numpy as np
 
 from .. import constraints as con
 from .. import dynamics as dyn
+from .. import kernels
 from ..model import FREE, REVOLUTE, LinkSpec, Model, ModelError, build_model, to_urdf
 from ..spatial import quat_to_R, skew
-from .base import InputPort, System, SystemOutputs
+from .base import InputPort, System, SystemOutputs, compiled_fused_advance, keeps_methods, resolve_backend
 
 __all__ = ['ENVIRONMENTS', 'STABILISATIONS', 'FORMULATIONS', 'FreeFlyerSystem', 'free_flyer_model',
            'table_rows', 'level_quaternion', 'free_base_urdf', 'momentum_about_com', 'BASE_WRENCH_LABELS']
@@ -173,13 +174,21 @@ class _FreeBaseCommon(System):
     every 1-DOF joint); environment: 'orbit' | 'air_bearing_table'; table_height: height (m)
     of the base_link origin on the table (default: the initial height given to
     :meth:`initial_state`, else 0); stabilisation: 'baumgarte' | 'projection' | 'none';
-    alpha, beta: Baumgarte gains (1/s).
+    alpha, beta: Baumgarte gains (1/s); backend: ``'numpy'`` (the methods of the classes, the
+    reference) or ``'numba'`` (``'generated'`` is taken as numba): right-hand side, projection and
+    solves by :mod:`robodyn_ros.kernels.constrained` (equal to 1e-12) and :meth:`fused_advance`;
+    default :func:`robodyn_ros.systems.base.default_backend`.
     """
 
     formulation = ''
+    #: the methods of the class whose results the compiled kernels reproduce
+    _COMPILED_METHODS = ()
 
     def __init__(self, model: Model, actuated=None, environment='orbit', table_height=None,
-                 stabilisation='baumgarte', alpha=con.BAUMGARTE_ALPHA, beta=con.BAUMGARTE_BETA):
+                 stabilisation='baumgarte', alpha=con.BAUMGARTE_ALPHA, beta=con.BAUMGARTE_BETA, backend=None):
+        self.backend = resolve_backend(backend)
+        self._cs = None
+        self._grids = {}
         if model.nb == 0 or model.jtype[0] != FREE or model.parent[0] != -1:
             raise ModelError(f'{model.name}: a free-flyer model needs body 0 on a FREE joint from the root')
         if environment not in ENVIRONMENTS:
@@ -238,7 +247,7 @@ class _FreeBaseCommon(System):
         """
         model = free_flyer_model(self.model.specs[0], arm_specs, gravity=self.model.gravity,
                                  name=name or self.model.name, world=self.model.root)
-        return type(self)(model, actuated=actuated, **self.options)
+        return type(self)(model, actuated=actuated, backend=self.backend, **self.options)
 
     def arm_torques(self, u, thetadot):
         """Applied plus passive arm joint forces ``B_arm u − D θ̇`` (n_arm,)."""
@@ -248,6 +257,41 @@ class _FreeBaseCommon(System):
         if self.table_height is None:
             self.table_height = float(p[2])
         return self.table_height
+
+    def _compiled(self):
+        """The packed system when the compiled path stands in for this object's methods, else None."""
+        cs = self._cs
+        if cs is None or not keeps_methods(self, self._compiled_class, self._COMPILED_METHODS):
+            return None
+        return cs
+
+    def _u_vec(self, u):
+        """Input vector of the kernels (layout of the formulation's section in ``kernels.constrained``)."""
+        raise NotImplementedError
+
+    def _sync_height(self, cs, y):
+        """Fix the table height (the first state seen, when none was given) in the packed parameters."""
+        if self.table and self.table_height is None:
+            self._table_height(self._base_origin(y))
+        if self.table:
+            cs.fp[2] = self.table_height  # FF_HEIGHT == AU_HEIGHT
+
+    def fused_advance(self, integrator_name, dt, t0, z0, t1, u):
+        """Integrate ``z = [y, W]`` from t0 to t1 in one compiled call, or None to decline.
+
+        The Simulator's fast path (see ``ArmSystem.fused_advance``): the same fixed-step method,
+        step grid, projection after every step and work quadrature as the reference path with
+        :meth:`rhs`, :meth:`input_power` and :meth:`project`. Declines on the numpy backend, for
+        error-controlled integrators and when a method was overridden.
+        """
+        cs = self._compiled()
+        if cs is None or not self._fused_supported():
+            return None
+        self._sync_height(cs, np.asarray(z0, dtype=float))
+        return compiled_fused_advance(cs, self._grids, integrator_name, dt, t0, z0, t1, self._u_vec(u), self.ny)
+
+    def _fused_supported(self) -> bool:
+        return True
 
     def fastest_time_constant(self, y):
         """``1/max(alpha, beta)`` when Baumgarte-stabilised constraints are present, else inf."""
@@ -279,6 +323,8 @@ class FreeFlyerSystem(_FreeBaseCommon):
     """
 
     formulation = 'minimal'
+    _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'generalized_forces', 'solve', '_f_ext',
+                         '_table', 'body_coms', 'total_energy')
 
     def __init__(self, model: Model, **kw):
         super().__init__(model, **kw)
@@ -287,6 +333,24 @@ class FreeFlyerSystem(_FreeBaseCommon):
         self.initial_state_sizes = (model.nq, model.nv)
         self.has_constraints = self.table
         self.n_constraints = 3 if self.table else 0
+        self._compiled_class = FreeFlyerSystem
+        self._km = None
+        if self.backend != 'numpy':
+            stab = {'baumgarte': 0, 'projection': 1, 'none': 2}[self.stabilisation]
+            fp = [self.alpha, self.beta, 0.0 if self.table_height is None else self.table_height, con.KKT_RCOND]
+            self._cs = kernels.CompiledSystem(kernels.constrained.FREEFLYER, [int(self.table), stab],
+                                              fp + list(model.damping.astype(float)), model, self.nq)
+            self._km = self._cs.km
+
+    def _u_vec(self, u):
+        """``[B u_effort (nv), base wrench (6)]``."""
+        uv = np.empty(self.nv + 6)
+        uv[:self.nv] = self.B @ u['effort']
+        uv[self.nv:] = u['base_wrench']
+        return uv
+
+    def _base_origin(self, y):
+        return y[:3]
 
     # -- state ---------------------------------------------------------------------------
     def split(self, y):
@@ -319,6 +383,11 @@ class FreeFlyerSystem(_FreeBaseCommon):
 
     def project(self, y):
         """Renormalise the quaternion; with ``projection`` also put q, v back on the table."""
+        cs = self._compiled()
+        if cs is not None:
+            self._sync_height(cs, y)
+            return cs.project(y) if y.flags.c_contiguous and y.dtype == np.float64 else \
+                cs.project(np.ascontiguousarray(y, dtype=np.float64))
         y[:self.nq] = dyn.normalize_configuration(self.model, y[:self.nq])
         if self.table and self.stabilisation == 'projection':
             q, v = y[:self.nq], y[self.nq:]
@@ -366,6 +435,16 @@ class FreeFlyerSystem(_FreeBaseCommon):
         :func:`robodyn_ros.constraints.kkt_solve`; λ = [normal force, moment about x, moment about
         y] (world axes, for a level platform).
         """
+        cs = self._compiled()
+        if cs is not None:
+            self._sync_height(cs, q)
+            a, lam, info = np.empty(self.nv), np.empty(self.n_constraints), np.empty(kernels.constrained.NINFO)
+            c = np.ascontiguousarray
+            if kernels.constrained.ff_solve(cs.ip, cs.fp, *cs.tree, c(q, dtype=float), c(v, dtype=float),
+                                            c(tau, dtype=float), c(f_ext, dtype=float), True, a, lam, info):
+                raise np.linalg.LinAlgError('mass matrix is not positive definite')
+            return a, lam, con.SolveInfo(m=self.n_constraints, rank=int(info[0]), sigma_min=float(info[1]),
+                                         sigma_max=float(info[2]), residual=float(info[3]))
         if not self.table:
             return dyn.aba(self.model, q, v, tau, f_ext), np.zeros(0), con.SolveInfo(0, 0, np.inf, np.inf)
         M = dyn.crba(self.model, q)
@@ -377,6 +456,10 @@ class FreeFlyerSystem(_FreeBaseCommon):
 
     def rhs(self, t, y, u):
         """``[q̇; v̇]``."""
+        cs = self._compiled()
+        if cs is not None:
+            self._sync_height(cs, y)
+            return cs.evaluate(t, y, self._u_vec(u))[:self.ny]
         q, v = self.split(y)
         out = np.empty(self.ny)
         out[:self.nq] = dyn.qdot(self.model, q, v)
@@ -417,16 +500,25 @@ class FreeFlyerSystem(_FreeBaseCommon):
         a, lam, info = self.solve(q, v, tau, f_ext)
         w = {}
         table_w = self.table_wrench(q, v, lam)
+        fast = self._compiled() is not None
         if wrenches:
             fe = f_ext.copy()
             fe[0] += table_w
-            _, f = dyn.rnea_wrenches(m, q, v, a, fe)
+            if fast:
+                _, f = self._km.rnea_wrenches(np.ascontiguousarray(q), np.ascontiguousarray(v), a, fe)
+            else:
+                _, f = dyn.rnea_wrenches(m, q, v, a, fe)
             for i in range(1, m.nb):
                 w[m.joint_names[i]] = (m.link_names[i], f[i].copy())
             if self.table:
                 w['base_plane'] = (self.base_link, table_w)
-        ms, c, cd, Ls = self.body_coms(q, v)
-        p, L, com = momentum_about_com(ms, c, cd, Ls)
+        if fast:
+            p, L, com = self._km.momentum(q, v)
+            kin, pot = self._km.energies(np.ascontiguousarray(q), np.ascontiguousarray(v))
+        else:
+            ms, c, cd, Ls = self.body_coms(q, v)
+            p, L, com = momentum_about_com(ms, c, cd, Ls)
+            kin, pot = dyn.kinetic_energy(m, q, v), dyn.potential_energy(m, q)
         res, vres = 0.0, 0.0
         if self.table:
             phi, K, _ = self._table(q, v)
@@ -435,12 +527,15 @@ class FreeFlyerSystem(_FreeBaseCommon):
                 'angular': v[0:3].copy()}
         return SystemOutputs(joint_names=list(self.joint_names), position=q[7:].copy(), velocity=v[6:].copy(),
                              effort=(self.B @ u['effort'])[6:], wrenches=w, odom=odom,
-                             energy={'kinetic': dyn.kinetic_energy(m, q, v), 'potential': dyn.potential_energy(m, q)},
+                             energy={'kinetic': kin, 'potential': pot},
                              extra=self._extra(p, L, com, res, vres, info))
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""
         q, v = self.split(y)
+        if self._compiled() is not None:
+            kin, pot = self._km.energies(np.ascontiguousarray(q), np.ascontiguousarray(v))
+            return kin + pot
         return dyn.kinetic_energy(self.model, q, v) + dyn.potential_energy(self.model, q)
 
     def input_power(self, t, y, u):

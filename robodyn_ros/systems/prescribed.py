@@ -62,12 +62,13 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from .. import dynamics as dyn
-from ..constraints import (BAUMGARTE_ALPHA, BAUMGARTE_BETA, ConstraintWarning, SolveInfo, baumgarte_rhs,
-                           complement_solve, kkt_solve, project_positions, project_velocities)
+from .. import kernels
+from ..constraints import (BAUMGARTE_ALPHA, BAUMGARTE_BETA, KKT_RCOND, NULLSPACE_TOL, ConstraintWarning, SolveInfo,
+                           baumgarte_rhs, complement_solve, kkt_solve, project_positions, project_velocities)
 from ..model import Model
 from ..spatial import crm
 from .arm import ArmSystem
-from .base import InputPort, SystemOutputs
+from .base import InputPort, SystemOutputs, compiled_fused_advance, keeps_methods
 
 __all__ = ['PrescribedPathSystem', 'CirclePath', 'LinePath', 'PathError', 'PATH_KINDS', 'PLANES',
            'FORMULATIONS', 'SINGULAR_RATIO', 'DLS_DAMPING', 'INITIAL_PROJECTION_TOL', 'DRIVE_WRENCH',
@@ -264,16 +265,23 @@ class PrescribedPathSystem(ArmSystem):
     (``path(t) -> (p, ṗ, p̈)``, each (2,), in the plane axes); plane: a key of :data:`PLANES`
     (the two world axes of x(t), y(t)); formulation: 'complement' or 'kkt'; actuated: joints
     with an ``effort`` input (default none); alpha, beta: Baumgarte gains (1/s); singular_ratio,
-    dls_damping: see :data:`SINGULAR_RATIO`, :data:`DLS_DAMPING`.
+    dls_damping: see :data:`SINGULAR_RATIO`, :data:`DLS_DAMPING`; backend: as
+    :class:`~robodyn_ros.systems.arm.ArmSystem`; on a compiled backend, with a
+    :class:`CirclePath` or :class:`LinePath`, the whole solve (end-point kinematics, SVD of B,
+    either formulation) is :func:`robodyn_ros.kernels.constrained.pr_solve` (equal to 1e-12)
+    and :meth:`fused_advance` runs whole periods of fixed steps in one call.
     """
+
+    _COMPILED_METHODS = ('rhs', 'input_power', 'solve', 'constraint', 'generalized_forces', 'mass_matrix',
+                         'inverse_dynamics', 'project', 'config_rate')
 
     def __init__(self, model: Model, end_effector: str, path, plane='xy', formulation='complement',
                  actuated=(), alpha=BAUMGARTE_ALPHA, beta=BAUMGARTE_BETA, singular_ratio=SINGULAR_RATIO,
-                 dls_damping=DLS_DAMPING):
+                 dls_damping=DLS_DAMPING, backend=None):
         if model.nq != model.nv:
             raise ValueError(f'{model.name}: prescribed end-point motion needs an arm of 1-DOF joints '
                              '(no free joint)')
-        super().__init__(model, actuated=list(actuated))
+        super().__init__(model, actuated=list(actuated), backend=backend)
         if not self.actuated:
             self.inputs = {}
         else:
@@ -290,7 +298,63 @@ class PrescribedPathSystem(ArmSystem):
         self.alpha, self.beta = float(alpha), float(beta)
         self.singular_ratio, self.dls_damping = float(singular_ratio), float(dls_damping)
         self._cache = None
+        self._cs = self._pack() if self._km is not None else None
         self.reset_episode()
+
+    def _pack(self):
+        """The packed system for :mod:`robodyn_ros.kernels.constrained` (``PRESCRIBED``), or None
+        for a path the kernels do not know."""
+        path = self.path
+        if type(path) is CirclePath:
+            kind, pp = 0, [*path.center, path.radius, path.omega, path.phase, 0.0]
+        elif type(path) is LinePath:
+            kind, pp = 1, [*path.start, *path.end, path.duration, path.delay]
+        else:
+            return None
+        ip = [self.body, FORMULATIONS.index(self.formulation), kind, int(bool(self.actuated))]
+        fp = [self.alpha, self.beta, self.singular_ratio, self.dls_damping, KKT_RCOND, NULLSPACE_TOL,
+              *self.P.reshape(-1), *pp, *self.model.damping.astype(float)]
+        return kernels.CompiledSystem(kernels.constrained.PRESCRIBED, ip, fp, self.model, self.nq)
+
+    def _compiled(self):
+        """The packed system when the compiled path stands in for this object's methods, else None."""
+        if self._cs is None or not keeps_methods(self, PrescribedPathSystem, self._COMPILED_METHODS):
+            return None
+        return self._cs
+
+    def _u_vec(self, u):
+        """``B u_effort`` (n,), zeros for a free arm."""
+        return self.B @ u['effort'] if self.actuated else np.zeros(self.nv)
+
+    def fused_advance(self, integrator_name, dt, t0, z0, t1, u):
+        """Integrate ``z = [y, W]`` from t0 to t1 in one compiled call, or None to decline.
+
+        The Simulator's fast path (see ``ArmSystem.fused_advance``) with the solve of
+        :meth:`solve` at every stage; the singular-configuration warning and counter are
+        updated from the compiled loop's count afterwards.
+        """
+        cs = self._compiled()
+        if cs is None:
+            return None
+        cs.stat[:] = 0.0
+        try:
+            return compiled_fused_advance(cs, self._grids, integrator_name, dt, t0, z0, t1, self._u_vec(u),
+                                          self.ny)
+        finally:
+            self._note_singular(int(cs.stat[0]), cs.stat[1], cs.stat[2], cs.stat[3])
+
+    def _note_singular(self, count, t, ratio, damping):
+        """Count singular evaluations; warn once per episode (the first one's time and figures)."""
+        if not count:
+            return
+        self.singular_evaluations += count
+        if not self.warned:
+            self.warned = True
+            warnings.warn(ConstraintWarning(
+                f'{self.model.name}: the end-point constraint matrix B lost rank at t={t:.4f} s '
+                f'(σ_min/σ_max = {ratio:.3g} < SINGULAR_RATIO = {self.singular_ratio}): the arm is '
+                f'near its stretched (singular) configuration; using damped least squares '
+                f'(μ² = {damping:.3g}), so E follows its path only approximately'), stacklevel=3)
 
     # -- episode bookkeeping ---------------------------------------------------------------
     def reset_episode(self):
@@ -327,6 +391,12 @@ class PrescribedPathSystem(ArmSystem):
         key = (float(t), y.tobytes(), tuple(np.asarray(x).tobytes() for x in u.values()))
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
+        cs = self._compiled()
+        if cs is not None:
+            sol = self._solve_compiled(cs, t, y, u)
+            self._note_singular(int(sol.singular), t, sol.ratio, sol.damping)
+            self._cache = (key, sol)
+            return sol
         q, v = self.split(y)
         A = self.mass_matrix(q)
         tau = self.generalized_forces(y, u)
@@ -354,17 +424,27 @@ class PrescribedPathSystem(ArmSystem):
         # (a non-finite solve can only come from a non-finite state; the integrator reports it)
         sol = PathSolve(a=a, lam=lam, B=B, phi=phi, phidot=phidot, E=E, R=R, ratio=ratio, rank=rank,
                         damping=damping, method=method, info=info, tau=tau)
-        if sol.singular:
-            self.singular_evaluations += 1
-            if not self.warned:
-                self.warned = True
-                warnings.warn(ConstraintWarning(
-                    f'{self.model.name}: the end-point constraint matrix B lost rank at t={t:.4f} s '
-                    f'(σ_min/σ_max = {ratio:.3g} < SINGULAR_RATIO = {self.singular_ratio}): the arm is '
-                    f'near its stretched (singular) configuration; using damped least squares '
-                    f'(μ² = {damping:.3g}), so E follows its path only approximately'), stacklevel=2)
+        self._note_singular(int(sol.singular), t, ratio, damping)
         self._cache = (key, sol)
         return sol
+
+    def _solve_compiled(self, cs, t, y, u) -> PathSolve:
+        """:meth:`solve` by :func:`robodyn_ros.kernels.constrained.pr_solve`."""
+        n = self.nv
+        a, lam, B, phi, phidot = np.empty(n), np.empty(2), np.empty((2, n)), np.empty(2), np.empty(2)
+        E, R, tau, rec = np.empty(3), np.empty((3, 3)), np.empty(n), np.empty(kernels.constrained.NPS)
+        mi, mf, mi_r, mf_r = cs.tree
+        if kernels.constrained.pr_solve(cs.ip, cs.fp, mi, mf, mi_r, mf_r, self._u_vec(u), float(t),
+                                        np.ascontiguousarray(y, dtype=float), a, lam, B, phi, phidot, E, R, tau, rec):
+            raise np.linalg.LinAlgError('mass matrix is not positive definite')
+        c = kernels.constrained
+        info = rec[c.PS_INFO:c.PS_INFO + c.NINFO]
+        method = ('complement', 'kkt', 'kkt_damped')[int(rec[c.PS_METHOD])]
+        return PathSolve(a=a, lam=lam, B=B, phi=phi, phidot=phidot, E=E, R=R, ratio=float(rec[c.PS_RATIO]),
+                         rank=int(rec[c.PS_RANK]), damping=float(rec[c.PS_DAMPING]), method=method,
+                         info=SolveInfo(m=2, rank=int(info[0]), sigma_min=float(info[1]), sigma_max=float(info[2]),
+                                        damping=float(rec[c.PS_DAMPING]), residual=float(info[3])),
+                         tau=tau)
 
     def mass_matrix(self, q):
         """Huston's generalised mass array ``A(q)`` (n, n) (CRBA, on this system's backend)."""
