@@ -27,7 +27,8 @@ setup(
     name=package_name,
     version=_package_xml('version'),
     packages=find_packages(exclude=['test']),
-    package_data={package_name: ['data/*']},
+    # recording/msg: bundled .msg/.json definitions (tf2_msgs/TFMessage) for recordings without tf2_msgs
+    package_data={package_name: ['data/*', 'recording/msg/*/msg/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -1,4 +1,4 @@
-"""The CDR fast path (JointState, Clock, Float64MultiArray) writes exactly the generic encoder's bytes."""
+"""The CDR fast path (JointState, Clock, Float64MultiArray, TFMessage) writes exactly the generic encoder's bytes."""
 from __future__ import annotations
 
 import numpy as np
@@ -74,3 +74,40 @@ def test_clock_and_float64_multi_array_fast_paths_are_byte_identical():
 def test_unusual_messages_decline_the_fast_path_and_still_encode_generically(msg):
     assert cdr._fast_joint_state(msg) is None
     assert cdr.encode('sensor_msgs/msg/JointState', msg) == generic('sensor_msgs/msg/JointState', msg)
+
+
+def _tf_message(rng, n):
+    names = ['', 'a', 'odom', 'base_link', 'arm_link4', 'é→x', 'tool']
+    transforms = []
+    for _ in range(n):
+        t_ns = int(rng.integers(0, 2 ** 60))
+        v = [float(x) for x in rng.normal(size=7) * 10.0 ** rng.integers(-300, 300)]
+        transforms.append({'header': M.header(t_ns, str(rng.choice(names))), 'child_frame_id': str(rng.choice(names)),
+                           'transform': {'translation': dict(zip('xyz', v[:3])), 'rotation': dict(zip('xyzw', v[3:]))}})
+    return {'transforms': transforms}
+
+
+def test_tf_message_fast_path_is_byte_identical():
+    rng = np.random.default_rng(5)
+    for k in range(40):
+        msg = _tf_message(rng, k % 6)
+        fast = cdr._fast_tf_message(msg)
+        assert fast is not None
+        assert fast == generic('tf2_msgs/msg/TFMessage', msg)
+        # the cached layout of the same frames with other numbers
+        again = _tf_message(rng, k % 6)
+        for a, b in zip(again['transforms'], msg['transforms']):
+            a['header']['frame_id'], a['child_frame_id'] = b['header']['frame_id'], b['child_frame_id']
+        assert cdr.encode('tf2_msgs/msg/TFMessage', again) == generic('tf2_msgs/msg/TFMessage', again)
+    assert len(cdr._TF_CACHE) <= cdr._NAMES_CACHE_MAX
+
+
+def test_unusual_tf_messages_decline_the_fast_path_and_still_encode_generically():
+    rng = np.random.default_rng(6)
+    msg = _tf_message(rng, 2)
+    msg['transforms'][1]['transform']['rotation']['w'] = np.float64(1.0)   # numpy scalar
+    no_child = _tf_message(rng, 1)
+    del no_child['transforms'][0]['child_frame_id']
+    for m in (msg, no_child, {'transforms': tuple(_tf_message(rng, 1)['transforms'])}):
+        assert cdr._fast_tf_message(m) is None
+        assert cdr.encode('tf2_msgs/msg/TFMessage', m) == generic('tf2_msgs/msg/TFMessage', m)

@@ -148,3 +148,13 @@ def test_colcon_installs_every_config_file(colcon_install, tracked):
     source = source_copy(colcon_install)
     for rel in config:
         assert (share / rel).read_bytes() == (source / rel).read_bytes(), rel
+
+
+def test_colcon_installs_the_bundled_message_definitions(colcon_install, tracked):
+    """setup.py package_data: the tf2_msgs/TFMessage .msg and .json the recorder falls back to."""
+    site = next(colcon_install.glob('lib/python*/site-packages'))
+    bundled = [rel for rel in tracked if rel.startswith(f'{PACKAGE}/recording/msg/')]
+    assert {f'{PACKAGE}/recording/msg/tf2_msgs/msg/TFMessage.msg',
+            f'{PACKAGE}/recording/msg/tf2_msgs/msg/TFMessage.json'} <= set(bundled), bundled
+    missing = [rel for rel in bundled if not (site / rel).is_file()]
+    assert not missing, f'not installed (setup.py package_data): {missing}'

@@ -76,6 +76,18 @@ SAMPLES = {
                             'angular': {'x': 0.0, 'y': 0.0, 'z': -0.1}},
                   'covariance': [0.0] * 35 + [1.0]},
     },
+    # bundled definition (robodyn_ros/recording/msg) where tf2_msgs is not installed; strings of
+    # 4, 9, 0 and 2 UTF-8 bytes put the float64 block after different amounts of padding
+    'tf2_msgs/msg/TFMessage': {
+        'transforms': [
+            {'header': _header(5, 6, 'odom'), 'child_frame_id': 'base_link',
+             'transform': {'translation': {'x': 1.0, 'y': -2.0, 'z': 0.0},
+                           'rotation': {'x': 0.0, 'y': 0.0, 'z': 0.6, 'w': 0.8}}},
+            {'header': _header(5, 6, ''), 'child_frame_id': 'é',
+             'transform': {'translation': {'x': 0.25, 'y': 0.5, 'z': 0.75},
+                           'rotation': {'x': 0.5, 'y': 0.5, 'z': 0.5, 'w': -0.5}}},
+        ],
+    },
 }
 TYPES = sorted(SAMPLES)
 

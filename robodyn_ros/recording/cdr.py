@@ -219,7 +219,7 @@ class _Encoder:
 
 # ------------------------------------------------------------------------------------------
 # Fast path for the fixed-layout messages written at every publication (joint_states, /clock,
-# effort commands): the same bytes as the generic encoder (tested), written by straight-line
+# effort commands, /tf): the same bytes as the generic encoder (tested), written by straight-line
 # code instead of the per-field dispatch, which dominated the recording cost of a headless run.
 # Only plain dicts with every field present and values of the expected Python/numpy types take
 # it; anything else (missing keys, attribute objects, odd values) goes the generic way.
@@ -341,11 +341,73 @@ def _fast_float64_multi_array(msg):
     return bytes(buf)
 
 
+_TF_VALUES = struct.Struct('<7d')
+_TF_CACHE: dict = {}
+
+
+def _tf_layout(frames):
+    """``(template bytes, stamp offsets, value offsets)`` of a TFMessage with these
+    ``(frame_id, child_frame_id)`` pairs: the strings and padding are fixed, so only the stamps
+    and the seven float64 of each transform change between publications."""
+    buf = bytearray(ENCAPSULATION_HEADER)
+    buf += _U32.pack(len(frames))
+    stamps, values = [], []
+    for frame, child in frames:
+        stamps.append(len(buf))       # 4-aligned: after the count or the previous float64s
+        buf += bytes(8)
+        _fast_string(buf, frame)
+        _fast_string(buf, child)
+        buf += bytes(-(len(buf) - 4) % 8)
+        values.append(len(buf))
+        buf += bytes(56)
+    return bytes(buf), stamps, values
+
+
+def _fast_tf_message(msg):
+    if type(msg) is not dict or len(msg) != 1:
+        return None
+    transforms = msg.get('transforms')
+    if type(transforms) is not list:
+        return None
+    frames, stamps, values = [], [], []
+    for tr in transforms:
+        if type(tr) is not dict or len(tr) != 3:
+            return None
+        header, child, tf = tr.get('header'), tr.get('child_frame_id'), tr.get('transform')
+        if type(header) is not dict or len(header) != 2 or type(child) is not str or \
+                type(tf) is not dict or len(tf) != 2:
+            return None
+        stamp, frame = _fast_time(header.get('stamp')), header.get('frame_id')
+        t, r = tf.get('translation'), tf.get('rotation')
+        if stamp is None or type(frame) is not str or type(t) is not dict or len(t) != 3 or \
+                type(r) is not dict or len(r) != 4:
+            return None
+        v = (t.get('x'), t.get('y'), t.get('z'), r.get('x'), r.get('y'), r.get('z'), r.get('w'))
+        if not all(type(x) is float for x in v):
+            return None
+        frames.append((frame, child))
+        stamps.append(stamp)
+        values.append(v)
+    key = tuple(frames)
+    layout = _TF_CACHE.get(key)
+    if layout is None:
+        if len(_TF_CACHE) >= _NAMES_CACHE_MAX:
+            _TF_CACHE.clear()
+        layout = _TF_CACHE[key] = _tf_layout(frames)
+    template, stamp_at, values_at = layout
+    buf = bytearray(template)
+    for k in range(len(frames)):
+        _TIME.pack_into(buf, stamp_at[k], *stamps[k])
+        _TF_VALUES.pack_into(buf, values_at[k], *values[k])
+    return bytes(buf)
+
+
 #: canonical type name -> fast encoder returning bytes, or None to decline
 _FAST_ENCODERS = {
     'sensor_msgs/msg/JointState': _fast_joint_state,
     'rosgraph_msgs/msg/Clock': _fast_clock,
     'std_msgs/msg/Float64MultiArray': _fast_float64_multi_array,
+    'tf2_msgs/msg/TFMessage': _fast_tf_message,
 }
 
 

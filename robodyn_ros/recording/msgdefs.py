@@ -1,8 +1,9 @@
 """ROS 2 ``.msg`` definitions: locate, parse, and assemble rosbag2 ``ros2msg`` schema text.
 
 A definition is read from ``<share>/<pkg>/msg/<Type>.msg`` where ``<share>`` comes from (in this
-order) ``ament_index_python``, the ``AMENT_PREFIX_PATH`` entries, and ``sys.prefix`` (the venv,
-where the PyPI ROS wheels install their share directories). No ROS import is needed.
+order) ``ament_index_python``, the ``AMENT_PREFIX_PATH`` entries, ``sys.prefix`` (the venv,
+where the PyPI ROS wheels install their share directories) and, last, the definitions bundled
+in this package (:data:`BUNDLED_DIR`). No ROS import is needed.
 
 Type names are accepted as ``pkg/Type`` or ``pkg/msg/Type``; the canonical form used everywhere in
 this package (and by rosbag2 for MCAP schema names) is ``pkg/msg/Type``.
@@ -44,6 +45,10 @@ _TYPE_RE = re.compile(
     r'(?:<=(?P<strbound>\d+))?'
     r'(?P<array>\[(?P<bounded><=)?(?P<size>\d*)\])?$')
 _CONSTANT_RE = re.compile(r'^(' + _NAME + r')\s*=')
+#: ``<pkg>/msg/<Type>.msg`` (and the ``.json`` type description rosidl generates next to it) for
+#: message packages that may be missing where we run: ``tf2_msgs/msg/TFMessage`` (Jazzy's text,
+#: and the description and RIHS01 hash rosidl_generator_type_description produces from it).
+BUNDLED_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'msg')
 
 
 @dataclass(frozen=True)
@@ -138,6 +143,8 @@ def _share_dirs(package: str):
         if prefix:
             yield os.path.join(prefix, 'share', package)
     yield os.path.join(sys.prefix, 'share', package)
+    # last resort: the definitions bundled with this package (tf2_msgs, which has no PyPI wheel)
+    yield os.path.join(BUNDLED_DIR, package)
 
 
 def find_msg_file(type_name: str) -> str:
