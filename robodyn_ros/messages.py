@@ -20,6 +20,8 @@ TOPIC_TYPES = {
     'robot_description': 'std_msgs/msg/String',
     '/clock': 'rosgraph_msgs/msg/Clock',
     'diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    '/tf': 'tf2_msgs/msg/TFMessage',         # see robodyn_ros.tf
+    '/tf_static': 'tf2_msgs/msg/TFMessage',  # transient local, once at start
 }
 WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 WRENCH_PREFIX = 'constraint_wrenches/'
@@ -105,10 +107,12 @@ def diagnostic_array(t_ns: int, name: str, level: int, message: str, values: dic
         'values': [{'key': k, 'value': _fmt(v)} for k, v in values.items()]}]}
 
 
-def output_messages(t_ns: int, out, wrenches: bool = True):
+def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):
     """The state messages of one publication: ``[(topic, type, dict), ...]`` (no /clock, diagnostics).
 
-    out: :class:`robodyn_ros.systems.SystemOutputs`; wrenches: include constraint wrenches.
+    out: :class:`robodyn_ros.systems.SystemOutputs`; wrenches: include constraint wrenches;
+    tf: a :class:`robodyn_ros.tf.TfTree` to append ``/tf`` (last; left out when it has no
+    transform), or None.
     """
     msgs = [('joint_states', TOPIC_TYPES['joint_states'],
              joint_state(t_ns, out.joint_names, out.position, out.velocity, out.effort))]
@@ -117,6 +121,10 @@ def output_messages(t_ns: int, out, wrenches: bool = True):
     if wrenches:
         for name, (frame, w) in out.wrenches.items():
             msgs.append((WRENCH_PREFIX + name, WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
+    if tf is not None:
+        tf_msg = tf.message(t_ns, out)
+        if tf_msg['transforms']:
+            msgs.append(('/tf', TOPIC_TYPES['/tf'], tf_msg))
     return msgs
 
 

@@ -44,6 +44,9 @@ def test_recording_counts_then_contents(stanford_run):
     assert topics['/effort_commands']['count'] == 100
     assert topics['/robot_description']['count'] == 1
     assert topics['/diagnostics']['count'] == 11  # every 0.1 s of simulated time, both ends included
+    assert topics['/tf']['count'] == 101          # moving joints, every publication
+    assert topics['/tf_static']['count'] == 1     # the fixed tool joint, once, latched
+    assert 'transient_local' in topics['/tf_static']['offered_qos_profiles']
     wrench_topics = [t for t in topics if t.startswith('/constraint_wrenches/')]
     assert len(wrench_topics) == n_joints
     assert 'transient_local' in topics['/robot_description']['offered_qos_profiles']

@@ -75,11 +75,17 @@ def test_lockstep_recording_equals_headless_run_fed_the_same_commands(lockstep_r
     sink = McapRunSink(out, SCENE, {'mode': 'headless'})
     run_headless(sim, PD_PERIODS / 100.0, 100.0, lambda t, y: {'effort': cmds[M.to_ns(t)]}, [sink])
     sink.close()
-    for topic in ['/joint_states'] + [f'/constraint_wrenches/{j}' for j in JOINTS]:
+    for topic in ['/joint_states', '/tf'] + [f'/constraint_wrenches/{j}' for j in JOINTS]:
         a = [(t, raw) for _, _, t, raw in read_raw_messages(rec, topics=[topic])]
         b = [(t, raw) for _, _, t, raw in read_raw_messages(out, topics=[topic])]
         assert len(a) == PD_PERIODS + 1
         assert a == b, topic
+    # /tf_static once, latched; recorded even where tf2_msgs is missing (the node then says so)
+    a = [raw for *_, raw in read_raw_messages(rec, topics=['/tf_static'])]
+    assert len(a) == 1 and a == [raw for *_, raw in read_raw_messages(out, topics=['/tf_static'])]
+    import importlib.util
+    no_tf2 = importlib.util.find_spec('tf2_msgs') is None
+    assert ('tf2_msgs is not installed: /tf and /tf_static are not published' in lockstep_run['node_log']) == no_tf2
     a = [raw for *_, raw in read_raw_messages(rec, topics=['/effort_commands'])]
     b = [raw for *_, raw in read_raw_messages(out, topics=['/effort_commands'])]
     assert a == b
@@ -114,7 +120,8 @@ def test_resim_of_lockstep_recording_reports_zero_deviation(lockstep_run, capsys
     assert 'largest deviation 0 ' in text
     rows = {line.split()[0]: line.split()[1:] for line in text.splitlines() if line.startswith('/')}
     assert rows['/joint_states'] == [str(PD_PERIODS + 1), str(PD_PERIODS + 1), '0']
-    assert all(r[2] == '0' for r in rows.values()) and len(rows) == 1 + len(JOINTS) + 1  # + tool_joint
+    assert all(r[2] == '0' for r in rows.values()) and len(rows) == 1 + len(JOINTS) + 1 + 2  # tool_joint, TF
+    assert rows['/tf'] == [str(PD_PERIODS + 1), str(PD_PERIODS + 1), '0'] and rows['/tf_static'][1] == '1'
 
 
 # ------------------------------------------------------------------------------------------

@@ -77,6 +77,30 @@ def test_replay_refuses_unknown_topic(headless, capsys):
     assert 'no topic /nope' in capsys.readouterr().err
 
 
+def _tf2_msgs_importable():
+    import importlib.util
+    return importlib.util.find_spec('tf2_msgs') is not None
+
+
+@pytest.mark.skipif(_tf2_msgs_importable(), reason='tf2_msgs is installed: /tf is replayed')
+def test_replay_without_tf2_msgs_leaves_tf_out_with_a_note(headless, tmp_path, capsys):
+    """The recording carries /tf and /tf_static (bundled definition); this machine cannot publish
+    them: asked for, exit 2; otherwise the other topics are replayed and a note says why not TF."""
+    assert robodyn(['replay', str(headless), '--topics', '/tf']) == 2
+    assert 'tf2_msgs' in capsys.readouterr().err
+    dom = Domain()
+    try:
+        p = subprocess.run(ROBODYN + ['replay', str(headless), '--rate', '0', '--delay', '0'], env=dom.env(),
+                           capture_output=True, text=True, timeout=60)
+    finally:
+        dom.release()
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert 'not replaying /tf (tf2_msgs/msg/TFMessage' in p.stdout and '/tf_static' in p.stdout
+    n = summarize(headless)
+    expected = n['message_count'] - n['topics']['/tf']['count'] - n['topics']['/tf_static']['count']
+    assert f'replayed {expected} messages' in p.stdout, p.stdout
+
+
 def test_resim_of_headless_run_is_exact(headless, tmp_path, capsys):
     out = tmp_path / 'resim.mcap'
     assert robodyn(['resim', str(headless), '--record', str(out), '--json']) == 0
@@ -84,6 +108,8 @@ def test_resim_of_headless_run_is_exact(headless, tmp_path, capsys):
     assert report['max_deviation'] == 0.0
     assert report['topics']['/joint_states'] == {'original': 31, 'resimulated': 31, 'identical': 31,
                                                  'max_deviation': 0.0}
+    assert report['topics']['/tf'] == {'original': 31, 'resimulated': 31, 'identical': 31, 'max_deviation': 0.0}
+    assert report['topics']['/tf_static']['identical'] == 1
     assert report['publications'] == 31 and report['commands'] == 30
     md = summarize(out)['metadata']['robodyn']
     assert json.loads(md['settings'])['resim_of'] == 'run.mcap'

@@ -5,7 +5,9 @@ is published when wall time since the start reaches its log time (simulation tim
 ``--rate``. ``/clock`` follows the log times: the recorded ``/clock`` messages when the file
 has them, otherwise one generated per distinct log time, so subscribers with
 ``use_sim_time`` see the recording's time. Topics recorded transient-local
-(``robot_description``) are published transient-local again.
+(``robot_description``, ``/tf_static``) are published transient-local again. A topic whose
+message package is not installed here (``/tf`` without ``tf2_msgs``) is left out with a note,
+or refused (exit 2) when asked for with ``--topics``.
 
 The recorded bytes are canonical CDR, which is what DDS carries, so they are published as they
 are (``Publisher.publish(bytes)``, as ``ros2 bag play`` does) after the recording reader has
@@ -74,13 +76,29 @@ def main(args) -> int:
     if clock_recorded and '/clock' not in chosen:
         chosen['/clock'] = (M.TOPIC_TYPES['/clock'], 'volatile')
 
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
     def msg_class(type_name):
         pkg, _, name = type_name.split('/')
         return getattr(importlib.import_module(f'{pkg}.msg'), name)
+
+    # a recording can hold types this machine cannot publish: /tf and /tf_static are recorded
+    # even where tf2_msgs is not installed (the recorder bundles the TFMessage definition)
+    missing = {}
+    for topic, (type_name, _) in chosen.items():
+        try:
+            msg_class(type_name)
+        except (ImportError, AttributeError):
+            missing[topic] = type_name
+    if missing:
+        text = ', '.join(f'{t} ({ty}: package {ty.split("/")[0]} not installed)' for t, ty in missing.items())
+        if args.topics:
+            print(f'robodyn replay: cannot publish {text}', file=sys.stderr)
+            return 2
+        print(f'note: not replaying {text}; install it (e.g. ros-jazzy-tf2-msgs) to replay them')
+        chosen = {t: v for t, v in chosen.items() if t not in missing}
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     rclpy.init()
     node = rclpy.create_node('robodyn_replay')

@@ -41,7 +41,10 @@ def _relative(topic: str, namespace: str) -> str:
 
 
 def _is_state(rel: str) -> bool:
-    return rel in ('joint_states', 'odom') or rel.startswith('constraint_wrenches/')
+    # /tf and /tf_static (absolute; 'tf' relative to an empty namespace) are derived from the
+    # state (robodyn_ros.tf): compared too
+    return (rel in ('joint_states', 'odom') or rel.startswith('constraint_wrenches/')
+            or rel.lstrip('/') in ('tf', 'tf_static'))
 
 
 def _numbers(msg, skip=('header',)) -> np.ndarray:
@@ -104,6 +107,7 @@ class Resim:
         self.rate = float(self.settings['rate'])
         self.topics = {t: _relative(t, self.namespace) for t in s['topics']}
         self.wrenches = any(r.startswith('constraint_wrenches/') for r in self.topics.values())
+        self.tf = '/tf' in self.topics   # recorded with TF (not with robodyn run --no-tf)
 
     def simulator(self):
         from ..simulation import Simulator
@@ -132,7 +136,7 @@ class Resim:
         settings = dict(self.settings, resim_of=os.path.basename(self.path))
         os.makedirs(os.path.dirname(os.path.abspath(out_path)), exist_ok=True)
         sink = McapRunSink(out_path, self.scene, settings, record_wrenches=self.wrenches,
-                           namespace=self.namespace)
+                           namespace=self.namespace, record_tf=self.tf)
         n_pub = n_cmd = n_rej = 0
         t_start = sim.t
         try:

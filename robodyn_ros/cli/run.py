@@ -19,6 +19,7 @@ def add_parser(sub):
     p.add_argument('--atol', type=float, default=None, help='absolute tolerance (adaptive integrators)')
     p.add_argument('--rate', type=float, default=None, help='publication/recording rate in Hz (default 100)')
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
+    p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
     p.add_argument('--diagnostics-period', type=float, default=0.1,
                    help='simulated seconds between recorded diagnostics messages (default 0.1)')
     return p
@@ -62,7 +63,7 @@ def main(args) -> int:
     if args.record:
         os.makedirs(os.path.dirname(os.path.abspath(args.record)), exist_ok=True)
         sinks.append(McapRunSink(args.record, scene, {**st, 'mode': 'headless'},
-                                 record_wrenches=not args.no_wrenches,
+                                 record_wrenches=not args.no_wrenches, record_tf=not args.no_tf,
                                  diagnostics_period=args.diagnostics_period))
     w0 = time.perf_counter()
     status = 0

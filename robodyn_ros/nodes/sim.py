@@ -5,8 +5,12 @@ Run it as ``sim --ros-args -p scene:=stanford_arm -p mode:=lockstep -p record:=r
 except ``/clock``): one command subscription per input port of the scene's system
 (``effort_commands``, ``wheel_voltage_commands``, ``base_wrench_command``); publishes
 ``joint_states``, ``odom`` (systems with a base), ``constraint_wrenches/<joint>``,
-``robot_description`` (transient local), ``/clock``, ``diagnostics``; services ``~/reset``
-(std_srvs/Trigger) and ``~/pause`` (std_srvs/SetBool). Parameters: see :data:`PARAMETERS`.
+``robot_description`` (transient local), ``/tf`` and ``/tf_static`` (transient local; when
+``tf2_msgs`` is importable and ``publish_tf`` is true), ``/clock``, ``diagnostics``; services
+``~/reset`` (std_srvs/Trigger) and ``~/pause`` (std_srvs/SetBool). Parameters: see
+:data:`PARAMETERS`. The recording holds what is published, with one exception: without
+``tf2_msgs`` the node cannot publish TF but still records it (the bundled TFMessage definition
+encodes it), so that the recording shows the robot moving in Foxglove.
 
 Time is cut into control periods of ``1 / publish_rate`` seconds. A period is: scripted
 commands (if any), ``Simulator.advance`` to the period's end, outputs, publish (and record). A
@@ -68,6 +72,7 @@ PARAMETERS = {
     'initial_velocities': (None, "initial joint velocities (nv values; unset = the scene's)"),
     'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
     'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
+    'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
 }
 
 
@@ -95,6 +100,7 @@ class Config:
     start_paused: bool
     diagnostics_period: float
     y0: np.ndarray
+    publish_tf: bool = True
 
     def settings(self, namespace: str) -> dict:
         """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
@@ -151,7 +157,7 @@ def resolve_config(p: dict, scene) -> Config:
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
-    for name in ('scripted_commands', 'start_paused'):
+    for name in ('scripted_commands', 'start_paused', 'publish_tf'):
         if not isinstance(p[name], bool):
             raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
     if p['scripted_commands'] and mode == 'lockstep':
@@ -194,7 +200,7 @@ def resolve_config(p: dict, scene) -> Config:
                   duration=_number('duration', p['duration'], minimum=0.0),
                   record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
                   diagnostics_period=_number('diagnostics_period', p['diagnostics_period'], positive=True),
-                  y0=y0)
+                  y0=y0, publish_tf=p['publish_tf'])
 
 
 def _finite_outputs(out) -> bool:
@@ -279,6 +285,18 @@ def make_node_class():
             self.description = M.string(self.scene.system.urdf())
             self.pub['robot_description'] = self.create_publisher(
                 _import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description', latched)
+            self.tf = None   # the TfTree of /tf (published and recorded) when publish_tf
+            if cfg.publish_tf:
+                from ..tf import TfTree
+                self.tf = TfTree(self.scene.system)
+                try:
+                    tf_msg = _import_msg(M.TOPIC_TYPES['/tf'])
+                except ImportError:
+                    self.get_logger().info('tf2_msgs is not installed: /tf and /tf_static are not published '
+                                           '(recordings still carry them)')
+                else:   # tf2's broadcaster QoS: depth 100 for /tf, latched depth 1 for /tf_static
+                    self.pub['/tf'] = self.create_publisher(tf_msg, '/tf', 100)
+                    self.pub['/tf_static'] = self.create_publisher(tf_msg, '/tf_static', latched)
 
             # -- command subscriptions, one per input port (none with scripted commands)
             self.subs = []
@@ -293,6 +311,10 @@ def make_node_class():
             # -- start: description, recording, initial state at t0
             self.pub['robot_description'].publish(M.fill(self.pub['robot_description'].msg_type(),
                                                          self.description))
+            if '/tf_static' in self.pub:
+                static = self.tf.static_message(M.to_ns(self.sim.t))
+                if static['transforms']:
+                    self.pub['/tf_static'].publish(M.fill(self.pub['/tf_static'].msg_type(), static))
             self._open_recording()
             self._commanded = False     # lockstep: a command has arrived since the last (re)start
             # lockstep: joint_states subscriber count at the last (re)send of the initial state; 0 so
@@ -334,7 +356,7 @@ def make_node_class():
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             self.recorder = McapRunSink(path, self.scene, self.cfg.settings(self.namespace),
                                         record_wrenches=True, diagnostics_period=self.cfg.diagnostics_period,
-                                        namespace=self.namespace.strip('/'))
+                                        namespace=self.namespace.strip('/'), record_tf=self.cfg.publish_tf)
             self.recorders.append(self.recorder)
             self.recorder.on_start(self.sim)
 
@@ -445,7 +467,7 @@ def make_node_class():
         def _publish_outputs(self, out):
             """State messages, /clock and (every diagnostics_period) diagnostics of one period."""
             t_ns = M.to_ns(self.sim.t)
-            for topic, type_name, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches)):
+            for topic, type_name, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches), tf=self.tf):
                 self._send(topic, type_name, msg, t_ns)
             self._send('/clock', M.TOPIC_TYPES['/clock'], M.clock(t_ns), t_ns)
             self._last_extra = out.extra
@@ -543,7 +565,7 @@ def make_node_class():
                 return
             out = self.sim.outputs(wrenches=bool(self.wrench_pubs) and self._wrenches_wanted())
             t_ns = M.to_ns(self.sim.t)
-            for topic, _type, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches)):
+            for topic, _type, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches), tf=self.tf):
                 pub = self.pub.get(topic)
                 if pub is not None:
                     pub.publish(M.fill(pub.msg_type(), msg))

@@ -25,19 +25,24 @@ def run_metadata(scene, settings: dict, extra: dict | None = None) -> dict:
 
 
 class McapRunSink:
-    """Records a run: robot_description once, commands as received, state at every publication.
+    """Records a run: robot_description and /tf_static once, commands as received, state at every
+    publication.
 
     path: output .mcap; scene: the loaded Scene (its text goes into the metadata); settings:
     integrator/rate settings (JSON in the metadata); record_wrenches: also record
     ``constraint_wrenches/*``; diagnostics_period: seconds of simulation time between
-    ``diagnostics`` messages; namespace: ROS namespace for relative topic names.
+    ``diagnostics`` messages; namespace: ROS namespace for relative topic names; record_tf: also
+    record ``/tf`` at every publication and ``/tf_static`` once at the start (transient local),
+    see :mod:`robodyn_ros.tf`.
     """
 
     def __init__(self, path, scene, settings: dict, record_wrenches=True, diagnostics_period=1.0,
-                 namespace='', extra_metadata=None):
+                 namespace='', extra_metadata=None, record_tf=True):
         self.path = str(path)
         self.scene = scene
         self.wants_wrenches = record_wrenches
+        self.record_tf = record_tf
+        self.tf = None   # the TfTree, built in on_start when record_tf
         self.diagnostics_period = diagnostics_period
         self.namespace = namespace
         self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata))
@@ -49,12 +54,23 @@ class McapRunSink:
         self.count += 1
 
     def on_start(self, sim):
-        """Record ``robot_description`` at the start time."""
+        """Record ``robot_description`` (and ``/tf_static``) at the start time."""
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic(resolve('robot_description', self.namespace), M.TOPIC_TYPES['robot_description'],
                               qos='transient_local')
         self._write('robot_description', M.TOPIC_TYPES['robot_description'], M.string(sim.system.urdf()), t_ns)
+        if self.record_tf:
+            from ..tf import TfTree
+            self.tf = TfTree(sim.system)
+            self.write_tf_static(t_ns)
         self._next_diag = sim.t
+
+    def write_tf_static(self, t_ns):
+        """Record ``/tf_static`` (transient local) when the tree has fixed joints."""
+        msg = self.tf.static_message(t_ns)
+        if msg['transforms']:
+            self.writer.add_topic('/tf_static', M.TOPIC_TYPES['/tf_static'], qos='transient_local')
+            self._write('/tf_static', M.TOPIC_TYPES['/tf_static'], msg, t_ns)
 
     def on_command(self, t, port, values):
         """Record a command as it was applied (Float64MultiArray for effort/voltage ports)."""
@@ -68,7 +84,7 @@ class McapRunSink:
     def on_output(self, t, out, sim, level=0, message='running'):
         """Record the state messages, ``/clock``, and ``diagnostics`` every diagnostics_period."""
         t_ns = M.to_ns(t)
-        for topic, type_name, msg in M.output_messages(t_ns, out, self.wants_wrenches):
+        for topic, type_name, msg in M.output_messages(t_ns, out, self.wants_wrenches, tf=self.tf):
             self._write(topic, type_name, msg, t_ns)
         self._write('/clock', M.TOPIC_TYPES['/clock'], M.clock(t_ns), t_ns)
         if self._next_diag is not None and t >= self._next_diag - 1e-9:

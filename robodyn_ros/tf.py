@@ -1,0 +1,183 @@
+"""TF of the robot (``tf2_msgs/msg/TFMessage`` dicts) from published outputs; no rclpy.
+
+Foxglove's 3D panel, RViz and every tf2 listener place the links of ``robot_description`` at the
+poses that ``/tf`` and ``/tf_static`` give; none of them does forward kinematics from
+``joint_states``. :class:`TfTree` is that forward kinematics, done the way
+``robot_state_publisher`` does it: from the URDF's joints and the positions in ``joint_states``,
+plus ``odom -> base_link`` from the ``odom`` output of platforms and free bases.
+
+The tree is the model the system exports as its URDF (``system.urdf_model`` when the system has
+one, as the differential drive does — its dynamics tree has virtual planar joints that the URDF
+replaces by the ``odom`` pose — else ``system.model``). For every joint of that model:
+
+- fixed joints give a constant ``parent_link -> child_link`` transform, published once on
+  ``/tf_static`` (:meth:`TfTree.static_message`);
+- revolute and prismatic joints give ``parent_link -> child_link`` at the joint's position in
+  ``joint_states`` (looked up by joint name), published on ``/tf`` (:meth:`TfTree.message`);
+- a free (floating) joint is not in the URDF: its child link (``base_link``) gets
+  ``odom -> base_link`` from the ``odom`` output instead, as does the URDF root of a platform.
+
+So the frame ids are the URDF's link names, each non-root URDF link is the child of exactly one
+transform, and the tree has one root: ``odom`` for systems that publish ``odom``, the URDF root
+(``base_link``) for fixed-base arms. Stamps are simulation time.
+
+Transforms are computed from the model's tree transforms ``Xtree`` and joint axes (the frames of
+:func:`robodyn_ros.dynamics.joint_transforms` and of the exported URDF): a revolute joint at
+angle θ is ``(R_tree Rot(a, θ), p_tree)``, a prismatic joint at d is ``(R_tree, p_tree + R_tree a d)``.
+"""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from .model import FIXED, FREE, PRISMATIC, REVOLUTE
+
+TF_TYPE = 'tf2_msgs/msg/TFMessage'
+TF_TOPIC = '/tf'
+TF_STATIC_TOPIC = '/tf_static'
+ODOM_FRAME = 'odom'
+
+__all__ = ['TfTree', 'TF_TYPE', 'TF_TOPIC', 'TF_STATIC_TOPIC', 'ODOM_FRAME', 'tf_model', 'urdf_joints']
+
+
+def tf_model(system):
+    """The model whose URDF ``system.urdf()`` exports: ``system.urdf_model`` if any, else ``system.model``."""
+    model = getattr(system, 'urdf_model', None)
+    return model if model is not None else system.model
+
+
+def urdf_joints(urdf: str) -> dict:
+    """``child link -> (joint name, joint type, parent link)`` of every joint of a URDF text."""
+    root = ET.fromstring(urdf)
+    return {j.find('child').get('link'): (j.get('name'), j.get('type'), j.find('parent').get('link'))
+            for j in root.findall('joint')}
+
+
+def _tree_pose(Xtree):
+    """``(R (3, 3), p (3,))``: the joint frame at q = 0 in its parent (child axes, origin)."""
+    R = Xtree[:3, :3].T
+    P = -R @ Xtree[3:, :3]  # X[3:, :3] = -E r×  =>  r× = -E^T X[3:, :3]
+    return R, np.array([P[2, 1], P[0, 2], P[1, 0]])
+
+
+def _quat(R):
+    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix, ``w >= 0``."""
+    from .spatial import R_to_quat
+    return R_to_quat(R)
+
+
+def _transform(t_ns: int, parent: str, child: str, p, q) -> dict:
+    """``geometry_msgs/TransformStamped`` dict."""
+    return {'header': {'stamp': {'sec': int(t_ns // 1_000_000_000), 'nanosec': int(t_ns % 1_000_000_000)},
+                       'frame_id': parent},
+            'child_frame_id': child,
+            'transform': {'translation': {'x': float(p[0]), 'y': float(p[1]), 'z': float(p[2])},
+                          'rotation': {'x': float(q[0]), 'y': float(q[1]), 'z': float(q[2]), 'w': float(q[3])}}}
+
+
+class TfTree:
+    """The transform tree of a system's ``robot_description``; build once, call per publication.
+
+    system: a System with ``model`` (and ``urdf_model`` when its URDF is not ``model``'s) and
+    ``urdf()``. check_urdf: verify once that the tree's (parent, child) pairs are exactly the
+    URDF's joints (raises ValueError naming the difference).
+
+    Attributes: ``root`` (the URDF root link), ``odom_child`` (the link ``odom`` poses: the free
+    joint's child, else the URDF root), ``static`` and ``moving`` (lists of ``(parent, child)``).
+    """
+
+    def __init__(self, system, check_urdf: bool = True):
+        m = tf_model(system)
+        names = m.link_names
+        free = [i for i in range(m.nb) if m.jtype[i] == FREE]
+        if len(free) > 1 or (free and m.parent[free[0]] >= 0):
+            raise ValueError(f'{m.name}: at most one free joint, attached to the root, is supported by TF')
+        self.root = names[free[0]] if free else m.root
+        self.odom_child = self.root
+        self.static, self.moving = [], []
+        self._static_poses = []
+        self._rows = []   # per moving joint: (revolute, joint name, p_tree, q_tree, axis, R_tree rows)
+        for i in range(m.nb):
+            jt = int(m.jtype[i])
+            if jt == FREE:
+                continue
+            parent = m.root if m.parent[i] < 0 else names[m.parent[i]]
+            R, p = _tree_pose(m.Xtree[i])
+            if jt == FIXED:
+                self.static.append((parent, names[i]))
+                self._static_poses.append((tuple(p.tolist()), tuple(_quat(R).tolist())))
+            elif jt in (REVOLUTE, PRISMATIC):
+                self.moving.append((parent, names[i]))
+                self._rows.append((jt == REVOLUTE, m.joint_names[i], tuple(p.tolist()), tuple(_quat(R).tolist()),
+                                   tuple(float(a) for a in m.axis[i]), tuple(tuple(r) for r in R.tolist())))
+            else:
+                raise ValueError(f'{m.name}: joint {m.joint_names[i]!r} of type {jt} has no TF')
+        self._joints = [r[1] for r in self._rows]
+        self._names_key = None
+        self._src = None
+        if check_urdf:
+            self._check(system.urdf())
+
+    def _check(self, urdf: str):
+        """Raise ValueError unless the tree's transforms are exactly the URDF's joints."""
+        want = {child: parent for child, (_, _, parent) in urdf_joints(urdf).items()}
+        have = {child: parent for parent, child in self.static + self.moving}
+        if have != want:
+            extra = sorted(set(have.items()) - set(want.items()))
+            missing = sorted(set(want.items()) - set(have.items()))
+            raise ValueError(f'TF tree differs from robot_description: (child, parent) not in the URDF '
+                             f'{extra}, URDF joints without a transform {missing}')
+
+    def _source(self, joint_names):
+        """Indices in ``joint_states`` of the moving joints (cached per list of names)."""
+        key = tuple(joint_names)
+        if key != self._names_key:
+            index = {n: k for k, n in enumerate(key)}
+            missing = [j for j in self._joints if j not in index]
+            if missing:
+                raise ValueError(f'joints {missing} of robot_description are not in joint_states {list(key)}')
+            self._src = [index[j] for j in self._joints]
+            self._names_key = key
+        return self._src
+
+    def transforms(self, joint_names, position, odom=None):
+        """``[(parent, child, p (x, y, z), quat (x, y, z, w))]`` of one publication, floats:
+        ``odom -> odom_child`` first (when ``odom`` is given), then every moving joint in model order.
+
+        joint_names, position: as in ``joint_states``; odom: the outputs' odom dict or None.
+        Plain float arithmetic: a few microseconds per joint, it runs at every publication.
+        """
+        out = []
+        if odom is not None:
+            out.append((ODOM_FRAME, self.odom_child, tuple(float(x) for x in odom['position']),
+                        tuple(float(x) for x in odom['orientation'])))
+        if not self._rows:
+            return out
+        pos = position.tolist() if isinstance(position, np.ndarray) else list(position)
+        for (parent, child), k, (rev, _, p, q, a, R) in zip(self.moving, self._source(joint_names), self._rows):
+            th = float(pos[k])
+            if rev:   # q_tree ⊗ (a sin θ/2, cos θ/2)
+                s, c = math.sin(0.5 * th), math.cos(0.5 * th)
+                bx, by, bz = a[0] * s, a[1] * s, a[2] * s
+                qx, qy, qz, qw = q
+                q = (qw * bx + c * qx + qy * bz - qz * by,
+                     qw * by + c * qy + qz * bx - qx * bz,
+                     qw * bz + c * qz + qx * by - qy * bx,
+                     qw * c - qx * bx - qy * by - qz * bz)
+            else:     # p_tree + R_tree a d
+                dx, dy, dz = a[0] * th, a[1] * th, a[2] * th
+                p = tuple(p[r] + R[r][0] * dx + R[r][1] * dy + R[r][2] * dz for r in range(3))
+            out.append((parent, child, p, q))
+        return out
+
+    def message(self, t_ns: int, out) -> dict:
+        """The ``/tf`` message of one publication from :class:`SystemOutputs` ``out`` (stamped t_ns)."""
+        return {'transforms': [_transform(t_ns, *tr) for tr in
+                               self.transforms(out.joint_names, out.position, out.odom)]}
+
+    def static_message(self, t_ns: int) -> dict:
+        """The ``/tf_static`` message: every fixed joint's constant transform (stamped t_ns)."""
+        return {'transforms': [_transform(t_ns, parent, child, p, q)
+                               for (parent, child), (p, q) in zip(self.static, self._static_poses)]}
