@@ -44,7 +44,8 @@ from numba import njit
 
 from ..model import FREE, PRISMATIC, REVOLUTE
 from .core import (_JIT, E_, M_RK4, M_SEMI_IMPLICIT_EULER, R_, AX, HV, IB, JTYPE, MASS, PARENT, VIDX,
-                   aba_fext_into, crba_into, normalize_into, qdot_into, rnea_ws, transforms, workspace)
+                   aba_fext_into, crba_into, crba_ws, energies, normalize_into, qdot_into, rnea_ws, transforms,
+                   workspace)
 
 DIFFDRIVE, FREEFLYER, AUGMENTED, PRESCRIBED = 1, 2, 3, 4
 OK, SINGULAR = 0, 1
@@ -102,7 +103,212 @@ def chol_solve(L, nd, b, x):
             s -= L[k, i] * x[k]
         x[i] = s / L[i, i]
     for i in range(nd, n):
-        x[i] = b[i] / L[i, i] / L[i, i]
+        x[i] = b[i] / L[i, i] / L[i, i] if b[i] != 0.0 else 0.0
+
+
+_EPS = float(np.finfo(np.float64).eps)
+#: cyclic Jacobi sweeps before giving up (convergence is quadratic: 5–8 sweeps for the sizes here)
+JACOBI_SWEEPS = 60
+
+
+@njit(**_JIT)
+def sym_eig(A, w, V):
+    """Eigenvalues w (m,) and orthonormal eigenvectors V (m, m) (columns) of the symmetric A (m, m).
+
+    Cyclic Jacobi (Golub & Van Loan, Algorithm 8.5.3, with the rotation of 8.5.1): plane rotations
+    ``Jᵀ S J`` annihilate each off-diagonal entry in turn until none is above ``eps √|s_pp s_qq|``
+    (Demmel–Veselić: the eigenvalues are then accurate to that relative level). Backward stable
+    like LAPACK's ``syevd`` (the reference's ``numpy.linalg.eigh``) and, for the matrices of a few
+    rows met here, cheaper than the call into LAPACK. Eigenvalues are not sorted.
+    """
+    m = A.shape[0]
+    S = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = A[i, j]
+            V[i, j] = 1.0 if i == j else 0.0
+    for sweep in range(JACOBI_SWEEPS):
+        rotated = False
+        for p in range(m - 1):
+            for q in range(p + 1, m):
+                apq = S[p, q]
+                app, aqq = S[p, p], S[q, q]
+                if abs(apq) <= _EPS * math.sqrt(abs(app * aqq)) or abs(apq) < 1e-300:
+                    continue
+                rotated = True
+                tau = (aqq - app) / (2.0 * apq)
+                if tau >= 0.0:
+                    t = 1.0 / (tau + math.sqrt(1.0 + tau * tau))
+                else:
+                    t = -1.0 / (-tau + math.sqrt(1.0 + tau * tau))
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                sn = t * c
+                for k in range(m):
+                    skp, skq = S[k, p], S[k, q]
+                    S[k, p] = c * skp - sn * skq
+                    S[k, q] = sn * skp + c * skq
+                for k in range(m):
+                    spk, sqk = S[p, k], S[q, k]
+                    S[p, k] = c * spk - sn * sqk
+                    S[q, k] = sn * spk + c * sqk
+                S[p, q] = 0.0
+                S[q, p] = 0.0
+                for k in range(m):
+                    vkp, vkq = V[k, p], V[k, q]
+                    V[k, p] = c * vkp - sn * vkq
+                    V[k, q] = sn * vkp + c * vkq
+        if not rotated:
+            break
+    for i in range(m):
+        w[i] = S[i, i]
+
+
+@njit(**_JIT)
+def pinv_solve(A, b, cut, x):
+    """Minimum-norm least-squares solution x of ``A x = b`` for a symmetric positive semi-definite
+    A (m, m): the eigen-decomposition with eigenvalues ``|λ| <= cut · max |λ|`` discarded (what
+    ``numpy.linalg.lstsq(A, b, rcond=cut)`` computes for such A, whose singular values are |λ|).
+    Returns the rank used."""
+    m = A.shape[0]
+    w = np.empty(m)
+    V = np.empty((m, m))
+    sym_eig(A, w, V)
+    smax = 0.0
+    for j in range(m):
+        smax = max(smax, abs(w[j]))
+    for i in range(m):
+        x[i] = 0.0
+    rank = 0
+    for j in range(m):
+        if smax > 0.0 and abs(w[j]) > cut * smax:
+            rank += 1
+            s = 0.0
+            for i in range(m):
+                s += V[i, j] * b[i]
+            s /= w[j]
+            for i in range(m):
+                x[i] += V[i, j] * s
+    return rank
+
+
+@njit(**_JIT)
+def lu_solve(A, b, x):
+    """Solve the square system ``A x = b`` by Gaussian elimination with partial pivoting (the
+    algorithm of LAPACK ``getrf``/``getrs``, the reference's ``numpy.linalg.solve``); A, b unchanged."""
+    n = A.shape[0]
+    U = A.copy()
+    for i in range(n):
+        x[i] = b[i]
+    for k in range(n):
+        piv = k
+        for i in range(k + 1, n):
+            if abs(U[i, k]) > abs(U[piv, k]):
+                piv = i
+        if piv != k:
+            for j in range(n):
+                U[k, j], U[piv, j] = U[piv, j], U[k, j]
+            x[k], x[piv] = x[piv], x[k]
+        for i in range(k + 1, n):
+            f = U[i, k] / U[k, k]
+            for j in range(k + 1, n):
+                U[i, j] -= f * U[k, j]
+            x[i] -= f * x[k]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for j in range(i + 1, n):
+            s -= U[i, j] * x[j]
+        x[i] = s / U[i, i]
+
+
+@njit(**_JIT)
+def singular_values_2(B, sv):
+    """Singular values ``sv[0] >= sv[1]`` of a 2-row matrix B (2, n): one-sided Jacobi (Hestenes)
+    rotates the two rows until they are orthogonal; the singular values are then their norms, to
+    high relative accuracy (as LAPACK's ``gesdd`` in the reference's ``numpy.linalg.svd``)."""
+    n = B.shape[1]
+    r0 = B[0].copy()
+    r1 = B[1].copy()
+    for sweep in range(8):
+        a = 0.0
+        b = 0.0
+        c = 0.0
+        for j in range(n):
+            a += r0[j] * r0[j]
+            b += r1[j] * r1[j]
+            c += r0[j] * r1[j]
+        if abs(c) <= _EPS * math.sqrt(a * b) or c == 0.0:
+            break
+        tau = (b - a) / (2.0 * c)
+        if tau >= 0.0:
+            t = 1.0 / (tau + math.sqrt(1.0 + tau * tau))
+        else:
+            t = -1.0 / (-tau + math.sqrt(1.0 + tau * tau))
+        cs = 1.0 / math.sqrt(1.0 + t * t)
+        sn = t * cs
+        for j in range(n):
+            x0, x1 = r0[j], r1[j]
+            r0[j] = cs * x0 - sn * x1
+            r1[j] = sn * x0 + cs * x1
+    s0 = 0.0
+    s1 = 0.0
+    for j in range(n):
+        s0 += r0[j] * r0[j]
+        s1 += r1[j] * r1[j]
+    s0, s1 = math.sqrt(s0), math.sqrt(s1)
+    sv[0] = max(s0, s1)
+    sv[1] = min(s0, s1)
+
+
+@njit(**_JIT)
+def chol_solve_cols(L, nd, X):
+    """Solve ``L Lᵀ Y = X`` in place for every column of X (n, m): the operations of
+    :func:`chol_solve` column by column, in the same order, with the columns updated together
+    (row axpys that vectorise instead of one dependent chain per column)."""
+    n, m = X.shape
+    for i in range(nd):
+        for c in range(i):
+            lic = L[i, c]
+            for j in range(m):
+                X[i, j] -= lic * X[c, j]
+        d = L[i, i]
+        for j in range(m):
+            X[i, j] /= d
+    for i in range(nd - 1, -1, -1):
+        for c in range(i + 1, nd):
+            lci = L[c, i]
+            for j in range(m):
+                X[i, j] -= lci * X[c, j]
+        d = L[i, i]
+        for j in range(m):
+            X[i, j] /= d
+    for i in range(nd, n):
+        d = L[i, i]
+        for j in range(m):
+            if X[i, j] != 0.0:
+                X[i, j] = X[i, j] / d / d
+
+
+@njit(**_JIT)
+def trace_inverse(L):
+    """``tr(A⁻¹) = ‖L⁻¹‖_F²`` for ``A = L Lᵀ``: the columns of L⁻¹ by column-oriented forward
+    substitution (axpy updates on the rows of Lᵀ, which vectorise)."""
+    m = L.shape[0]
+    LT = L.T.copy()
+    dinv = np.empty(m)
+    for c in range(m):
+        dinv[c] = 1.0 / LT[c, c]
+    x = np.empty(m)
+    t = 0.0
+    for j in range(m):
+        for i in range(j, m):
+            x[i] = 0.0
+        x[j] = 1.0
+        for c in range(j, m):
+            xc = x[c] * dinv[c]
+            t += xc * xc
+            for i in range(c + 1, m):
+                x[i] -= xc * LT[c, i]
+    return t
 
 
 @njit(**_JIT)
@@ -142,21 +348,18 @@ def kkt_solve(M, nd, Q, K, k, rcond, damping, exact_info, a, lam, info):
         info[2] = np.inf
         info[3] = 0.0
         return OK
-    X = np.empty((m, n))  # rows: M⁻¹ K_jᵀ
-    for j in range(m):
-        chol_solve(L, nd, K[j], X[j])
-    A = np.empty((m, m))
-    for i in range(m):
-        for j in range(m):
-            s = 0.0
-            for c in range(n):
-                s += K[i, c] * X[j, c]
-            A[i, j] = s
-    for i in range(m):
+    XT = K.T.copy()  # columns: M⁻¹ K_jᵀ
+    chol_solve_cols(L, nd, XT)
+    A = np.zeros((m, m))
+    for i in range(m):  # A[i, :i+1] += K[i, c] X[:i+1, c] (rows of K are sparse in the augmented formulation)
+        for c in range(n):
+            kic = K[i, c]
+            if kic != 0.0:
+                for j in range(i + 1):
+                    A[i, j] += kic * XT[c, j]
+    for i in range(m):  # the lower triangle (the reference symmetrises K M⁻¹ Kᵀ; this computes one half)
         for j in range(i):
-            s = 0.5 * (A[i, j] + A[j, i])
-            A[i, j] = s
-            A[j, i] = s
+            A[j, i] = A[i, j]
     b = np.empty(m)
     for i in range(m):
         s = 0.0
@@ -167,23 +370,11 @@ def kkt_solve(M, nd, Q, K, k, rcond, damping, exact_info, a, lam, info):
     if damping == 0.0 and not exact_info:
         LA = np.empty((m, m))
         if cholesky(A, m, LA):
-            # tr(A⁻¹) = ‖L⁻¹‖_F²: columns of L⁻¹ by forward substitution
-            tinv = 0.0
-            col = np.empty(m)
-            for j in range(m):
-                for i in range(m):
-                    if i < j:
-                        col[i] = 0.0
-                        continue
-                    s = 1.0 if i == j else 0.0
-                    for c in range(j, i):
-                        s -= LA[i, c] * col[c]
-                    col[i] = s / LA[i, i]
-                    tinv += col[i] * col[i]
+            tinv = trace_inverse(LA)
             tr = 0.0
             for i in range(m):
                 tr += A[i, i]
-            if tinv > 0.0 and 1.0 / tinv > rcond * tr:
+            if tinv > 0.0 and 1.0 / tinv > rcond * tr * (1.0 + 1e-8):  # margin for the rounding of the bound
                 chol_solve(LA, m, b, lam)
                 info[0] = m
                 info[1] = np.nan
@@ -195,8 +386,14 @@ def kkt_solve(M, nd, Q, K, k, rcond, damping, exact_info, a, lam, info):
             a[:] = np.nan
             lam[:] = np.nan
             return OK
-        w, V = np.linalg.eigh(A)
-        wmax = max(w[m - 1], 0.0)
+        w = np.empty(m)
+        V = np.empty((m, m))
+        sym_eig(A, w, V)
+        wmax = 0.0
+        wmin = np.inf
+        for j in range(m):
+            wmax = max(wmax, w[j])
+            wmin = min(wmin, w[j])
         rank = 0
         for i in range(m):
             lam[i] = 0.0
@@ -212,12 +409,12 @@ def kkt_solve(M, nd, Q, K, k, rcond, damping, exact_info, a, lam, info):
                 for i in range(m):
                     lam[i] += V[i, j] * s
         info[0] = rank
-        info[1] = max(w[0], 0.0)
+        info[1] = max(wmin, 0.0)
         info[2] = wmax
     for c in range(n):
         s = au[c]
         for j in range(m):
-            s += X[j, c] * lam[j]
+            s += XT[c, j] * lam[j]
         a[c] = s
     if exact_info:
         r = 0.0
@@ -239,29 +436,34 @@ def project_velocities(M, nd, K, v, g, rcond):
     L = np.empty((n, n))
     if not cholesky(M, nd, L):
         return SINGULAR if _all_finite(M) else OK
-    X = np.empty((m, n))
-    for j in range(m):
-        chol_solve(L, nd, K[j], X[j])
-    A = np.empty((m, m))
+    XT = K.T.copy()
+    chol_solve_cols(L, nd, XT)
+    A = np.zeros((m, m))
     e = np.empty(m)
     for i in range(m):
         s = 0.0
         for c in range(n):
             s += K[i, c] * v[c]
         e[i] = s - g[i]
-        for j in range(m):
-            s = 0.0
-            for c in range(n):
-                s += K[i, c] * X[j, c]
+        for c in range(n):
+            kic = K[i, c]
+            if kic != 0.0:
+                for j in range(m):
+                    A[i, j] += kic * XT[c, j]
+    for i in range(m):
+        for j in range(i):
+            s = 0.5 * (A[i, j] + A[j, i])
             A[i, j] = s
+            A[j, i] = s
     if not (_all_finite(A) and _all_finite(e)):
         v[:] = np.nan
         return OK
-    dl = np.linalg.lstsq(A, e, rcond)[0]
+    dl = np.empty(m)
+    pinv_solve(A, e, rcond, dl)
     for c in range(n):
         s = 0.0
         for j in range(m):
-            s += X[j, c] * dl[j]
+            s += XT[c, j] * dl[j]
         v[c] -= s
     return OK
 
@@ -527,13 +729,13 @@ def dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, bias):
     for i in range(nv):
         for j in range(nv):
             M[i, j] = 0.0
-    crba_into(mi_r, mf_r, q, M)
+    W = workspace(mi_r.shape[0])
+    transforms(mi_r, mf_r, q, W)
+    if bias:  # RNEA leaves the transforms in W for the CRBA
+        rnea_ws(mi_r, mf_r, q, v, np.zeros(nv), W, False, h, W)
+    crba_ws(mi_r, mf_r, M, W)
     for i in range(nv):
         M[i, i] += fp[DD_ARMATURE + i]
-    if bias:
-        W = workspace(mi_r.shape[0])
-        transforms(mi_r, mf_r, q, W)
-        rnea_ws(mi_r, mf_r, q, v, np.zeros(nv), W, False, h, W)
 
 
 @njit(**_JIT)
@@ -609,6 +811,55 @@ def dd_evaluate(ip, fp, mi_r, mf_r, u, y, dz):
         P += s
     dz[ny] = P
     return OK
+
+
+#: entries of :func:`dd_report`'s output
+DR_EL, DR_FRICTION, DR_RESIDUAL, DR_KINETIC, DR_POTENTIAL, DR_MAGNETIC, NDR = 0, 6, 8, 9, 10, 11, 12
+
+
+@njit(**_JIT)
+def dd_report(ip, fp, mi_r, mf_r, u, y, out):
+    """What ``DiffDriveSystem.outputs`` reports besides the wrenches, into out (NDR,):
+    electrical quantities (6, :func:`dd_electrical`), friction loss per motor (2), ``max |K v|``,
+    kinetic (with rotor inertia), potential (arm) and magnetic energy."""
+    nv = ip[DD_NV]
+    q = y[:nv]
+    v = y[nv:2 * nv]
+    dd_electrical(ip, fp, u, y, out[DR_EL:DR_EL + 6])
+    for k in range(2):
+        o = DD_MOTOR + MOT_SIZE * k
+        w = v[_IL + k]
+        Nn = fp[o + MOT_N]
+        wm = Nn * w
+        fr = fp[o + MOT_B] * wm + fp[o + MOT_TC] * math.tanh(wm / fp[o + MOT_WS])
+        out[DR_FRICTION + k] = fr * (Nn * w)
+    K = np.empty((4, nv))
+    kdv = np.empty(4)
+    dd_constraints(fp, nv, q, v, K, kdv)
+    r = 0.0
+    for i in range(4):
+        s = 0.0
+        for j in range(nv):
+            s += K[i, j] * v[j]
+        r = max(r, abs(s))
+    out[DR_RESIDUAL] = r
+    M = np.empty((nv, nv))
+    h = np.empty(nv)
+    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, False)
+    kin = 0.0
+    for i in range(nv):
+        s = 0.0
+        for j in range(nv):
+            s += M[i, j] * v[j]
+        kin += v[i] * s
+    out[DR_KINETIC] = 0.5 * kin
+    out[DR_POTENTIAL] = energies(mi_r, mf_r, q, v)[1] if ip[DD_HAS_ARM] else 0.0
+    mag = 0.0
+    for k in range(2):
+        cur = ip[DD_CUR + k]
+        if cur >= 0:
+            mag += 0.5 * fp[DD_MOTOR + MOT_SIZE * k + MOT_L] * y[2 * nv + cur] ** 2
+    out[DR_MAGNETIC] = mag
 
 
 @njit(**_JIT)
@@ -691,11 +942,11 @@ def ff_solve(ip, fp, mi, mf, mi_r, mf_r, q, v, tau, fext, exact_info, a, lam, in
         info[3] = 0.0
         return OK
     M = np.zeros((nv, nv))
-    crba_into(mi_r, mf_r, q, M)
     h = np.empty(nv)
     W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
     rnea_ws(mi, mf, q, v, np.zeros(nv), fext, True, h, W)
+    crba_ws(mi, mf, M, W)  # the transforms are still in W
     phi = np.empty(3)
     K = np.empty((3, nv))
     k = np.empty(3)
@@ -813,6 +1064,7 @@ def au_kinematics(ip, fp, x, w, R, E, om, J, beta):
         for c in range(nr):
             J[0, a, c] = 1.0 if c == a else 0.0
     Rt = np.empty((3, 3))
+    K0 = np.zeros((3, 3))
     t = np.empty(3)
     for i in range(1, nb):
         p = ip[AU_PARENT + i]
@@ -822,7 +1074,7 @@ def au_kinematics(ip, fp, x, w, R, E, om, J, beta):
             # rot_axis(a, θ) = 1 + sin θ k× + (1 − cos θ) k× k×, then E = rot_axisᵀ Etree
             th = x[4 + k]
             s, c1 = math.sin(th), 1.0 - math.cos(th)
-            K0 = np.array([[0.0, -ax2, ax1], [ax2, 0.0, -ax0], [-ax1, ax0, 0.0]])
+            K0[0, 1], K0[0, 2], K0[1, 0], K0[1, 2], K0[2, 0], K0[2, 1] = -ax2, ax1, ax2, -ax0, -ax1, ax0
             for a in range(3):
                 for b in range(3):
                     kk = K0[a, 0] * K0[0, b] + K0[a, 1] * K0[1, b] + K0[a, 2] * K0[2, b]
@@ -1126,9 +1378,15 @@ def path_eval(ip, fp, t, pd, vd, ad):
 def end_point_kinematics(mi, mf, q, v, body, E, J, Jdv, R):
     """World position E (3,), Jacobian J (3, nv), ``J̇ v`` (3,) and orientation R (3, 3) of a body's
     origin (:func:`robodyn_ros.systems.prescribed.end_point_kinematics`; 1-DOF joints)."""
-    nb = mi.shape[0]
-    W = workspace(nb)
+    W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
+    end_point_kinematics_ws(mi, mf, q, v, body, W, E, J, Jdv, R)
+
+
+@njit(**_JIT)
+def end_point_kinematics_ws(mi, mf, q, v, body, W, E, J, Jdv, R):
+    """:func:`end_point_kinematics` with the transforms already in W (only their columns are read)."""
+    nb = mi.shape[0]
     Rb = np.empty((nb, 3, 3))
     pb = np.empty((nb, 3))
     body_frames(mi, mf, q, W, Rb, pb)
@@ -1196,11 +1454,29 @@ def end_point_kinematics(mi, mf, q, v, body, E, J, Jdv, R):
 
 @njit(**_JIT)
 def complement_solve(A, f, B, k, tol, a, lam, info):
-    """Huston's orthogonal-complement route (:func:`robodyn_ros.constraints.complement_solve`)."""
+    """Huston's orthogonal-complement route (:func:`robodyn_ros.constraints.complement_solve`).
+
+    C = eigenvectors of the (relatively) zero eigenvalues of ``BᵀB``; ``[CᵀA; B] a = [Cᵀf; k]``
+    (LU with partial pivoting when square, else the minimum-norm least-squares solution through
+    the normal equations — the rank-deficient case, which the prescribed-path system never
+    reaches: it switches to damped least squares first); ``λ = (BBᵀ)⁺ B (A a − f)`` with the
+    ``tol`` cut-off; singular values of B (two rows) for the info.
+    """
     n = A.shape[0]
     m = B.shape[0]
-    w, V = np.linalg.eigh(B.T @ B)
-    wmax = max(w[n - 1], 0.0)
+    BtB = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for r in range(m):
+                s += B[r, i] * B[r, j]
+            BtB[i, j] = s
+    w = np.empty(n)
+    V = np.empty((n, n))
+    sym_eig(BtB, w, V)
+    wmax = 0.0
+    for j in range(n):
+        wmax = max(wmax, w[j])
     nz = 0
     for j in range(n):
         if not (wmax > 0.0) or w[j] <= tol * wmax:
@@ -1226,16 +1502,45 @@ def complement_solve(A, f, B, k, tol, a, lam, info):
             Qr[nz + i, c] = B[i, c]
         h[nz + i] = k[i]
     if rank == m:
-        a[:] = np.linalg.solve(Qr, h)
+        lu_solve(Qr, h, a)
     else:
-        a[:] = np.linalg.lstsq(Qr, h, np.finfo(np.float64).eps * max(nz + m, n))[0]
-    BBt = B @ B.T
-    res = A @ a - f
-    lam[:] = np.linalg.lstsq(BBt, B @ res, tol)[0]
-    sv = np.linalg.svd(B)[1]
+        N = np.empty((n, n))
+        g = np.empty(n)
+        for i in range(n):
+            s = 0.0
+            for e in range(nz + m):
+                s += Qr[e, i] * h[e]
+            g[i] = s
+            for j in range(n):
+                s = 0.0
+                for e in range(nz + m):
+                    s += Qr[e, i] * Qr[e, j]
+                N[i, j] = s
+        pinv_solve(N, g, _EPS * max(nz + m, n), a)
+    BBt = np.empty((m, m))
+    rhs = np.empty(m)
+    res = np.empty(n)
+    for c in range(n):
+        s = 0.0
+        for e in range(n):
+            s += A[c, e] * a[e]
+        res[c] = s - f[c]
+    for i in range(m):
+        s = 0.0
+        for c in range(n):
+            s += B[i, c] * res[c]
+        rhs[i] = s
+        for j in range(m):
+            s = 0.0
+            for c in range(n):
+                s += B[i, c] * B[j, c]
+            BBt[i, j] = s
+    pinv_solve(BBt, rhs, tol, lam)
+    sv = np.empty(2)
+    singular_values_2(B, sv)
     info[0] = rank
-    info[1] = sv.min() if m else np.inf
-    info[2] = sv.max() if m else np.inf
+    info[1] = sv[1]
+    info[2] = sv[0]
     r2 = 0.0
     for i in range(m):
         s = 0.0
@@ -1255,23 +1560,23 @@ def pr_solve(ip, fp, mi, mf, mi_r, mf_r, u, t, y, a, lam, Bm, phi, phidot, E, R,
     n = a.shape[0]
     q = y[:n]
     v = y[n:2 * n]
-    A = np.zeros((n, n))
-    crba_into(mi_r, mf_r, q, A)
     for j in range(n):
         tau[j] = -fp[PF_DAMPING + j] * v[j]
     if ip[PR_HAS_EFFORT]:
         for j in range(n):
             tau[j] = tau[j] + u[j]
-    W = workspace(mi_r.shape[0])
-    transforms(mi_r, mf_r, q, W)
+    W = workspace(mi.shape[0])  # one set of transforms (full tree) for RNEA, CRBA and the end point
+    transforms(mi, mf, q, W)
     hb = np.empty(n)
-    rnea_ws(mi_r, mf_r, q, v, np.zeros(n), W, False, hb, W)
+    rnea_ws(mi, mf, q, v, np.zeros(n), W, False, hb, W)
+    A = np.zeros((n, n))
+    crba_ws(mi, mf, A, W)
     f = np.empty(n)
     for j in range(n):
         f[j] = tau[j] - hb[j]
     J = np.empty((3, n))
     Jdv = np.empty(3)
-    end_point_kinematics(mi, mf, q, v, ip[PR_BODY], E, J, Jdv, R)
+    end_point_kinematics_ws(mi, mf, q, v, ip[PR_BODY], W, E, J, Jdv, R)
     pd = np.empty(2)
     vd = np.empty(2)
     ad = np.empty(2)
@@ -1290,7 +1595,8 @@ def pr_solve(ip, fp, mi, mf, mi_r, mf_r, u, t, y, a, lam, Bm, phi, phidot, E, R,
         phidot[r] = s - vd[r]
         k[r] = ad[r] - (p0 * Jdv[0] + p1 * Jdv[1] + p2 * Jdv[2])
         k[r] = k[r] - two_alpha * phidot[r] - b2 * phi[r]
-    sv = np.linalg.svd(Bm)[1]
+    sv = np.empty(2)
+    singular_values_2(Bm, sv)
     sr = fp[PF_SR]
     ratio = sv[1] / sv[0] if sv[0] > 0.0 else 0.0
     rank = 0
@@ -1307,8 +1613,19 @@ def pr_solve(ip, fp, mi, mf, mi_r, mf_r, u, t, y, a, lam, Bm, phi, phidot, E, R,
         X = np.empty((2, n))
         for r in range(2):
             chol_solve(L, n, Bm[r], X[r])
-        S = Bm @ X.T
-        wmax = np.linalg.eigvalsh(S)[1]
+        S = np.empty((2, 2))
+        for r in range(2):
+            for c in range(2):
+                acc = 0.0
+                for e in range(n):
+                    acc += Bm[r, e] * X[c, e]
+                S[r, c] = acc
+        # eigvalsh reads the lower triangle
+        S[0, 1] = S[1, 0]
+        ws = np.empty(2)
+        Vs = np.empty((2, 2))
+        sym_eig(S, ws, Vs)
+        wmax = max(ws[0], ws[1])
         damping = fp[PF_DLS] * wmax * (1.0 - math.pow(ratio / sr, 2.0))
         st = kkt_solve(A, n, f, Bm, k, fp[PF_RCOND], damping, True, a, lam, info)
         method = METHOD_KKT_DAMPED

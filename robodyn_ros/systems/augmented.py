@@ -308,6 +308,11 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
 
         Returns ``(ẇ (nv,), λ (m,), SolveInfo, kinematics tuple, C, C_q)``.
         """
+        return self._solve(y, u, True)
+
+    def _solve(self, y, u, exact_info):
+        """:meth:`solve`; ``exact_info=False`` lets the compiled KKT solve skip the eigenvalues when
+        it can certify full rank (SolveInfo then has the rank and NaN extreme eigenvalues)."""
         cs = self._compiled()
         if cs is not None:
             self._sync_height(cs, y)
@@ -316,7 +321,7 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
             R, E, om, J = np.empty((nb, 3, 3)), np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty((nb, 3, nr))
             beta, C, Cq, M = np.empty((nb, 3)), np.zeros(nc), np.zeros((nc, nv)), np.empty((nv, nv))
             if kernels.constrained.au_solve(cs.ip, cs.fp, self._u_vec(u), np.ascontiguousarray(y, dtype=float),
-                                            True, a, lam, info, R, E, om, J, beta, C, Cq, M):
+                                            exact_info, a, lam, info, R, E, om, J, beta, C, Cq, M):
                 raise np.linalg.LinAlgError('mass matrix is not positive definite')
             info = con.SolveInfo(m=nc, rank=int(info[0]), sigma_min=float(info[1]), sigma_max=float(info[2]),
                                  residual=float(info[3]))
@@ -420,13 +425,14 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
     def _momentum(self, x, w, R, om):
         c = x[self.sc].reshape(self.nb, 3)
         cd = w[self.scd].reshape(self.nb, 3)
-        Ls = np.array([R[i] @ (self.Ic[i] @ om[i]) for i in range(self.nb)])
+        Ls = (R @ (self.Ic @ om[:, :, None]))[:, :, 0]  # R_i I_ci ω_i
         return momentum_about_com(self.m, c, cd, Ls)
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states, odometry, joint and table wrenches, energies and momentum diagnostics."""
         x, w = self.split(y)
-        a, lam, info, kin, C, Cq, _ = self.solve(y, u)
+        # the rank is all that outputs report of the solve: the compiled one may skip the eigenvalues
+        a, lam, info, kin, C, Cq, _ = self._solve(y, u, False) if self._compiled() is not None else self.solve(y, u)
         R, E, om, J, beta = kin
         q, v = self.minimal(y)
         wr = {}
