@@ -292,6 +292,16 @@ def _fast_joint_state(msg):
     if middle is None:  # frame_id and names: the same bytes at every publication
         if not all(type(n) is str for n in names):
             return None
+        middle = joint_state_names(frame, key[1])
+    return _joint_state_bytes(stamp, middle, arrays)
+
+
+def joint_state_names(frame: str, names: tuple) -> bytes:
+    """The constant middle of a JointState's CDR (frame_id and names), cached: pass it to
+    :func:`joint_state_bytes`. frame: ``header.frame_id``; names: tuple of joint names (str)."""
+    key = (frame, names)
+    middle = _NAMES_CACHE.get(key)
+    if middle is None:
         b = bytearray(ENCAPSULATION_HEADER + bytes(8))
         _fast_string(b, frame)
         b += bytes(-(len(b) - 4) % 4)
@@ -301,12 +311,34 @@ def _fast_joint_state(msg):
         if len(_NAMES_CACHE) >= _NAMES_CACHE_MAX:
             _NAMES_CACHE.clear()
         middle = _NAMES_CACHE[key] = bytes(b[12:])
+    return middle
+
+
+def _joint_state_bytes(stamp, middle: bytes, arrays) -> bytes:
     buf = bytearray(ENCAPSULATION_HEADER)
     buf += _TIME.pack(*stamp)
     buf += middle
     for a in arrays:
         _fast_float_seq(buf, a)
     return bytes(buf)
+
+
+def joint_state_bytes(sec: int, nanosec: int, middle: bytes, position, velocity, effort):
+    """CDR of a JointState straight from its parts (what :func:`encode` writes for the dict of
+    :func:`robodyn_ros.messages.joint_state`), or None when an array is not a 1-D float array.
+
+    sec, nanosec: the stamp; middle: :func:`joint_state_names`; position, velocity, effort:
+    1-D float numpy arrays (or lists of Python floats).
+    """
+    arrays = (_fast_floats(position), _fast_floats(velocity), _fast_floats(effort))
+    if arrays[0] is None or arrays[1] is None or arrays[2] is None:
+        return None
+    return _joint_state_bytes((sec, nanosec), middle, arrays)
+
+
+def clock_bytes(sec: int, nanosec: int) -> bytes:
+    """CDR of a ``rosgraph_msgs/Clock`` (as :func:`encode` writes it)."""
+    return ENCAPSULATION_HEADER + _TIME.pack(sec, nanosec)
 
 
 def _fast_clock(msg):
@@ -388,17 +420,42 @@ def _fast_tf_message(msg):
         frames.append((frame, child))
         stamps.append(stamp)
         values.append(v)
-    key = tuple(frames)
-    layout = _TF_CACHE.get(key)
+    return tf_message_bytes(tf_layout(tuple(frames)), stamps, values)
+
+
+def tf_layout(frames: tuple):
+    """The cached layout (:func:`_tf_layout`) of a TFMessage with these ``(frame_id, child)`` pairs."""
+    layout = _TF_CACHE.get(frames)
     if layout is None:
         if len(_TF_CACHE) >= _NAMES_CACHE_MAX:
             _TF_CACHE.clear()
-        layout = _TF_CACHE[key] = _tf_layout(frames)
+        layout = _TF_CACHE[frames] = _tf_layout(frames)
+    return layout
+
+
+def tf_message_bytes(layout, stamps, values) -> bytes:
+    """CDR of a TFMessage from its layout (:func:`tf_layout`), one ``(sec, nanosec)`` stamp and
+    seven floats ``(tx, ty, tz, qx, qy, qz, qw)`` per transform (what :func:`encode` writes)."""
     template, stamp_at, values_at = layout
     buf = bytearray(template)
-    for k in range(len(frames)):
+    for k in range(len(stamp_at)):
         _TIME.pack_into(buf, stamp_at[k], *stamps[k])
         _TF_VALUES.pack_into(buf, values_at[k], *values[k])
+    return bytes(buf)
+
+
+_F64MA_EMPTY_LAYOUT = ENCAPSULATION_HEADER + _U32.pack(0) + _U32.pack(0)  # no dims, data_offset 0
+
+
+def float64_array_bytes(values):
+    """CDR of a ``std_msgs/Float64MultiArray`` with an empty layout (no dims, offset 0), as
+    :func:`encode` writes :func:`robodyn_ros.messages.float64_array` without a label; None when
+    values is not a 1-D float array."""
+    packed = _fast_floats(values)
+    if packed is None:
+        return None
+    buf = bytearray(_F64MA_EMPTY_LAYOUT)
+    _fast_float_seq(buf, packed)
     return bytes(buf)
 
 

@@ -5,6 +5,7 @@ import json
 
 from .. import messages as M
 from ..version import __version__
+from . import cdr
 from .mcap_sink import McapSink
 
 
@@ -48,9 +49,18 @@ class McapRunSink:
         self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata))
         self._next_diag = None
         self.count = 0
+        self._channels = {}   # relative topic -> channel id (resolved and registered on first use)
 
     def _write(self, topic, type_name, msg, t_ns):
         self.writer.write(resolve(topic, self.namespace), type_name, msg, t_ns)
+        self.count += 1
+
+    def _write_data(self, topic, type_name, data, t_ns):
+        """Record CDR bytes (the fast path of :meth:`_write`: same channel, same record)."""
+        cid = self._channels.get(topic)
+        if cid is None:
+            cid = self._channels[topic] = self.writer.channel(resolve(topic, self.namespace), type_name)
+        self.writer.write_data(cid, data, t_ns)
         self.count += 1
 
     def on_start(self, sim):
@@ -78,15 +88,41 @@ class McapRunSink:
         if port == 'base_wrench':
             msg = M.wrench_stamped(M.to_ns(t), 'base_link', list(values[3:6]) + list(values[0:3]))
         else:
+            data = cdr.float64_array_bytes(values)  # = encode(M.float64_array(values)), without the dict
+            if data is not None:
+                self._write_data(topic, M.TOPIC_TYPES[topic], data, M.to_ns(t))
+                return
             msg = M.float64_array(values)
         self._write(topic, M.TOPIC_TYPES[topic], msg, M.to_ns(t))
 
     def on_output(self, t, out, sim, level=0, message='running'):
-        """Record the state messages, ``/clock``, and ``diagnostics`` every diagnostics_period."""
+        """Record the state messages, ``/clock``, and ``diagnostics`` every diagnostics_period.
+
+        The messages of :func:`robodyn_ros.messages.output_messages` in that order; joint_states,
+        /tf and /clock are encoded straight from the outputs (the bytes the message dicts encode
+        to, without building them).
+        """
         t_ns = M.to_ns(t)
-        for topic, type_name, msg in M.output_messages(t_ns, out, self.wants_wrenches, tf=self.tf):
-            self._write(topic, type_name, msg, t_ns)
-        self._write('/clock', M.TOPIC_TYPES['/clock'], M.clock(t_ns), t_ns)
+        sec, nsec = divmod(t_ns, 1_000_000_000)
+        js = cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names('', tuple(out.joint_names)),
+                                   out.position, out.velocity, out.effort)
+        if js is None:
+            for topic, type_name, msg in M.output_messages(t_ns, out, self.wants_wrenches, tf=self.tf):
+                self._write(topic, type_name, msg, t_ns)
+        else:
+            self._write_data('joint_states', M.TOPIC_TYPES['joint_states'], js, t_ns)
+            if out.odom is not None:
+                self._write('odom', M.TOPIC_TYPES['odom'], M.odometry(t_ns, out.odom), t_ns)
+            if self.wants_wrenches:
+                for name, (frame, w) in out.wrenches.items():
+                    self._write(M.WRENCH_PREFIX + name, M.WRENCH_TYPE, M.wrench_stamped(t_ns, frame, w), t_ns)
+            if self.tf is not None:
+                trs = self.tf.transforms(out.joint_names, out.position, out.odom)
+                if trs:
+                    layout = cdr.tf_layout(tuple((parent, child) for parent, child, _, _ in trs))
+                    data = cdr.tf_message_bytes(layout, [(sec, nsec)] * len(trs), [(*p, *q) for _, _, p, q in trs])
+                    self._write_data('/tf', M.TOPIC_TYPES['/tf'], data, t_ns)
+        self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(sec, nsec), t_ns)
         if self._next_diag is not None and t >= self._next_diag - 1e-9:
             self._write('diagnostics', M.TOPIC_TYPES['diagnostics'],
                         M.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,

@@ -1,0 +1,95 @@
+"""The recorder's fast paths write exactly the bytes of the dict-and-encode path.
+
+McapRunSink encodes joint_states, /tf, /clock and command arrays straight from the simulator's
+outputs (cdr.joint_state_bytes, tf_message_bytes, clock_bytes, float64_array_bytes), and McapSink
+writes message records straight into mcap's open chunk (_DirectMessages). Each is compared with
+the path it replaces: the message dicts of robodyn_ros.messages through cdr.encode, and
+mcap.Writer.add_message. Whole recordings of every scene kind must be byte-identical.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from robodyn_ros import messages as M
+from robodyn_ros.recording import cdr, mcap_sink
+from robodyn_ros.recording.run_sink import McapRunSink
+from robodyn_ros.scene import load_scene
+from robodyn_ros.simulation import Simulator, run_headless
+
+
+def test_direct_builders_equal_the_dict_encoding():
+    rng = np.random.default_rng(5)
+    for k in range(20):
+        n = int(rng.integers(0, 8))
+        names = [f'j{i}' + 'é' * (k % 3) for i in range(n)]
+        arrays = [rng.normal(size=n) * 10.0 ** rng.integers(-5, 5) for _ in range(3)]
+        t_ns = int(rng.integers(0, 2 ** 50))
+        sec, nsec = divmod(t_ns, 1_000_000_000)
+        ref = cdr.encode('sensor_msgs/msg/JointState', M.joint_state(t_ns, names, *arrays))
+        assert cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names('', tuple(names)), *arrays) == ref
+        assert cdr.clock_bytes(sec, nsec) == cdr.encode('rosgraph_msgs/msg/Clock', M.clock(t_ns))
+        assert cdr.float64_array_bytes(arrays[0]) == cdr.encode('std_msgs/msg/Float64MultiArray',
+                                                                M.float64_array(arrays[0]))
+    assert cdr.joint_state_bytes(0, 0, cdr.joint_state_names('', ('a',)), np.array([1]), np.ones(1), np.ones(1)) \
+        is None  # an integer array declines (the dict path converts it)
+    assert cdr.float64_array_bytes(np.ones((2, 2))) is None
+
+
+def test_tf_bytes_equal_the_tf_message_encoding():
+    from robodyn_ros.tf import TfTree
+    for name in ('stanford_arm', 'mobile_manipulator', 'unfried_free_flyer'):
+        sc = load_scene(name)
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            sim = Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)
+        sim.advance(0.05)
+        out = sim.outputs(wrenches=False)
+        tree = TfTree(sc.system)
+        t_ns = 1_234_567_891_011
+        trs = tree.transforms(out.joint_names, out.position, out.odom)
+        layout = cdr.tf_layout(tuple((p, c) for p, c, _, _ in trs))
+        data = cdr.tf_message_bytes(layout, [divmod(t_ns, 1_000_000_000)] * len(trs), [(*p, *q) for _, _, p, q in trs])
+        assert data == cdr.encode('tf2_msgs/msg/TFMessage', tree.message(t_ns, out))
+
+
+def _record(path, name, direct=True, fast=True, monkeypatch=None):
+    sc = load_scene(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(sc.system, sc.y0, integrator='rk4', dt=2e-3)
+    sink = McapRunSink(path, sc, {'integrator': 'rk4'}, record_wrenches=True, diagnostics_period=0.05)
+    sink.writer.chunk_size = 4096  # many chunks
+    if not direct:
+        sink.writer._direct = None
+    if not fast:
+        monkeypatch.setattr(cdr, 'joint_state_bytes', lambda *a: None)
+        monkeypatch.setattr(cdr, 'float64_array_bytes', lambda *a: None)
+    try:
+        run_headless(sim, 0.3, 50.0, sc.script, [sink])
+    finally:
+        sink.close()
+        monkeypatch.undo() if monkeypatch is not None else None
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize('name', ['stanford_arm', 'mobile_manipulator', 'unfried_air_bearing', 'huston_prescribed_planar3'])
+def test_fast_recording_is_byte_identical_to_the_generic_path(tmp_path, name, monkeypatch):
+    assert mcap_sink._DirectMessages._self_test()
+    fast = _record(tmp_path / 'fast.mcap', name)
+    slow = _record(tmp_path / 'slow.mcap', name, direct=False, fast=False, monkeypatch=monkeypatch)
+    assert len(fast) > 20000 and fast == slow
+
+
+def test_sink_falls_back_to_add_message_when_mcap_internals_differ(tmp_path, monkeypatch):
+    monkeypatch.setattr(mcap_sink._DirectMessages, '_verified', False)
+    with mcap_sink.McapSink(tmp_path / 'a.mcap') as s:
+        assert s._direct is None
+        s.write('/clock', 'rosgraph_msgs/msg/Clock', M.clock(5), 5)
+    monkeypatch.setattr(mcap_sink._DirectMessages, '_verified', None)
+    with mcap_sink.McapSink(tmp_path / 'b.mcap') as s:
+        assert s._direct is not None
+        s.write('/clock', 'rosgraph_msgs/msg/Clock', M.clock(5), 5)
+    assert (tmp_path / 'a.mcap').read_bytes() == (tmp_path / 'b.mcap').read_bytes()
