@@ -795,9 +795,19 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
     BT = system.B.T
     Bq = getattr(system, 'Bq', BT)  # actuated joint positions = Bq q (= Bᵀ q when q and v share indices)
     minimal = getattr(system, 'minimal', None)
-    # the arm's own backend (compiled kernels when available, == reference to 1e-12)
-    rnea = system.inverse_dynamics if minimal is None and hasattr(system, 'inverse_dynamics') else \
-        (lambda q, v, a: dyn.rnea(model, q, v, a))
+    # the arm's own backend (compiled kernels when available, == reference to 1e-12); a free base
+    # on a compiled backend gets the compiled RNEA of its tree as well
+    if minimal is None and hasattr(system, 'inverse_dynamics'):
+        rnea = system.inverse_dynamics
+    elif getattr(system, 'backend', 'numpy') != 'numpy':
+        from . import kernels
+        km = kernels.CompiledModel(model)
+
+        def rnea(q, v, a):
+            return km.rnea(np.ascontiguousarray(q, dtype=float), v, a)
+    else:
+        def rnea(q, v, a):
+            return dyn.rnea(model, q, v, a)
 
     def f(t, y):
         q = minimal(y)[0] if minimal is not None else system.split(y)[0]

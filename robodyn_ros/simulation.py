@@ -194,9 +194,25 @@ class Simulator:
 
     # -- stepping ------------------------------------------------------------------------
     def _integrate(self, u, t1):
-        """Stage 2: integrate ``[y; W]`` from self.t to t1 with u held (W = work done on the system)."""
+        """Stage 2: integrate ``[y; W]`` from self.t to t1 with u held (W = work done on the system).
+
+        Returns ``(y1, W1, stats, finite)``; finite is True when the path taken already guarantees
+        a finite result (the fused path raises otherwise).
+        """
         sys_ = self.system
         ny = sys_.ny
+        integ = self.integrator
+        z0 = np.empty(ny + 1)
+        z0[:ny] = self.y
+        z0[ny] = self.diag.work
+        fused = getattr(sys_, 'fused_advance', None)
+        if fused is not None and integ.spec.kind == 'fixed':
+            # fast path: the system runs the same method, grid and projection in compiled code
+            res = fused(integ.name, integ.dt, self.t, z0, t1, u)
+            if res is not None:
+                z1, st = res
+                integ.stats.accumulate(st)
+                return z1[:ny], z1[ny], st, True
 
         def f(t, z):
             y = z[:ny]
@@ -209,17 +225,8 @@ class Simulator:
             z[:ny] = sys_.project(z[:ny])
             return z
 
-        z0 = np.append(self.y, self.diag.work)
-        fused = getattr(sys_, 'fused_advance', None)
-        if fused is not None and self.integrator.spec.kind == 'fixed':
-            # fast path: the system runs the same method, grid and projection in compiled code
-            res = fused(self.integrator.name, self.integrator.dt, self.t, z0, t1, u)
-            if res is not None:
-                z1, st = res
-                self.integrator.stats.accumulate(st)
-                return z1[:ny], z1[ny], st
-        z1, st = self.integrator.advance(f, self.t, z0, t1, project=project)
-        return z1[:ny], z1[ny], st
+        z1, st = integ.advance(f, self.t, z0, t1, project=project)
+        return z1[:ny], z1[ny], st, False
 
     def advance(self, t1: float):
         """Advance to simulation time ``t1`` (s) holding the current inputs; returns the state.
@@ -236,7 +243,7 @@ class Simulator:
         u = self.held_inputs()
         w0 = time.perf_counter()
         try:
-            y1, work, st = self._integrate(u, t1)
+            y1, work, st, finite = self._integrate(u, t1)
         except (IntegrationError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
             # LinAlgError/FloatingPointError come from the system's own solves (a mass matrix or
             # constraint system that became singular); all of them stop the run with the cause
@@ -245,7 +252,7 @@ class Simulator:
             self.failed = f'{what} at t={self.t:.6f} s: {e}{self._diagnosis(u)}'
             raise SimulationError(self.failed) from e
         self.diag.wall += time.perf_counter() - w0
-        if not (np.all(np.isfinite(y1)) and math.isfinite(work)):
+        if not (finite or (np.all(np.isfinite(y1)) and math.isfinite(work))):
             self.failed = (f'state became non-finite between t={self.t:.6f} and {t1:.6f} s with '
                            f'{self.settings["integrator"]} (dt={self.settings["dt"]}); last good state kept'
                            f'{self._diagnosis(u)}')

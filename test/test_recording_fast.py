@@ -33,6 +33,13 @@ def test_direct_builders_equal_the_dict_encoding():
         assert cdr.clock_bytes(sec, nsec) == cdr.encode('rosgraph_msgs/msg/Clock', M.clock(t_ns))
         assert cdr.float64_array_bytes(arrays[0]) == cdr.encode('std_msgs/msg/Float64MultiArray',
                                                                 M.float64_array(arrays[0]))
+        w = rng.normal(size=6)
+        for frame in ('', 'base_link', 'lïnk_' * (k % 3)):
+            assert cdr.wrench_stamped_bytes(sec, nsec, frame, w) == cdr.encode('geometry_msgs/msg/WrenchStamped',
+                                                                              M.wrench_stamped(t_ns, frame, w))
+        odom = {'position': rng.normal(size=3), 'orientation': rng.normal(size=4), 'linear': rng.normal(size=3),
+                'angular': rng.normal(size=3)}
+        assert cdr.odometry_bytes(sec, nsec, odom) == cdr.encode('nav_msgs/msg/Odometry', M.odometry(t_ns, odom))
     assert cdr.joint_state_bytes(0, 0, cdr.joint_state_names('', ('a',)), np.array([1]), np.ones(1), np.ones(1)) \
         is None  # an integer array declines (the dict path converts it)
     assert cdr.float64_array_bytes(np.ones((2, 2))) is None
@@ -75,7 +82,8 @@ def _record(path, name, direct=True, fast=True, monkeypatch=None):
     return path.read_bytes()
 
 
-@pytest.mark.parametrize('name', ['stanford_arm', 'mobile_manipulator', 'unfried_air_bearing', 'huston_prescribed_planar3'])
+@pytest.mark.parametrize('name', ['stanford_arm', 'mobile_manipulator', 'unfried_air_bearing', 'huston_prescribed_planar3',
+                                  'unfried_free_flyer'])
 def test_fast_recording_is_byte_identical_to_the_generic_path(tmp_path, name, monkeypatch):
     assert mcap_sink._DirectMessages._self_test()
     fast = _record(tmp_path / 'fast.mcap', name)

@@ -1324,6 +1324,52 @@ def au_evaluate(ip, fp, u, z, dz):
 
 
 @njit(**_JIT)
+def au_report(ip, fp, y, R, om, out):
+    """Momentum and energies of the augmented state y (``AugmentedFreeFlyerSystem._momentum`` and
+    ``._energies``) into out: ``[p (3), L about the CoM (3), CoM (3), kinetic, potential]``; R, om
+    from :func:`au_kinematics`."""
+    nb, nj = ip[AU_NB], ip[AU_NJ]
+    nr = 3 + nj
+    nq = 4 + nj + 3 * nb
+    o_com, o_ic, o_et, o_r, o_ax, o_d = au_offsets(nb)
+    co, cdo = 4 + nj, nq + nr
+    mt = 0.0
+    for i in range(nb):
+        mt += fp[AU_M + i]
+    for a in range(11):
+        out[a] = 0.0
+    Iw = np.empty(3)
+    ke_t = 0.0
+    ke_r = 0.0
+    pe = 0.0
+    for i in range(nb):
+        m = fp[AU_M + i]
+        for a in range(3):
+            Iw[a] = (fp[o_ic + 9 * i + 3 * a] * om[i, 0] + fp[o_ic + 9 * i + 3 * a + 1] * om[i, 1]
+                     + fp[o_ic + 9 * i + 3 * a + 2] * om[i, 2])
+        for a in range(3):
+            out[3 + a] += R[i, a, 0] * Iw[0] + R[i, a, 1] * Iw[1] + R[i, a, 2] * Iw[2]  # spin momenta
+            out[a] += m * y[cdo + 3 * i + a]
+            out[6 + a] += m * y[co + 3 * i + a]
+        ke_t += m * (y[cdo + 3 * i] ** 2 + y[cdo + 3 * i + 1] ** 2 + y[cdo + 3 * i + 2] ** 2)
+        ke_r += om[i, 0] * Iw[0] + om[i, 1] * Iw[1] + om[i, 2] * Iw[2]
+        pe += m * (y[co + 3 * i] * fp[AU_G] + y[co + 3 * i + 1] * fp[AU_G + 1] + y[co + 3 * i + 2] * fp[AU_G + 2])
+    for a in range(3):
+        out[6 + a] /= mt
+    for i in range(nb):  # + Σ m_i (c_i − c) × ċ_i
+        m = fp[AU_M + i]
+        r0 = y[co + 3 * i] - out[6]
+        r1 = y[co + 3 * i + 1] - out[7]
+        r2 = y[co + 3 * i + 2] - out[8]
+        d0, d1, d2 = y[cdo + 3 * i], y[cdo + 3 * i + 1], y[cdo + 3 * i + 2]
+        out[3] += m * (r1 * d2 - r2 * d1)
+        out[4] += m * (r2 * d0 - r0 * d2)
+        out[5] += m * (r0 * d1 - r1 * d0)
+    out[9] = 0.5 * ke_t + 0.5 * ke_r
+    out[10] = -pe
+
+
+@njit(**_JIT)
 def au_project(ip, y):
     """Renormalise the quaternion in place (the Baumgarte / unstabilised projection)."""
     n = math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])

@@ -445,6 +445,60 @@ def tf_message_bytes(layout, stamps, values) -> bytes:
 
 
 _F64MA_EMPTY_LAYOUT = ENCAPSULATION_HEADER + _U32.pack(0) + _U32.pack(0)  # no dims, data_offset 0
+_D6 = struct.Struct('<6d')
+_D7 = struct.Struct('<7d')
+_STAMP_AT = 4  # header.stamp is the first field of a stamped message: right after the encapsulation
+_TEMPLATES: dict = {}
+
+
+def _template(type_name: str, msg, n_tail: int):
+    """Generic encoding of ``msg`` (zeros in its numbers) and the offset of its trailing n_tail
+    float64: the constant bytes of a message whose strings do not change."""
+    enc = _Encoder()
+    enc.message(type_name, msg)
+    data = bytes(enc.buf)
+    return data, len(data) - 8 * n_tail
+
+
+def wrench_stamped_bytes(sec: int, nanosec: int, frame: str, w) -> bytes:
+    """CDR of ``geometry_msgs/WrenchStamped`` from a spatial force ``w = [torque; force]`` (6,),
+    as :func:`encode` writes :func:`robodyn_ros.messages.wrench_stamped` (frame_id ``frame``)."""
+    key = ('WrenchStamped', frame)
+    t = _TEMPLATES.get(key)
+    if t is None:
+        if len(_TEMPLATES) >= 4 * _NAMES_CACHE_MAX:
+            _TEMPLATES.clear()
+        zero = {'x': 0.0, 'y': 0.0, 'z': 0.0}
+        t = _TEMPLATES[key] = _template('geometry_msgs/msg/WrenchStamped',
+                                        {'header': {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': frame},
+                                         'wrench': {'force': zero, 'torque': zero}}, 6)
+    buf = bytearray(t[0])
+    _TIME.pack_into(buf, _STAMP_AT, sec, nanosec)
+    _D6.pack_into(buf, t[1], float(w[3]), float(w[4]), float(w[5]), float(w[0]), float(w[1]), float(w[2]))
+    return bytes(buf)
+
+
+def odometry_bytes(sec: int, nanosec: int, odom: dict, frame: str = 'odom', child: str = 'base_link') -> bytes:
+    """CDR of ``nav_msgs/Odometry`` as :func:`encode` writes :func:`robodyn_ros.messages.odometry`
+    (zero covariances): position, orientation (x, y, z, w), linear and angular twist of ``odom``."""
+    key = ('Odometry', frame, child)
+    t = _TEMPLATES.get(key)
+    if t is None:
+        if len(_TEMPLATES) >= 4 * _NAMES_CACHE_MAX:
+            _TEMPLATES.clear()
+        zero = {'x': 0.0, 'y': 0.0, 'z': 0.0}
+        t = _TEMPLATES[key] = _template('nav_msgs/msg/Odometry', {
+            'header': {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': frame}, 'child_frame_id': child,
+            'pose': {'pose': {'position': zero, 'orientation': dict(zero, w=0.0)}, 'covariance': np.zeros(36)},
+            'twist': {'twist': {'linear': zero, 'angular': zero}, 'covariance': np.zeros(36)}}, 85)
+    buf = bytearray(t[0])
+    _TIME.pack_into(buf, _STAMP_AT, sec, nanosec)
+    p, q, lin, ang = odom['position'], odom['orientation'], odom['linear'], odom['angular']
+    _D7.pack_into(buf, t[1], float(p[0]), float(p[1]), float(p[2]), float(q[0]), float(q[1]), float(q[2]),
+                  float(q[3]))
+    _D6.pack_into(buf, t[1] + 8 * 43, float(lin[0]), float(lin[1]), float(lin[2]), float(ang[0]), float(ang[1]),
+                  float(ang[2]))
+    return bytes(buf)
 
 
 def float64_array_bytes(values):

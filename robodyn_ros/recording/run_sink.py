@@ -50,6 +50,7 @@ class McapRunSink:
         self._next_diag = None
         self.count = 0
         self._channels = {}   # relative topic -> channel id (resolved and registered on first use)
+        self._tf_layouts = {}
 
     def _write(self, topic, type_name, msg, t_ns):
         self.writer.write(resolve(topic, self.namespace), type_name, msg, t_ns)
@@ -85,22 +86,24 @@ class McapRunSink:
     def on_command(self, t, port, values):
         """Record a command as it was applied (Float64MultiArray for effort/voltage ports)."""
         topic = M.PORT_TOPICS[port]
-        if port == 'base_wrench':
-            msg = M.wrench_stamped(M.to_ns(t), 'base_link', list(values[3:6]) + list(values[0:3]))
+        t_ns = M.to_ns(t)
+        # the bytes cdr.encode gives the message dicts (M.wrench_stamped, M.float64_array), without the dicts
+        if port == 'base_wrench':  # [fx, fy, fz, tx, ty, tz] -> the spatial force [torque; force]
+            w = list(values[3:6]) + list(values[0:3])
+            data = cdr.wrench_stamped_bytes(*divmod(t_ns, 1_000_000_000), 'base_link', w)
         else:
-            data = cdr.float64_array_bytes(values)  # = encode(M.float64_array(values)), without the dict
-            if data is not None:
-                self._write_data(topic, M.TOPIC_TYPES[topic], data, M.to_ns(t))
+            data = cdr.float64_array_bytes(values)
+            if data is None:
+                self._write(topic, M.TOPIC_TYPES[topic], M.float64_array(values), t_ns)
                 return
-            msg = M.float64_array(values)
-        self._write(topic, M.TOPIC_TYPES[topic], msg, M.to_ns(t))
+        self._write_data(topic, M.TOPIC_TYPES[topic], data, t_ns)
 
     def on_output(self, t, out, sim, level=0, message='running'):
         """Record the state messages, ``/clock``, and ``diagnostics`` every diagnostics_period.
 
         The messages of :func:`robodyn_ros.messages.output_messages` in that order; joint_states,
-        /tf and /clock are encoded straight from the outputs (the bytes the message dicts encode
-        to, without building them).
+        odom, wrenches, /tf and /clock are encoded straight from the outputs (the bytes the message
+        dicts encode to, without building them).
         """
         t_ns = M.to_ns(t)
         sec, nsec = divmod(t_ns, 1_000_000_000)
@@ -112,14 +115,18 @@ class McapRunSink:
         else:
             self._write_data('joint_states', M.TOPIC_TYPES['joint_states'], js, t_ns)
             if out.odom is not None:
-                self._write('odom', M.TOPIC_TYPES['odom'], M.odometry(t_ns, out.odom), t_ns)
+                self._write_data('odom', M.TOPIC_TYPES['odom'], cdr.odometry_bytes(sec, nsec, out.odom), t_ns)
             if self.wants_wrenches:
                 for name, (frame, w) in out.wrenches.items():
-                    self._write(M.WRENCH_PREFIX + name, M.WRENCH_TYPE, M.wrench_stamped(t_ns, frame, w), t_ns)
+                    self._write_data(M.WRENCH_PREFIX + name, M.WRENCH_TYPE,
+                                     cdr.wrench_stamped_bytes(sec, nsec, frame, w), t_ns)
             if self.tf is not None:
                 trs = self.tf.transforms(out.joint_names, out.position, out.odom)
                 if trs:
-                    layout = cdr.tf_layout(tuple((parent, child) for parent, child, _, _ in trs))
+                    key = (len(trs), trs[0][0], trs[0][1])  # the frames only change with the odom entry
+                    layout = self._tf_layouts.get(key)
+                    if layout is None:
+                        layout = self._tf_layouts[key] = cdr.tf_layout(tuple((pa, ch) for pa, ch, _, _ in trs))
                     data = cdr.tf_message_bytes(layout, [(sec, nsec)] * len(trs), [(*p, *q) for _, _, p, q in trs])
                     self._write_data('/tf', M.TOPIC_TYPES['/tf'], data, t_ns)
         self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(sec, nsec), t_ns)

@@ -118,7 +118,7 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
 
     formulation = 'augmented'
     _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'solve', '_kinematics', '_constraints',
-                         '_base_wrench', 'arm_torques')
+                         '_base_wrench', 'arm_torques', '_momentum', '_energies')
 
     def __init__(self, model: Model, **kw):
         super().__init__(model, **kw)
@@ -442,11 +442,18 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
                 wr[self.model.joint_names[i]] = (self.model.link_names[i], F[i])
             if self.table:
                 wr['base_plane'] = (self.base_link, self.table_wrench_from(Cq, lam, R[0]))
-        p, L, com = self._momentum(x, w, R, om)
+        cs = self._compiled()
+        if cs is not None:
+            rep = np.empty(11)
+            kernels.constrained.au_report(cs.ip, cs.fp, np.ascontiguousarray(y, dtype=float), R, om, rep)
+            p, L, com = rep[0:3], rep[3:6], rep[6:9]
+            e = {'kinetic': float(rep[9]), 'potential': float(rep[10])}
+        else:
+            p, L, com = self._momentum(x, w, R, om)
+            e = self._energies(x, w, om)
         res = float(np.abs(C).max()) if C.size else 0.0
         vres = float(np.abs(Cq @ w).max()) if C.size else 0.0
         odom = {'position': q[0:3], 'orientation': q[3:7], 'linear': v[3:6], 'angular': v[0:3]}
-        e = self._energies(x, w, om)
         return SystemOutputs(joint_names=list(self.joint_names), position=x[self.sth].copy(),
                              velocity=w[self.sthd].copy(), effort=(self.B @ u['effort'])[6:], wrenches=wr,
                              odom=odom, energy=e, extra=self._extra(p, L, com, res, vres, info))
