@@ -196,8 +196,8 @@ class Simulator:
     def _integrate(self, u, t1):
         """Stage 2: integrate ``[y; W]`` from self.t to t1 with u held (W = work done on the system).
 
-        Returns ``(y1, W1, stats, finite)``; finite is True when the path taken already guarantees
-        a finite result (the fused path raises otherwise).
+        Returns ``(y1, W1, stats)``. The fused path checks finiteness itself (it raises otherwise):
+        the array it returns is noted in ``_verified`` so that :meth:`advance` need not check again.
         """
         sys_ = self.system
         ny = sys_.ny
@@ -212,7 +212,8 @@ class Simulator:
             if res is not None:
                 z1, st = res
                 integ.stats.accumulate(st)
-                return z1[:ny], z1[ny], st, True
+                self._verified = z1
+                return z1[:ny], z1[ny], st
 
         def f(t, z):
             y = z[:ny]
@@ -226,7 +227,7 @@ class Simulator:
             return z
 
         z1, st = integ.advance(f, self.t, z0, t1, project=project)
-        return z1[:ny], z1[ny], st, False
+        return z1[:ny], z1[ny], st
 
     def advance(self, t1: float):
         """Advance to simulation time ``t1`` (s) holding the current inputs; returns the state.
@@ -243,7 +244,8 @@ class Simulator:
         u = self.held_inputs()
         w0 = time.perf_counter()
         try:
-            y1, work, st, finite = self._integrate(u, t1)
+            self._verified = None
+            y1, work, st = self._integrate(u, t1)
         except (IntegrationError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
             # LinAlgError/FloatingPointError come from the system's own solves (a mass matrix or
             # constraint system that became singular); all of them stop the run with the cause
@@ -252,7 +254,9 @@ class Simulator:
             self.failed = f'{what} at t={self.t:.6f} s: {e}{self._diagnosis(u)}'
             raise SimulationError(self.failed) from e
         self.diag.wall += time.perf_counter() - w0
-        if not (finite or (np.all(np.isfinite(y1)) and math.isfinite(work))):
+        verified = self._verified is not None and y1.base is self._verified  # untouched output of the fused path
+        self._verified = None
+        if not ((verified or np.all(np.isfinite(y1))) and math.isfinite(work)):
             self.failed = (f'state became non-finite between t={self.t:.6f} and {t1:.6f} s with '
                            f'{self.settings["integrator"]} (dt={self.settings["dt"]}); last good state kept'
                            f'{self._diagnosis(u)}')

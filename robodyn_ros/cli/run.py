@@ -65,7 +65,7 @@ def main(args) -> int:
         sinks.append(McapRunSink(args.record, scene, {**st, 'mode': 'headless'},
                                  record_wrenches=not args.no_wrenches, record_tf=not args.no_tf,
                                  diagnostics_period=args.diagnostics_period))
-    w0 = time.perf_counter()
+    w0, c0 = time.perf_counter(), time.process_time()
     status = 0
     try:
         run_headless(sim, st['duration'], st['rate'], scene.script, sinks)
@@ -75,13 +75,13 @@ def main(args) -> int:
     finally:
         for s in sinks:
             s.close()
-    wall = time.perf_counter() - w0
-    print(summary(scene, sim, st, wall, args.record, sinks))
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
     return status
 
 
-def summary(scene, sim, st, wall, record, sinks) -> str:
-    """Human-readable summary of a finished run."""
+def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
+    """Human-readable summary of a finished run (cpu: process CPU seconds of the run, if known)."""
     e = sim.energy_report()
     d = sim.diag
     method = st['integrator'] + (f' dt={st["dt"]:g} s' if st.get('dt') and not st.get('rtol')
@@ -90,7 +90,8 @@ def summary(scene, sim, st, wall, record, sinks) -> str:
         f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
         f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, {d.rejected_steps} rejected',
         f'time         simulated {sim.t:.3f} s in {wall:.3f} s wall '
-        f'(real-time factor {sim.t / wall if wall > 0 else math.inf:.1f}, {d.wall:.3f} s integrating)',
+        f'(real-time factor {sim.t / wall if wall > 0 else math.inf:.1f}, {d.wall:.3f} s integrating'
+        + (f', {cpu:.3f} s CPU' if cpu is not None else '') + ')',
         f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
         f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
     ]

@@ -36,6 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import messages as M
+from ..recording import cdr
+from ..recording.run_sink import output_records
 from ..simulation import CommandError, SimulationError, Simulator
 from .ports import command_topics, command_values
 
@@ -204,11 +206,11 @@ def resolve_config(p: dict, scene) -> Config:
 
 
 def _finite_outputs(out) -> bool:
-    """True when everything about to be published is finite."""
+    """True when everything about to be published is finite (one isfinite over all the numbers)."""
     arrays = [out.position, out.velocity, out.effort] + [w for _, w in out.wrenches.values()]
     if out.odom is not None:
-        arrays += [np.asarray(v, dtype=float) for v in out.odom.values()]
-    return all(np.all(np.isfinite(a)) for a in arrays)
+        arrays += list(out.odom.values())
+    return bool(np.isfinite(np.concatenate([np.asarray(a, dtype=float).reshape(-1) for a in arrays])).all())
 
 
 def _episode_path(path: str, episode: int) -> str:
@@ -315,6 +317,8 @@ def make_node_class():
                 static = self.tf.static_message(M.to_ns(self.sim.t))
                 if static['transforms']:
                     self.pub['/tf_static'].publish(M.fill(self.pub['/tf_static'].msg_type(), static))
+            self._tf_layouts = {}
+            self._refresh_subscribers()
             self._open_recording()
             self._commanded = False     # lockstep: a command has arrived since the last (re)start
             # lockstep: joint_states subscriber count at the last (re)send of the initial state; 0 so
@@ -333,6 +337,7 @@ def make_node_class():
                 + (f', recording to {self.recorder.path}' if self.recorder else ''))
             # the run (real-time schedule, summary wall time) starts now, after the set-up
             self._wall_start = self._anchor_wall = self._rtf_wall = self._pause_began = time.monotonic()
+            self._cpu_start = time.process_time()   # CPU of the run (paused spinning costs next to none)
 
         # -- set-up helpers -------------------------------------------------------------------
         def _publisher(self, topic):
@@ -367,8 +372,14 @@ def make_node_class():
             r.writer.write(resolve(topic, r.namespace), type_name, msg, t_ns)
             r.count += 1
 
+        def _refresh_subscribers(self):
+            """Note which publishers have subscribers (asked once per work() call, not per message:
+            a new subscriber is served from the next executor spin on)."""
+            self._subscribed = {topic: pub.get_subscription_count() > 0 for topic, pub in self.pub.items()}
+            self._wrench_subscribed = any(self._subscribed[t] for t in self.wrench_pubs)
+
         def _wrenches_wanted(self) -> bool:
-            return self.recorder is not None or any(p.get_subscription_count() for p in self.wrench_pubs.values())
+            return self.recorder is not None or self._wrench_subscribed
 
         # -- commands -------------------------------------------------------------------------
         def _on_command(self, port, msg):
@@ -390,6 +401,7 @@ def make_node_class():
             if self.cfg.mode == 'lockstep':
                 self._commanded = True
                 if self._can_advance():
+                    self._refresh_subscribers()
                     self._run_period()
 
         def _apply_script(self):
@@ -457,19 +469,29 @@ def make_node_class():
             self._publish_diagnostics(record=True)
 
         # -- publication ----------------------------------------------------------------------
-        def _send(self, topic, type_name, msg, t_ns):
-            pub = self.pub.get(topic)
-            if pub is not None and pub.get_subscription_count():
-                pub.publish(M.fill(pub.msg_type(), msg))
-            if self.recorder is not None:
-                self._record(topic, type_name, msg, t_ns)
-
         def _publish_outputs(self, out):
-            """State messages, /clock and (every diagnostics_period) diagnostics of one period."""
+            """State messages, /clock and (every diagnostics_period) diagnostics of one period.
+
+            The state messages are encoded once, to canonical CDR (the bytes the recorder writes,
+            :func:`robodyn_ros.recording.run_sink.output_records`), and published as serialized
+            messages; only the topics with a subscriber (or all, when recording) are built.
+            """
             t_ns = M.to_ns(self.sim.t)
-            for topic, type_name, msg in M.output_messages(t_ns, out, wrenches=bool(out.wrenches), tf=self.tf):
-                self._send(topic, type_name, msg, t_ns)
-            self._send('/clock', M.TOPIC_TYPES['/clock'], M.clock(t_ns), t_ns)
+            rec = self.recorder
+            subscribed = self._subscribed
+            want = None if rec is not None else subscribed.get
+            for topic, type_name, data in output_records(t_ns, out, bool(out.wrenches), self.tf, want,
+                                                         self._tf_layouts):
+                if subscribed.get(topic):
+                    self.pub[topic].publish(data)
+                if rec is not None:
+                    rec._write_data(topic, type_name, data, t_ns)
+            if rec is not None or subscribed.get('/clock'):
+                data = cdr.clock_bytes(*divmod(t_ns, 1_000_000_000))
+                if subscribed.get('/clock'):
+                    self.pub['/clock'].publish(data)
+                if rec is not None:
+                    rec._write_data('/clock', M.TOPIC_TYPES['/clock'], data, t_ns)
             self._last_extra = out.extra
             if self.sim.t >= self._next_diag - 1e-9:
                 self._publish_diagnostics(record=True)
@@ -533,6 +555,7 @@ def make_node_class():
             self._start_period_clock()
             self._commanded = False
             self._resend_subs = 0
+            self._refresh_subscribers()
             self._publish_outputs(self.sim.outputs(wrenches=self._wrenches_wanted()))
             response.success = True
             response.message = (f'reset to the initial state at t={self.sim.t:g} s'
@@ -576,6 +599,7 @@ def make_node_class():
             """Run the periods that are due now; return how long (s) the executor may wait for callbacks."""
             now = time.monotonic()
             mode = self.cfg.mode
+            self._refresh_subscribers()
             if now >= self._next_idle_diag and (mode == 'lockstep' or not self._can_advance()):
                 self._publish_diagnostics(record=False)   # simulation time stands still: say why
             if not self._can_advance():
@@ -622,7 +646,8 @@ def make_node_class():
             st = {'integrator': self.cfg.integrator, 'dt': self.cfg.dt, 'rtol': self.cfg.rtol,
                   'atol': self.cfg.atol}
             record = self.recorder.path if self.recorder else None
-            return summary(self.scene, self.sim, st, wall, record, self.recorders)
+            return summary(self.scene, self.sim, st, wall, record, self.recorders,
+                           cpu=time.process_time() - self._cpu_start)
 
     return SimNode
 

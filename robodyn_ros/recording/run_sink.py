@@ -17,6 +17,45 @@ def resolve(topic: str, namespace: str = '') -> str:
     return f'{ns}/{topic}'
 
 
+def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layouts=None) -> list:
+    """The state messages of one publication as CDR: ``[(topic, type, bytes), ...]``.
+
+    The messages of :func:`robodyn_ros.messages.output_messages` (same topics, same order), each
+    the bytes ``cdr.encode`` gives its dict, but written straight from the outputs (joint_states,
+    odom, wrenches, /tf) without building the dicts. out: SystemOutputs; wrenches: include the
+    constraint wrenches; tf: a :class:`robodyn_ros.tf.TfTree` or None; want: optional predicate
+    ``topic -> bool`` (messages it refuses are not built); tf_layouts: a dict the caller keeps
+    to cache the /tf byte layout. Shared by the recorder and the node (which publishes the bytes).
+    """
+    sec, nsec = divmod(t_ns, 1_000_000_000)
+    recs = []
+    if want is None or want('joint_states'):
+        js = cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names('', tuple(out.joint_names)),
+                                   out.position, out.velocity, out.effort)
+        if js is None:  # arrays of another type: the dicts (which convert them) and the generic encoder
+            return [(topic, tn, cdr.encode(tn, msg)) for topic, tn, msg in M.output_messages(t_ns, out, wrenches, tf)
+                    if want is None or want(topic)]
+        recs.append(('joint_states', M.TOPIC_TYPES['joint_states'], js))
+    if out.odom is not None and (want is None or want('odom')):
+        recs.append(('odom', M.TOPIC_TYPES['odom'], cdr.odometry_bytes(sec, nsec, out.odom)))
+    if wrenches:
+        for name, (frame, w) in out.wrenches.items():
+            topic = M.WRENCH_PREFIX + name
+            if want is None or want(topic):
+                recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
+    if tf is not None and (want is None or want('/tf')):
+        trs = tf.transforms(out.joint_names, out.position, out.odom)
+        if trs:
+            layouts = {} if tf_layouts is None else tf_layouts
+            key = (id(tf), len(trs), trs[0][0], trs[0][1])  # the frames only change with the odom entry
+            layout = layouts.get(key)
+            if layout is None:
+                layout = layouts[key] = cdr.tf_layout(tuple((pa, ch) for pa, ch, _, _ in trs))
+            recs.append(('/tf', M.TOPIC_TYPES['/tf'],
+                         cdr.tf_message_bytes(layout, [(sec, nsec)] * len(trs), [(*p, *q) for _, _, p, q in trs])))
+    return recs
+
+
 def run_metadata(scene, settings: dict, extra: dict | None = None) -> dict:
     """The ``robodyn`` metadata record: scene text and name, integrator settings, package version."""
     md = {'scene_name': scene.name, 'scene': scene.text, 'settings': json.dumps(settings, sort_keys=True),
@@ -106,30 +145,10 @@ class McapRunSink:
         dicts encode to, without building them).
         """
         t_ns = M.to_ns(t)
-        sec, nsec = divmod(t_ns, 1_000_000_000)
-        js = cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names('', tuple(out.joint_names)),
-                                   out.position, out.velocity, out.effort)
-        if js is None:
-            for topic, type_name, msg in M.output_messages(t_ns, out, self.wants_wrenches, tf=self.tf):
-                self._write(topic, type_name, msg, t_ns)
-        else:
-            self._write_data('joint_states', M.TOPIC_TYPES['joint_states'], js, t_ns)
-            if out.odom is not None:
-                self._write_data('odom', M.TOPIC_TYPES['odom'], cdr.odometry_bytes(sec, nsec, out.odom), t_ns)
-            if self.wants_wrenches:
-                for name, (frame, w) in out.wrenches.items():
-                    self._write_data(M.WRENCH_PREFIX + name, M.WRENCH_TYPE,
-                                     cdr.wrench_stamped_bytes(sec, nsec, frame, w), t_ns)
-            if self.tf is not None:
-                trs = self.tf.transforms(out.joint_names, out.position, out.odom)
-                if trs:
-                    key = (len(trs), trs[0][0], trs[0][1])  # the frames only change with the odom entry
-                    layout = self._tf_layouts.get(key)
-                    if layout is None:
-                        layout = self._tf_layouts[key] = cdr.tf_layout(tuple((pa, ch) for pa, ch, _, _ in trs))
-                    data = cdr.tf_message_bytes(layout, [(sec, nsec)] * len(trs), [(*p, *q) for _, _, p, q in trs])
-                    self._write_data('/tf', M.TOPIC_TYPES['/tf'], data, t_ns)
-        self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(sec, nsec), t_ns)
+        for topic, type_name, data in output_records(t_ns, out, self.wants_wrenches, self.tf,
+                                                     tf_layouts=self._tf_layouts):
+            self._write_data(topic, type_name, data, t_ns)
+        self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(*divmod(t_ns, 1_000_000_000)), t_ns)
         if self._next_diag is not None and t >= self._next_diag - 1e-9:
             self._write('diagnostics', M.TOPIC_TYPES['diagnostics'],
                         M.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,

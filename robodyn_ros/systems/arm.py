@@ -7,7 +7,7 @@ from .. import dynamics as dyn
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
 from ..model import PRISMATIC, REVOLUTE, Model
-from .base import BACKENDS, InputPort, System, SystemOutputs, default_backend  # noqa: F401
+from .base import BACKENDS, InputPort, LazyValues, System, SystemOutputs, default_backend  # noqa: F401
 
 
 #: the methods whose ArmSystem versions the fused loop reproduces
@@ -162,9 +162,13 @@ class ArmSystem(System):
                 _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u))
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
-        kin, pot = self._energies(q, v)
-        return SystemOutputs(joint_names=list(self.joint_names), position=q.copy(), velocity=v.copy(),
-                             effort=tau_cmd, wrenches=w, energy={'kinetic': kin, 'potential': pot})
+        q, v = q.copy(), v.copy()
+
+        def energy():
+            kin, pot = self._energies(q, v)
+            return {'kinetic': kin, 'potential': pot}
+        return SystemOutputs(joint_names=list(self.joint_names), position=q, velocity=v, effort=tau_cmd, wrenches=w,
+                             energy=LazyValues(energy))
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""

@@ -1,6 +1,7 @@
 """The interface every system implements, and the containers it returns."""
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -93,6 +94,35 @@ class InputPort:
     unit: str
 
 
+class LazyValues(Mapping):
+    """A read-only mapping computed on first access by ``fn() -> dict``: output values (energies)
+    that most publications never read are only computed when someone does."""
+
+    __slots__ = ('_fn', '_d')
+
+    def __init__(self, fn):
+        self._fn = fn
+        self._d = None
+
+    def _data(self) -> dict:
+        if self._d is None:
+            self._d = self._fn()
+            self._fn = None
+        return self._d
+
+    def __getitem__(self, key):
+        return self._data()[key]
+
+    def __iter__(self):
+        return iter(self._data())
+
+    def __len__(self):
+        return len(self._data())
+
+    def __repr__(self):
+        return repr(self._data())
+
+
 @dataclass
 class SystemOutputs:
     """What a system reports at one instant (all arrays finite, SI units).
@@ -101,7 +131,8 @@ class SystemOutputs:
     wrenches: joint or contact name -> (child frame, (6,) [torque; force] on the child at the
     joint origin in child coordinates); odom: optional dict with 'position' (3,),
     'orientation' (x, y, z, w), 'linear' (3,) and 'angular' (3,) in base_link;
-    energy: dict of named energies (J); extra: other diagnostics values.
+    energy: mapping of named energies (J; may be a :class:`LazyValues`, computed when read);
+    extra: other diagnostics values.
     """
 
     joint_names: list
