@@ -69,10 +69,14 @@ def test_lockstep_recording_equals_headless_run_fed_the_same_commands(lockstep_r
     rec = lockstep_run['record']
     cmds = {t: decode(ty, raw)['data'] for _, ty, t, raw in read_raw_messages(rec, topics=['/effort_commands'])}
     assert len(cmds) == PD_PERIODS
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.systems.base import backend_scope
     settings = json.loads(summarize(rec)['metadata']['robodyn']['settings'])
-    sim = Simulator(SCENE.system, SCENE.y0, integrator='rk4', dt=1e-3, command_timeout=settings['command_timeout'])
+    with backend_scope(settings['backend']):  # the node's kernels (recorded in its settings)
+        scene = load_scene('stanford_arm')
+    sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3, command_timeout=settings['command_timeout'])
     out = tmp_path / 'headless.mcap'
-    sink = McapRunSink(out, SCENE, {'mode': 'headless'})
+    sink = McapRunSink(out, scene, {'mode': 'headless'})
     run_headless(sim, PD_PERIODS / 100.0, 100.0, lambda t, y: {'effort': cmds[M.to_ns(t)]}, [sink])
     sink.close()
     for topic in ['/joint_states', '/tf'] + [f'/constraint_wrenches/{j}' for j in JOINTS]:

@@ -98,7 +98,9 @@ class Resim:
                              f'(was it recorded by the sim node or robodyn run?)')
         self.metadata = md
         self.settings = json.loads(md['settings'])
-        self.scene = parse_scene(md['scene'], file=f'{self.path} (recorded scene {md.get("scene_name", "?")})')
+        from ..systems.base import backend_scope
+        with backend_scope(self.settings.get('backend')):  # the kernels of the run (older recordings: default)
+            self.scene = parse_scene(md['scene'], file=f'{self.path} (recorded scene {md.get("scene_name", "?")})')
         ns = self.settings.get('namespace')
         if ns is None:  # infer from where joint_states was recorded
             js = [t for t in s['topics'] if t.rstrip('/').endswith('/joint_states')]

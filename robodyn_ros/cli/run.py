@@ -20,6 +20,9 @@ def add_parser(sub):
     p.add_argument('--rate', type=float, default=None, help='publication/recording rate in Hz (default 100)')
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
     p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
+    p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
+                   help='dynamics kernels (default: $ROBODYN_BACKEND, else generated: specialised per scene, '
+                        'compiled once and cached)')
     p.add_argument('--diagnostics-period', type=float, default=0.1,
                    help='simulated seconds between recorded diagnostics messages (default 0.1)')
     return p
@@ -47,12 +50,16 @@ def main(args) -> int:
     from ..recording.run_sink import McapRunSink
     from ..scene import SceneError, load_scene
     from ..simulation import SimulationError, Simulator, run_headless
+    from ..systems.base import backend_scope, tools_backend
+    backend = tools_backend(getattr(args, 'backend', None))
     try:
-        scene = load_scene(args.scene)
+        with backend_scope(backend):
+            scene = load_scene(args.scene)
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
     st = resolve_settings(scene, args)
+    st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
         sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
                         atol=st['atol'])

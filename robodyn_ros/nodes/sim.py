@@ -75,6 +75,8 @@ PARAMETERS = {
     'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
     'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
     'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
+    'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else generated "
+                    '(specialised per scene, compiled once and cached)'),
 }
 
 
@@ -103,6 +105,7 @@ class Config:
     diagnostics_period: float
     y0: np.ndarray
     publish_tf: bool = True
+    backend: str = ''
 
     def settings(self, namespace: str) -> dict:
         """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
@@ -110,7 +113,7 @@ class Config:
                 'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
                 'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
                 'scripted_commands': self.scripted_commands, 'namespace': namespace,
-                'y0': [float(x) for x in self.y0]}
+                'y0': [float(x) for x in self.y0], 'backend': self.backend}
 
 
 def _number(name, v, positive=False, minimum=None) -> float:
@@ -202,7 +205,18 @@ def resolve_config(p: dict, scene) -> Config:
                   duration=_number('duration', p['duration'], minimum=0.0),
                   record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
                   diagnostics_period=_number('diagnostics_period', p['diagnostics_period'], positive=True),
-                  y0=y0, publish_tf=p['publish_tf'])
+                  y0=y0, publish_tf=p['publish_tf'], backend=_backend(p.get('backend', '')))
+
+
+def _backend(value) -> str:
+    """The validated ``backend`` parameter ('' = ROBODYN_BACKEND, else the tools' default)."""
+    from ..systems.base import tools_backend
+    if not isinstance(value, str):
+        raise ConfigError(f"parameter 'backend' must be a string, got {value!r}")
+    try:
+        return tools_backend(value or None)
+    except ValueError as e:
+        raise ConfigError(f"parameter 'backend': {e}") from None
 
 
 def _finite_outputs(out) -> bool:
@@ -251,7 +265,9 @@ def make_node_class():
                 raw[name] = self.declare_parameter(name, default, desc).value
             if not isinstance(raw['scene'], str) or not raw['scene']:
                 raise ConfigError(f"parameter 'scene' must be a scene name or path, got {raw['scene']!r}")
-            self.scene = load_scene(raw['scene'])
+            from ..systems.base import backend_scope
+            with backend_scope(_backend(raw['backend'])):
+                self.scene = load_scene(raw['scene'])
             self.cfg = cfg = resolve_config(raw, self.scene)
             self.namespace = self.get_namespace()
             try:

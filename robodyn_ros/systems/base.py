@@ -20,6 +20,46 @@ def default_backend() -> str:
     return 'numba' if kernels.AVAILABLE else 'numpy'
 
 
+#: backend of ``robodyn run`` and the sim node when neither their option nor ``ROBODYN_BACKEND``
+#: chooses one: scene-specialised arm kernels (:mod:`robodyn_ros.kernels.codegen`), written and
+#: compiled once per model (about 2 s at the first start of a scene, cached on disk), then a faster
+#: start and 2-3x faster arm integration than ``'numba'`` (figures: ``robodyn bench speed``);
+#: systems without a specialisation (free bases, constrained systems) run their compiled kernels.
+TOOLS_BACKEND = 'generated'
+
+
+def tools_backend(requested=None) -> str:
+    """The backend of the command-line tools and the node: ``requested`` if given, else
+    ``ROBODYN_BACKEND``, else :data:`TOOLS_BACKEND`; ValueError for an unknown name."""
+    import os
+    name = requested or os.environ.get('ROBODYN_BACKEND') or TOOLS_BACKEND
+    name = str(name).lower()
+    if name not in BACKENDS:
+        raise ValueError(f'unknown backend {name!r}; valid: {", ".join(BACKENDS)}')
+    return name
+
+
+class backend_scope:
+    """Context manager: systems built inside it default to backend ``name`` (``ROBODYN_BACKEND``)."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def __enter__(self):
+        import os
+        self.old = os.environ.get('ROBODYN_BACKEND')
+        if self.name:
+            os.environ['ROBODYN_BACKEND'] = self.name
+        return self
+
+    def __exit__(self, *exc):
+        import os
+        if self.old is None:
+            os.environ.pop('ROBODYN_BACKEND', None)
+        else:
+            os.environ['ROBODYN_BACKEND'] = self.old
+
+
 def resolve_backend(backend) -> str:
     """A validated backend name: None -> :func:`default_backend`; raises ValueError for an unknown
     name or a compiled backend without numba."""

@@ -281,7 +281,10 @@ class PrescribedPathSystem(ArmSystem):
         if model.nq != model.nv:
             raise ValueError(f'{model.name}: prescribed end-point motion needs an arm of 1-DOF joints '
                              '(no free joint)')
-        super().__init__(model, actuated=list(actuated), backend=backend)
+        from .base import resolve_backend
+        backend = resolve_backend(backend)
+        # the constrained solve runs on kernels.constrained: nothing to specialise
+        super().__init__(model, actuated=list(actuated), backend='numba' if backend == 'generated' else backend)
         if not self.actuated:
             self.inputs = {}
         else:
