@@ -278,6 +278,7 @@ class CompiledSystem:
             mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 28))
             self.tree = (mi, mf, mi, mf)
         self.stat = np.zeros(4)
+        self._evaluate, self._project, self._integrate = constrained.ENTRY_POINTS[self.kind]
 
     def evaluate(self, t, y, u):
         """``[dy/dt; input power]`` (ny + 1,) at (t, y) under the input vector u.
@@ -288,25 +289,24 @@ class CompiledSystem:
         z[:-1] = y
         z[-1] = 0.0
         dz = np.empty_like(z)
-        if constrained.evaluate(self.kind, self.ip, self.fp, *self.tree, u, self.nq, float(t), z, dz,
-                                self.stat) != constrained.OK:
+        if self._evaluate(self.ip, self.fp, *self.tree, u, self.nq, float(t), z, dz, self.stat) != constrained.OK:
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
         return dz
 
     def project(self, y):
         """The system's projection of y (ny,) in place; returns y."""
-        if constrained.project(self.kind, self.ip, self.fp, *self.tree, self.nq, y) != constrained.OK:
+        if self._project(self.ip, self.fp, *self.tree, self.nq, y) != constrained.OK:
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
         return y
 
     def integrate(self, method: str, z, u, t0, dt, n_full, h_last) -> int:
-        """Fused fixed-step integration of ``z = [y, W]`` in place (:func:`constrained.integrate`).
+        """Fused fixed-step integration of ``z = [y, W]`` in place (``constrained.integrate_<kind>``).
 
         Returns its code: -1, the first non-finite step, or ``-2 - k`` for a singular mass
         matrix in step k. ``stat`` (4,) collects the prescribed-path singularity counters.
         """
-        return constrained.integrate(self.kind, self.ip, self.fp, *self.tree, u, self.nq, FUSED_METHODS[method],
-                                     z, float(t0), float(dt), int(n_full), float(h_last), self.stat)
+        return self._integrate(self.ip, self.fp, *self.tree, u, self.nq, FUSED_METHODS[method], z, float(t0),
+                               float(dt), int(n_full), float(h_last), self.stat)
 
 
 def warmup(model: Model | None = None) -> float:

@@ -58,6 +58,14 @@ NINFO = 4
 
 
 @njit(**_JIT)
+def flag(b):
+    """``b`` as a plain (non-constant) bool. numba compiles a jitted callee once per *constant*
+    argument it is called with; passing flags through this keeps a single compiled version of the
+    large solvers below (and of ``core.rnea_ws``), which matters for the first-run compile time."""
+    return b != 0
+
+
+@njit(**_JIT)
 def cholesky(A, nd, L):
     """Lower Cholesky factor of the symmetric positive definite A (n, n) into L; False if not PD.
 
@@ -732,7 +740,7 @@ def dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, bias):
     W = workspace(mi_r.shape[0])
     transforms(mi_r, mf_r, q, W)
     if bias:  # RNEA leaves the transforms in W for the CRBA
-        rnea_ws(mi_r, mf_r, q, v, np.zeros(nv), W, False, h, W)
+        rnea_ws(mi_r, mf_r, q, v, np.zeros(nv), W, flag(0), h, W)
     crba_ws(mi_r, mf_r, M, W)
     for i in range(nv):
         M[i, i] += fp[DD_ARMATURE + i]
@@ -748,7 +756,7 @@ def dd_solve(ip, fp, mi_r, mf_r, u, y, exact_info, a, lam, info, el):
     dd_electrical(ip, fp, u, y, el)
     M = np.empty((nv, nv))
     h = np.empty(nv)
-    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, True)
+    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, flag(1))
     K = np.empty((4, nv))
     kdv = np.empty(4)
     dd_constraints(fp, nv, q, v, K, kdv)
@@ -784,7 +792,7 @@ def dd_evaluate(ip, fp, mi_r, mf_r, u, y, dz):
     el = np.empty(6)
     lam = np.empty(4)
     info = np.empty(NINFO)
-    st = dd_solve(ip, fp, mi_r, mf_r, u, y, False, dz[nv:2 * nv], lam, info, el)
+    st = dd_solve(ip, fp, mi_r, mf_r, u, y, flag(0), dz[nv:2 * nv], lam, info, el)
     if st != OK:
         return st
     for j in range(nv):
@@ -845,7 +853,7 @@ def dd_report(ip, fp, mi_r, mf_r, u, y, out):
     out[DR_RESIDUAL] = r
     M = np.empty((nv, nv))
     h = np.empty(nv)
-    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, False)
+    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, flag(0))
     kin = 0.0
     for i in range(nv):
         s = 0.0
@@ -881,7 +889,7 @@ def dd_project(ip, fp, mi_r, mf_r, y):
         return OK
     M = np.empty((nv, nv))
     h = np.empty(nv)
-    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, False)
+    dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, flag(0))
     return project_velocities(M, nv, K, v, np.zeros(4), fp[DD_RCOND])
 
 
@@ -945,7 +953,7 @@ def ff_solve(ip, fp, mi, mf, mi_r, mf_r, q, v, tau, fext, exact_info, a, lam, in
     h = np.empty(nv)
     W = workspace(mi.shape[0])
     transforms(mi, mf, q, W)
-    rnea_ws(mi, mf, q, v, np.zeros(nv), fext, True, h, W)
+    rnea_ws(mi, mf, q, v, np.zeros(nv), fext, flag(1), h, W)
     crba_ws(mi, mf, M, W)  # the transforms are still in W
     phi = np.empty(3)
     K = np.empty((3, nv))
@@ -990,7 +998,7 @@ def ff_evaluate(ip, fp, mi, mf, mi_r, mf_r, u, nq, z, dz):
     ff_forces(fp, u, v, tau, fext)
     lam = np.empty(3)
     info = np.empty(NINFO)
-    st = ff_solve(ip, fp, mi, mf, mi_r, mf_r, q, v, tau, fext, False, dz[nq:nq + nv], lam, info)
+    st = ff_solve(ip, fp, mi, mf, mi_r, mf_r, q, v, tau, fext, flag(0), dz[nq:nq + nv], lam, info)
     P = 0.0
     for j in range(nv):
         P += v[j] * tau[j]
@@ -1301,7 +1309,7 @@ def au_evaluate(ip, fp, u, z, dz):
     M = np.empty((nv, nv))
     lam = np.empty(nc)
     info = np.empty(NINFO)
-    st = au_solve(ip, fp, u, z[:nq + nv], False, dz[nq:nq + nv], lam, info, R, E, om, J, beta, C, Cq, M)
+    st = au_solve(ip, fp, u, z[:nq + nv], flag(0), dz[nq:nq + nv], lam, info, R, E, om, J, beta, C, Cq, M)
     au_config_rate(nq, nv, x, w, dz[:nq])
     # power: θ̇ · (τ_arm − D θ̇) + ω · τ_b + v_O · f_b, v_O = R_0ᵀ ċ_0 − ω × com_0
     o_com, o_ic, o_et, o_r, o_ax, o_d = au_offsets(nb)
@@ -1614,7 +1622,7 @@ def pr_solve(ip, fp, mi, mf, mi_r, mf_r, u, t, y, a, lam, Bm, phi, phidot, E, R,
     W = workspace(mi.shape[0])  # one set of transforms (full tree) for RNEA, CRBA and the end point
     transforms(mi, mf, q, W)
     hb = np.empty(n)
-    rnea_ws(mi, mf, q, v, np.zeros(n), W, False, hb, W)
+    rnea_ws(mi, mf, q, v, np.zeros(n), W, flag(0), hb, W)
     A = np.zeros((n, n))
     crba_ws(mi, mf, A, W)
     f = np.empty(n)
@@ -1673,14 +1681,14 @@ def pr_solve(ip, fp, mi, mf, mi_r, mf_r, u, t, y, a, lam, Bm, phi, phidot, E, R,
         sym_eig(S, ws, Vs)
         wmax = max(ws[0], ws[1])
         damping = fp[PF_DLS] * wmax * (1.0 - math.pow(ratio / sr, 2.0))
-        st = kkt_solve(A, n, f, Bm, k, fp[PF_RCOND], damping, True, a, lam, info)
+        st = kkt_solve(A, n, f, Bm, k, fp[PF_RCOND], damping, flag(1), a, lam, info)
         method = METHOD_KKT_DAMPED
     elif ip[PR_FORM] == METHOD_COMPLEMENT:
         complement_solve(A, f, Bm, k, fp[PF_TOL], a, lam, info)
         st = OK
         method = METHOD_COMPLEMENT
     else:
-        st = kkt_solve(A, n, f, Bm, k, fp[PF_RCOND], 0.0, True, a, lam, info)
+        st = kkt_solve(A, n, f, Bm, k, fp[PF_RCOND], 0.0, flag(1), a, lam, info)
         method = METHOD_KKT
     rec[PS_RATIO] = ratio
     rec[PS_RANK] = rank
@@ -1728,102 +1736,208 @@ def pr_evaluate(ip, fp, mi, mf, mi_r, mf_r, u, t, z, dz, stat):
 
 
 # ----------------------------------------------------------------------------------------------
-# dispatch and the fused fixed-step loop
+# the fused fixed-step loop, one compiled unit per system kind
 # ----------------------------------------------------------------------------------------------
+# Each kind has its own entry points (evaluate_*, project_*, integrate_*) with the common signature
+# below, chosen in Python (kernels.CompiledSystem): a first run compiles only the kind it uses.
+# The integrators' arithmetic is shared (_stage_update); only the calls into the kind differ.
+
 @njit(**_JIT)
-def evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, dz, stat):
-    """``dz (ny + 1,) = [dy/dt; input power]`` at (t, z[:ny]) for a system of the given kind."""
-    if kind == DIFFDRIVE:
-        return dd_evaluate(ip, fp, mi_r, mf_r, u, z[:z.shape[0] - 1], dz)
-    if kind == FREEFLYER:
-        return ff_evaluate(ip, fp, mi, mf, mi_r, mf_r, u, nq, z, dz)
-    if kind == AUGMENTED:
-        return au_evaluate(ip, fp, u, z, dz)
+def _stage_update(method, s, h, z, K, Y, acc, nq):
+    """Fold stage s's derivative K into the step (the arithmetic of :mod:`robodyn_ros.integrators`).
+
+    RK4: ``acc = k1 + 2 k2 + 2 k3 + k4`` folded stage by stage, the next stage point into Y,
+    ``z += h/6 acc`` after the fourth; symplectic Euler: ``[v, W] += h f[nq:]`` (q follows with
+    q̇(q, v_new), done by the caller); Euler: ``z += h f``.
+    """
+    n = z.shape[0]
+    if method == M_RK4:
+        if s == 0:
+            half = 0.5 * h
+            for a in range(n):
+                acc[a] = K[a]
+                Y[a] = K[a] * half + z[a]
+        elif s < 3:
+            c = 0.5 * h if s == 1 else h
+            for a in range(n):
+                acc[a] = (acc[a] + K[a]) + K[a]
+                Y[a] = K[a] * c + z[a]
+        else:
+            h6 = h / 6.0
+            for a in range(n):
+                z[a] += (acc[a] + K[a]) * h6
+    elif method == M_SEMI_IMPLICIT_EULER:
+        for a in range(nq, n):
+            z[a] += K[a] * h
+    else:
+        for a in range(n):
+            z[a] += K[a] * h
+
+
+@njit(**_JIT)
+def _stage_time(method, s, t, h):
+    """Time of stage s: t, t + h/2, t + h/2, t + h (RK4); t otherwise."""
+    if method != M_RK4 or s == 0:
+        return t
+    return t + 0.5 * h if s < 3 else t + h
+
+
+@njit(**_JIT)
+def _all_finite_1d(z):
+    for a in range(z.shape[0]):
+        if not math.isfinite(z[a]):
+            return False
+    return True
+
+
+@njit(**_JIT)
+def evaluate_dd(ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, dz, stat):
+    """``dz (ny + 1,) = [dy/dt; input power]`` at (t, z[:ny]) (differential drive)."""
+    return dd_evaluate(ip, fp, mi_r, mf_r, u, z[:z.shape[0] - 1], dz)
+
+
+@njit(**_JIT)
+def evaluate_ff(ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, dz, stat):
+    """As :func:`evaluate_dd` (free base, minimal coordinates)."""
+    return ff_evaluate(ip, fp, mi, mf, mi_r, mf_r, u, nq, z, dz)
+
+
+@njit(**_JIT)
+def evaluate_au(ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, dz, stat):
+    """As :func:`evaluate_dd` (free base, augmented formulation)."""
+    return au_evaluate(ip, fp, u, z, dz)
+
+
+@njit(**_JIT)
+def evaluate_pr(ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, dz, stat):
+    """As :func:`evaluate_dd` (prescribed path; stat counts singular evaluations)."""
     return pr_evaluate(ip, fp, mi, mf, mi_r, mf_r, u, t, z, dz, stat)
 
 
 @njit(**_JIT)
-def project(kind, ip, fp, mi, mf, mi_r, mf_r, nq, y):
-    """The system's ``project(y)`` in place (y without the work entry)."""
-    if kind == DIFFDRIVE:
-        return dd_project(ip, fp, mi_r, mf_r, y)
-    if kind == FREEFLYER:
-        return ff_project(ip, fp, mi, mf, mi_r, mf_r, nq, y)
-    if kind == AUGMENTED:
-        return au_project(ip, y)
+def project_dd(ip, fp, mi, mf, mi_r, mf_r, nq, y):
+    """The system's ``project(y)`` in place (y without the work entry); differential drive."""
+    return dd_project(ip, fp, mi_r, mf_r, y)
+
+
+@njit(**_JIT)
+def project_ff(ip, fp, mi, mf, mi_r, mf_r, nq, y):
+    """As :func:`project_dd` (free base, minimal coordinates)."""
+    return ff_project(ip, fp, mi, mf, mi_r, mf_r, nq, y)
+
+
+@njit(**_JIT)
+def project_au(ip, fp, mi, mf, mi_r, mf_r, nq, y):
+    """As :func:`project_dd` (augmented: the quaternion)."""
+    return au_project(ip, y)
+
+
+@njit(**_JIT)
+def project_pr(ip, fp, mi, mf, mi_r, mf_r, nq, y):
+    """As :func:`project_dd` (prescribed path: nothing to project)."""
     return OK
 
 
-@njit(**_JIT)
-def config_rate(kind, ip, mi, nq, q, w, out):
-    """The system's ``config_rate(q, w)`` (dq/dt from the part of the state after q) into out."""
-    if kind == FREEFLYER:
-        qdot_into(mi, q, w, out)
-    elif kind == AUGMENTED:
-        au_config_rate(nq, w.shape[0], q, w, out)
-    else:
-        for j in range(nq):
-            out[j] = w[j]
-
+# The four loops below are the same but for the evaluate/project/q̇ calls of their kind
+# (numba cannot cache a loop that takes those functions as arguments).
+# integrate_*(ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h_last, stat) integrates
+# z = [y, W] in place over n_full steps of dt and one of h_last (if > 0), with the step times of
+# FixedStepIntegrator (t = t0 + k dt) and the projection after every step. Returns -1, the index
+# k of the first step whose result is non-finite, or -2 - k when a mass matrix was not positive
+# definite in step k.
 
 @njit(**_JIT)
-def integrate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h_last, stat):
-    """Integrate ``z = [y, W]`` in place over ``n_full`` steps of dt and one of h_last (if > 0).
-
-    The arithmetic of :mod:`robodyn_ros.integrators` (as :func:`robodyn_ros.kernels.core.integrate_arm`)
-    with the step times of ``FixedStepIntegrator`` (``t = t0 + k dt``; RK4 stages at t, t + h/2,
-    t + h/2, t + h) and the system's projection after every step. Returns -1, or the index k of
-    the first step whose result is non-finite, or ``-2 - k`` when a mass matrix was not positive
-    definite in step k (z then holds the state at the start of that step's failed evaluation).
-    """
+def integrate_dd(ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h_last, stat):
+    """Fused fixed-step loop of the differential drive (see the comment above)."""
     n = z.shape[0]
-    ny = n - 1
-    K = np.empty(n)
-    Y = np.empty(n)
-    acc = np.empty(n)
-    qd = np.empty(nq)
-    n_steps = n_full + (1 if h_last > 0.0 else 0)
-    for k in range(n_steps):
+    K, Y, acc = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n_full + (1 if h_last > 0.0 else 0)):
         t = t0 + k * dt
         h = dt if k < n_full else h_last
-        if method == M_RK4:
-            half = 0.5 * h
-            if evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, K, stat) != OK:
+        for s in range(4 if method == M_RK4 else 1):
+            if evaluate_dd(ip, fp, mi, mf, mi_r, mf_r, u, nq, _stage_time(method, s, t, h),
+                           z if s == 0 else Y, K, stat) != OK:
                 return -2 - k
-            for a in range(n):
-                acc[a] = K[a]
-                Y[a] = K[a] * half + z[a]
-            if evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t + half, Y, K, stat) != OK:
+            _stage_update(method, s, h, z, K, Y, acc, nq)
+        if method == M_SEMI_IMPLICIT_EULER:  # q̇ = v
+            for a in range(nq):
+                z[a] += z[nq + a] * h
+        if project_dd(ip, fp, mi, mf, mi_r, mf_r, nq, z[:n - 1]) != OK:
+            return -2 - k
+        if not _all_finite_1d(z):
+            return k
+    return -1
+
+
+@njit(**_JIT)
+def integrate_ff(ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h_last, stat):
+    """Fused fixed-step loop of the free base in minimal coordinates."""
+    n = z.shape[0]
+    K, Y, acc, qd = np.empty(n), np.empty(n), np.empty(n), np.empty(nq)
+    for k in range(n_full + (1 if h_last > 0.0 else 0)):
+        t = t0 + k * dt
+        h = dt if k < n_full else h_last
+        for s in range(4 if method == M_RK4 else 1):
+            if evaluate_ff(ip, fp, mi, mf, mi_r, mf_r, u, nq, _stage_time(method, s, t, h),
+                           z if s == 0 else Y, K, stat) != OK:
                 return -2 - k
-            for a in range(n):
-                acc[a] = (acc[a] + K[a]) + K[a]
-                Y[a] = K[a] * half + z[a]
-            if evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t + half, Y, K, stat) != OK:
-                return -2 - k
-            for a in range(n):
-                acc[a] = (acc[a] + K[a]) + K[a]
-                Y[a] = K[a] * h + z[a]
-            if evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t + h, Y, K, stat) != OK:
-                return -2 - k
-            h6 = h / 6.0
-            for a in range(n):
-                z[a] += (acc[a] + K[a]) * h6
-        elif method == M_SEMI_IMPLICIT_EULER:
-            if evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, K, stat) != OK:
-                return -2 - k
-            for a in range(nq, n):
-                z[a] += K[a] * h
-            config_rate(kind, ip, mi, nq, z[:nq], z[nq:], qd)
+            _stage_update(method, s, h, z, K, Y, acc, nq)
+        if method == M_SEMI_IMPLICIT_EULER:
+            qdot_into(mi, z[:nq], z[nq:], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
-        else:
-            if evaluate(kind, ip, fp, mi, mf, mi_r, mf_r, u, nq, t, z, K, stat) != OK:
-                return -2 - k
-            for a in range(n):
-                z[a] += K[a] * h
-        if project(kind, ip, fp, mi, mf, mi_r, mf_r, nq, z[:ny]) != OK:
+        if project_ff(ip, fp, mi, mf, mi_r, mf_r, nq, z[:n - 1]) != OK:
             return -2 - k
-        for a in range(n):
-            if not math.isfinite(z[a]):
-                return k
+        if not _all_finite_1d(z):
+            return k
     return -1
+
+
+@njit(**_JIT)
+def integrate_au(ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h_last, stat):
+    """Fused fixed-step loop of the augmented free base."""
+    n = z.shape[0]
+    K, Y, acc, qd = np.empty(n), np.empty(n), np.empty(n), np.empty(nq)
+    for k in range(n_full + (1 if h_last > 0.0 else 0)):
+        t = t0 + k * dt
+        h = dt if k < n_full else h_last
+        for s in range(4 if method == M_RK4 else 1):
+            if evaluate_au(ip, fp, mi, mf, mi_r, mf_r, u, nq, _stage_time(method, s, t, h),
+                           z if s == 0 else Y, K, stat) != OK:
+                return -2 - k
+            _stage_update(method, s, h, z, K, Y, acc, nq)
+        if method == M_SEMI_IMPLICIT_EULER:
+            au_config_rate(nq, n - nq, z[:nq], z[nq:], qd)
+            for a in range(nq):
+                z[a] += qd[a] * h
+        if project_au(ip, fp, mi, mf, mi_r, mf_r, nq, z[:n - 1]) != OK:
+            return -2 - k
+        if not _all_finite_1d(z):
+            return k
+    return -1
+
+
+@njit(**_JIT)
+def integrate_pr(ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h_last, stat):
+    """Fused fixed-step loop of the prescribed-path arm."""
+    n = z.shape[0]
+    K, Y, acc = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n_full + (1 if h_last > 0.0 else 0)):
+        t = t0 + k * dt
+        h = dt if k < n_full else h_last
+        for s in range(4 if method == M_RK4 else 1):
+            if evaluate_pr(ip, fp, mi, mf, mi_r, mf_r, u, nq, _stage_time(method, s, t, h),
+                           z if s == 0 else Y, K, stat) != OK:
+                return -2 - k
+            _stage_update(method, s, h, z, K, Y, acc, nq)
+        if method == M_SEMI_IMPLICIT_EULER:  # q̇ = v
+            for a in range(nq):
+                z[a] += z[nq + a] * h
+        if not _all_finite_1d(z):
+            return k
+    return -1
+
+
+#: kind -> (evaluate, project, integrate)
+ENTRY_POINTS = {DIFFDRIVE: (evaluate_dd, project_dd, integrate_dd), FREEFLYER: (evaluate_ff, project_ff, integrate_ff),
+                AUGMENTED: (evaluate_au, project_au, integrate_au), PRESCRIBED: (evaluate_pr, project_pr, integrate_pr)}
