@@ -15,7 +15,12 @@ import time
 
 
 def calibrate(fn, target=0.02) -> int:
-    """Number of calls of ``fn`` that take about ``target`` CPU seconds (at least 1)."""
+    """Number of calls of ``fn`` that take about ``target`` CPU seconds (at least 1).
+
+    The first call is not timed: it may load or compile code (numba's cache), which would make
+    the batches far too small.
+    """
+    fn()
     n = 1
     while True:
         t0 = time.process_time()

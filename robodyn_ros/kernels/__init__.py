@@ -16,7 +16,9 @@ code on a packed copy of the model::
 Arguments are float64 numpy arrays (1-D slices of a state vector are fine); results are new
 arrays. ``AVAILABLE`` is False when numba cannot be imported, and callers (``ArmSystem``) then
 use the reference. The fused integrators (:meth:`CompiledModel.integrate_arm`) run a whole
-publication period of fixed steps in one compiled call.
+publication period of fixed steps in one compiled call. The constrained and floating-base
+systems (differential drive, free base in minimal and augmented coordinates, prescribed path)
+run on :class:`CompiledSystem` (:mod:`robodyn_ros.kernels.constrained`), with the same fused loop.
 
 Compilation cache. Every kernel is ``@njit(cache=True)``: the first start of a new install
 compiles (a few seconds, see ``robodyn bench speed``) and writes the machine code next to the

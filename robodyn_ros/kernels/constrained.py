@@ -27,13 +27,26 @@ report.
 **KKT solve** (:func:`kkt_solve`, eq. (3) of :mod:`robodyn_ros.constraints`): Cholesky of ``M``
 (block-diagonal beyond its first ``nd`` rows, as in the augmented formulation, where the CoM
 block is ``m_i 1``: the factor is then computed blockwise — the same numbers a dense factor
-gives, since the off-diagonal entries are exact zeros), the Schur complement ``A = K M⁻¹ Kᵀ``,
-then the eigen-decomposition with the ``rcond`` cut-off of the reference. When the caller does
-not ask for the rank figures, a Cholesky factor of ``A`` is tried first and used when it
-*certifies* that no eigenvalue would be cut: ``λ_min ≥ 1/tr(A⁻¹) > rcond · tr(A) ≥ rcond ·
-λ_max`` (``tr(A⁻¹) = ‖L⁻¹‖_F²``). The pseudo-inverse of the reference is then the inverse, so
-the multipliers are the same numbers up to rounding, for a fraction of the cost of ``eigh``
-(the 15 rows of the augmented free-flyer: ~1 µs instead of ~14 µs).
+gives, since the off-diagonal entries are exact zeros), the Schur complement ``A = K M⁻¹ Kᵀ``
+(skipping the zeros of the constraint rows), then the eigen-decomposition with the ``rcond``
+cut-off of the reference. When the caller does not ask for the rank figures, a Cholesky factor
+of ``A`` is tried first and used when it *certifies* that no eigenvalue would be cut:
+``λ_min ≥ 1/tr(A⁻¹) > rcond · tr(A) ≥ rcond · λ_max`` (``tr(A⁻¹) = ‖L⁻¹‖_F²``). The
+pseudo-inverse of the reference is then the inverse, so the multipliers are the same numbers
+up to rounding, for a fraction of the cost of an eigen-decomposition.
+
+**Small dense linear algebra without LAPACK.** The matrices here have a few rows (4 rolling
+constraints, 3 table rows, 15 joint connections, a 2-row end-point constraint), where a call
+into LAPACK costs more than the arithmetic and its numba bindings take seconds to compile.
+Eigenproblems use cyclic Jacobi (:func:`sym_eig`), least squares on the symmetric positive
+semi-definite Schur complements the eigen pseudo-inverse (:func:`pinv_solve`, what ``lstsq``
+computes for such matrices), square systems LU with partial pivoting (:func:`lu_solve`), and
+the singular values of the 2-row end-point Jacobian one-sided Jacobi (:func:`singular_values_2`).
+All are backward stable like the reference's LAPACK routines; the tests compare to 1e-12.
+
+**Compile units.** Each system kind has its own entry points (``evaluate_*``, ``project_*``,
+``integrate_*``): the first run of a scene compiles only what its system uses. Flags are passed
+to the large solvers through :func:`flag` (numba compiles a callee once per constant argument).
 """
 from __future__ import annotations
 
