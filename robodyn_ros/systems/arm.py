@@ -7,7 +7,8 @@ from .. import dynamics as dyn
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
 from ..model import PRISMATIC, REVOLUTE, Model
-from .base import BACKENDS, InputPort, LazyValues, System, SystemOutputs, default_backend  # noqa: F401
+from .base import (BACKENDS, InputPort, LazyValues, System, SystemOutputs, default_backend,  # noqa: F401
+                   effort_actuation)
 
 
 #: the methods whose ArmSystem versions the fused loop reproduces
@@ -41,18 +42,8 @@ class ArmSystem(System):
         self.nq, self.nv = model.nq, model.nv
         self.ny = self.nq + self.nv
         self.joint_names = model.dof_joint_names
-        actuated = list(self.joint_names if actuated is None else actuated)
-        unknown = [j for j in actuated if j not in self.joint_names]
-        if unknown:
-            raise ValueError(f'actuated joints {unknown} are not joints of {model.name}; '
-                             f'joints are {self.joint_names}')
-        self.actuated = actuated
-        dof_index = {n: k for k, n in enumerate(self.joint_names)}
-        self.B = np.zeros((self.nv, len(actuated)))  # actuation matrix: tau = B u
-        for k, n in enumerate(actuated):
-            self.B[dof_index[n], k] = 1.0
-        units = ['N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated]
-        self.inputs = {'effort': InputPort('effort', len(actuated), tuple(actuated), '/'.join(sorted(set(units))) or '-')}
+        self.actuated, self.B, port = effort_actuation(model, self.joint_names, actuated)  # tau = B u
+        self.inputs = {'effort': port}
         # child link of each 1-DOF joint, for the wrench frames
         self._dof_bodies = [i for i in range(model.nb) if model.jtype[i] in (REVOLUTE, PRISMATIC)]
 

@@ -236,3 +236,24 @@ class System:
         """URDF of the system for ``robot_description`` (names equal those in joint_states)."""
         from ..model import to_urdf
         return to_urdf(self.model)
+
+
+def effort_actuation(model, candidates, actuated=None, what='joints'):
+    """Validated actuated joints, actuation matrix and ``effort`` input port of a tree model.
+
+    model: the kinematic tree (its ``v_idx`` places each joint in v); candidates: the joints
+    that may be driven; actuated: the driven ones (None = all candidates); what: how the
+    candidates are named in the error message. Returns ``(actuated, B (nv, m), port)`` with
+    ``tau = B u``; raises ValueError naming unknown joints.
+    """
+    from ..model import REVOLUTE
+    candidates = list(candidates)
+    actuated = list(candidates if actuated is None else actuated)
+    unknown = [j for j in actuated if j not in candidates]
+    if unknown:
+        raise ValueError(f'actuated joints {unknown} are not {what} of {model.name}; {what} are {candidates}')
+    B = np.zeros((model.nv, len(actuated)))
+    for k, n in enumerate(actuated):
+        B[model.v_idx[model.joint_names.index(n)], k] = 1.0
+    units = sorted({'N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated})
+    return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-')

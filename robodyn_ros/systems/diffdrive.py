@@ -107,8 +107,9 @@ from scipy.linalg import cho_factor, cho_solve, eigh
 from .. import dynamics as dyn
 from .. import kernels
 from ..constraints import KKT_RCOND, SolveInfo, baumgarte_rhs, kkt_solve, null_space_basis
-from ..model import REVOLUTE, LinkSpec, ModelError, build_model, to_urdf
-from .base import InputPort, System, SystemOutputs, compiled_fused_advance, keeps_methods, resolve_backend
+from ..model import LinkSpec, ModelError, build_model, to_urdf
+from .base import (InputPort, System, SystemOutputs, compiled_fused_advance, effort_actuation, keeps_methods,
+                   resolve_backend)
 from .motor import DCMotor
 
 __all__ = ['Body', 'PlatformParams', 'DiffDriveSystem', 'PLATFORM_LINKS', 'SIDES']
@@ -239,21 +240,14 @@ class DiffDriveSystem(System):
         self.coordinate_names = ['x', 'y', 'yaw'] + self.joint_names
         self._arm_idx = np.array([m.v_idx[m.joint_names.index(n)] for n in self.arm_joint_names], dtype=int)
         self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(int)
-        actuated = list(self.arm_joint_names if arm_actuated is None else arm_actuated)
-        unknown = [j for j in actuated if j not in self.arm_joint_names]
-        if unknown:
-            raise ValueError(f'actuated joints {unknown} are not arm joints; arm joints are {self.arm_joint_names}')
-        self.actuated = actuated
-        self.B = np.zeros((self.nv, len(actuated)))  # arm actuation: tau = B u['effort']
-        for k, n in enumerate(actuated):
-            self.B[m.v_idx[m.joint_names.index(n)], k] = 1.0
+        actuated, self.B, effort_port = effort_actuation(m, self.arm_joint_names, arm_actuated, 'arm joints')
+        self.actuated = actuated  # arm actuation: tau = B u['effort']
         self._cur = [k for k, mot in enumerate(self.motors) if mot.has_current_state]
         self.n_current = len(self._cur)
         self.ny = 2 * self.nv + self.n_current
         self.inputs = {'wheel_voltage': InputPort('wheel_voltage', 2, SIDES, 'V')}
         if actuated:
-            units = ['N·m' if m.jtype[m.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated]
-            self.inputs['effort'] = InputPort('effort', len(actuated), tuple(actuated), '/'.join(sorted(set(units))))
+            self.inputs['effort'] = effort_port
         self._armature = np.zeros(self.nv)
         self._armature[[_IL, _IR]] = [mot.reflected_inertia for mot in self.motors]
         self._wheels = (m.body('left_wheel'), m.body('right_wheel'))

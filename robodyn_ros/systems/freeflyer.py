@@ -42,9 +42,10 @@ import numpy as np
 from .. import constraints as con
 from .. import dynamics as dyn
 from .. import kernels
-from ..model import FREE, REVOLUTE, LinkSpec, Model, ModelError, build_model, to_urdf
+from ..model import FREE, LinkSpec, Model, ModelError, build_model, to_urdf
 from ..spatial import quat_to_R, skew
-from .base import InputPort, System, SystemOutputs, compiled_fused_advance, keeps_methods, resolve_backend
+from .base import (InputPort, System, SystemOutputs, compiled_fused_advance, effort_actuation, keeps_methods,
+                   resolve_backend)
 
 __all__ = ['ENVIRONMENTS', 'STABILISATIONS', 'FORMULATIONS', 'FreeFlyerSystem', 'free_flyer_model',
            'table_rows', 'level_quaternion', 'free_base_urdf', 'momentum_about_com', 'BASE_WRENCH_LABELS']
@@ -215,23 +216,13 @@ class _FreeBaseCommon(System):
         self.alpha, self.beta = (float(alpha), float(beta)) if stabilisation != 'none' else (0.0, 0.0)
         self.base_link = model.link_names[0]
         self.joint_names = model.dof_joint_names
-        actuated = list(self.joint_names if actuated is None else actuated)
-        unknown = [j for j in actuated if j not in self.joint_names]
-        if unknown:
-            raise ValueError(f'actuated joints {unknown} are not arm joints of {model.name}; '
-                             f'joints are {self.joint_names}')
-        self.actuated = actuated
+        self.actuated, self.B, port = effort_actuation(model, self.joint_names, actuated, 'arm joints')
         self.n_arm = len(self.joint_names)
-        dof_index = {n: k for k, n in enumerate(self.joint_names)}
-        self.B = np.zeros((model.nv, len(actuated)))  # tau = B u on the minimal v (6 base + arm)
-        self.Bq = np.zeros((len(actuated), model.nq))  # actuated joint positions = Bq q (minimal q)
-        for k, n in enumerate(actuated):
-            self.B[6 + dof_index[n], k] = 1.0
-            self.Bq[k, 7 + dof_index[n]] = 1.0
-        units = ['N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated]
-        unit = '/'.join(sorted(set(units))) or '-'
-        self.inputs = {'effort': InputPort('effort', len(actuated), tuple(actuated), unit),
-                       'base_wrench': InputPort('base_wrench', 6, BASE_WRENCH_LABELS, 'N/N·m')}
+        # tau = B u on the minimal v (6 base + arm); actuated joint positions = Bq q (minimal q)
+        self.Bq = np.zeros((len(self.actuated), model.nq))
+        for k, n in enumerate(self.actuated):
+            self.Bq[k, model.q_idx[model.joint_names.index(n)]] = 1.0
+        self.inputs = {'effort': port, 'base_wrench': InputPort('base_wrench', 6, BASE_WRENCH_LABELS, 'N/N·m')}
         self.mass = model.total_mass()
         self.weight = self.mass * float(np.linalg.norm(model.gravity))
 
