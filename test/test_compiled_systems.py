@@ -35,29 +35,12 @@ def close(x, ref, rtol=RTOL):
 
 def _pair(name, **changes):
     """(compiled system, numpy system, scene) of a bundled scene, with constructor changes."""
-    from robodyn_ros.systems.augmented import AugmentedFreeFlyerSystem
-    from robodyn_ros.systems.diffdrive import DiffDriveSystem
-    from robodyn_ros.systems.freeflyer import FreeFlyerSystem
-    from robodyn_ros.systems.prescribed import PrescribedPathSystem
     sc = load_scene(name)
     s = sc.system
-    if isinstance(s, DiffDriveSystem):
-        def make(b):
-            return DiffDriveSystem(s.params, arm_specs=s.arm_specs or None, arm_root=s.arm_root,
-                                   arm_actuated=s.actuated, gravity=tuple(s.model.gravity), name=s.model.name,
-                                   backend=b)
-    elif isinstance(s, (FreeFlyerSystem, AugmentedFreeFlyerSystem)):
-        cls = changes.pop('cls', type(s))
+    assert hasattr(s, 'rebuilt'), type(s)
 
-        def make(b):
-            return cls(s.model, actuated=s.actuated, backend=b, **{**s.options, **changes})
-    else:
-        assert isinstance(s, PrescribedPathSystem)
-
-        def make(b):
-            kw = dict(plane=s.plane, formulation=s.formulation, actuated=s.actuated, alpha=s.alpha, beta=s.beta)
-            kw.update(changes)
-            return PrescribedPathSystem(s.model, s.end_effector, kw.pop('path', s.path), backend=b, **kw)
+    def make(b):
+        return s.rebuilt(b, **changes)
     fast, ref = make('numba'), make('numpy')
     assert fast._cs is not None and ref._cs is None
     return fast, ref, sc

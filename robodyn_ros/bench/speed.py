@@ -266,27 +266,14 @@ def _rel(x, y) -> float:
 def _system_pair(scene, formulation=None):
     """(compiled system, numpy system) of a scene's constrained/floating-base system."""
     from ..systems.augmented import AugmentedFreeFlyerSystem
-    from ..systems.diffdrive import DiffDriveSystem
     from ..systems.freeflyer import FreeFlyerSystem
-    from ..systems.prescribed import PrescribedPathSystem
     s = scene.system
-    if isinstance(s, DiffDriveSystem):
-        def make(b):
-            return DiffDriveSystem(s.params, arm_specs=s.arm_specs or None, arm_root=s.arm_root,
-                                   arm_actuated=s.actuated, gravity=tuple(s.model.gravity), name=s.model.name,
-                                   backend=b)
-    elif isinstance(s, (FreeFlyerSystem, AugmentedFreeFlyerSystem)):
-        cls = {'minimal': FreeFlyerSystem, 'augmented': AugmentedFreeFlyerSystem}.get(formulation, type(s))
-
-        def make(b):
-            return cls(s.model, actuated=s.actuated, backend=b, **s.options)
-    elif isinstance(s, PrescribedPathSystem):
-        def make(b):
-            return PrescribedPathSystem(s.model, s.end_effector, s.path, plane=s.plane, formulation=s.formulation,
-                                        actuated=s.actuated, alpha=s.alpha, beta=s.beta, backend=b)
-    else:
+    if not hasattr(s, 'rebuilt'):
         return None
-    return make('numba'), make('numpy')
+    kw = {}
+    if formulation is not None:
+        kw['cls'] = {'minimal': FreeFlyerSystem, 'augmented': AugmentedFreeFlyerSystem}[formulation]
+    return s.rebuilt('numba', **kw), s.rebuilt('numpy', **kw)
 
 
 def section_systems(args, names) -> str:

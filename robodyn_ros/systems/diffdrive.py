@@ -214,6 +214,12 @@ class DiffDriveSystem(System):
     that has actuated joints, ``effort`` (one per actuated arm joint).
     """
 
+    def rebuilt(self, backend):
+        """The same platform (and arm) built again on another ``backend``."""
+        return DiffDriveSystem(self.params, arm_specs=self.arm_specs or None, arm_root=self.arm_root,
+                               arm_actuated=self.actuated, gravity=tuple(self.model.gravity), name=self.model.name,
+                               backend=backend)
+
     def __init__(self, params: PlatformParams | None = None, arm_specs=None, arm_root='base_link',
                  arm_actuated=None, gravity=(0.0, 0.0, -9.81), name='diff_drive', backend=None):
         self.backend = resolve_backend(backend)

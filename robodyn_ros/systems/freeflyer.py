@@ -243,6 +243,15 @@ class _FreeBaseCommon(System):
                                  name=name or self.model.name, world=self.model.root)
         return type(self)(model, actuated=actuated, backend=self.backend, **self.options)
 
+    def rebuilt(self, backend, cls=None, **changes):
+        """The same system built again on another ``backend`` (and, optionally, formulation).
+
+        cls: FreeFlyerSystem or AugmentedFreeFlyerSystem (default: this system's class);
+        changes: constructor options overriding this system's (e.g. stabilisation).
+        """
+        return (cls or type(self))(self.model, actuated=self.actuated, backend=backend,
+                                   **{**self.options, **changes})
+
     def arm_torques(self, u, thetadot):
         """Applied plus passive arm joint forces ``B_arm u − D θ̇`` (n_arm,)."""
         return (self.B @ u['effort'])[6:] - self.model.damping[6:] * thetadot

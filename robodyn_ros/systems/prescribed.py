@@ -275,6 +275,15 @@ class PrescribedPathSystem(ArmSystem):
     _COMPILED_METHODS = ('rhs', 'input_power', 'solve', 'constraint', 'generalized_forces', 'mass_matrix',
                          'inverse_dynamics', 'project', 'config_rate')
 
+    def rebuilt(self, backend, **changes):
+        """The same system built again on another ``backend``; ``changes`` override its options
+        (plane, formulation, actuated, alpha, beta, singular_ratio, dls_damping, path)."""
+        kw = dict(path=self.path, plane=self.plane, formulation=self.formulation, actuated=self.actuated,
+                  alpha=self.alpha, beta=self.beta, singular_ratio=self.singular_ratio,
+                  dls_damping=self.dls_damping)
+        kw.update(changes)
+        return PrescribedPathSystem(self.model, self.end_effector, kw.pop('path'), backend=backend, **kw)
+
     def __init__(self, model: Model, end_effector: str, path, plane='xy', formulation='complement',
                  actuated=(), alpha=BAUMGARTE_ALPHA, beta=BAUMGARTE_BETA, singular_ratio=SINGULAR_RATIO,
                  dls_damping=DLS_DAMPING, backend=None):
