@@ -825,6 +825,24 @@ COMMAND_PROFILES: dict[str, Callable] = {
 }
 
 
+def _registered(ctx: SceneContext, spec, path: str, key: str, registry: dict, what: str, plural: str,
+                mapping_hint: str = ''):
+    """The builder that ``spec[key]`` names in ``registry`` (part kinds, command profiles).
+
+    Fails with the file and key path when spec is not a mapping, lacks ``key``, or names
+    nothing registered (the message lists the known ``plural``).
+    """
+    if not isinstance(spec, dict):
+        ctx.fail(path, f'expected a mapping{mapping_hint}, got {_typename(spec)} {spec!r}')
+    if key not in spec:
+        ctx.fail(_key(path, key), 'missing required key')
+    name = ctx.string(spec[key], _key(path, key))
+    builder = registry.get(name)
+    if builder is None:
+        ctx.fail(_key(path, key), f'unknown {what} {name!r}; known {plural}: {", ".join(registry)}')
+    return builder
+
+
 def _script(ctx: SceneContext, commands, system):
     """``script(t, y) -> {port: array}`` from the ``commands`` section, or None if it is empty."""
     if not isinstance(commands, dict):
@@ -836,15 +854,8 @@ def _script(ctx: SceneContext, commands, system):
     fns = {}
     for port, params in commands.items():
         path = _key('commands', port)
-        if not isinstance(params, dict):
-            ctx.fail(path, f'expected a mapping with a profile, got {_typename(params)} {params!r}')
-        if 'profile' not in params:
-            ctx.fail(_key(path, 'profile'), 'missing required key')
-        prof = ctx.string(params['profile'], _key(path, 'profile'))
-        builder = COMMAND_PROFILES.get(prof)
-        if builder is None:
-            ctx.fail(_key(path, 'profile'), f'unknown command profile {prof!r}; '
-                                            f'known profiles: {", ".join(COMMAND_PROFILES)}')
+        builder = _registered(ctx, params, path, 'profile', COMMAND_PROFILES, 'command profile', 'profiles',
+                              ' with a profile')
         fns[port] = builder(params, path, ctx, system, port)
     if not fns:
         return None
@@ -935,14 +946,7 @@ def parse_scene(text: str, file: str = '<string>', path: str | None = None) -> S
         ctx.fail('parts', 'a scene needs at least one part')
     for i, spec in enumerate(items):
         ppath = _key('parts', i)
-        if not isinstance(spec, dict):
-            ctx.fail(ppath, f'expected a mapping, got {_typename(spec)} {spec!r}')
-        if 'kind' not in spec:
-            ctx.fail(_key(ppath, 'kind'), 'missing required key')
-        kind = ctx.string(spec['kind'], _key(ppath, 'kind'))
-        builder = PART_KINDS.get(kind)
-        if builder is None:
-            ctx.fail(_key(ppath, 'kind'), f'unknown part kind {kind!r}; known kinds: {", ".join(PART_KINDS)}')
+        builder = _registered(ctx, spec, ppath, 'kind', PART_KINDS, 'part kind', 'kinds')
         part = builder(spec, ppath, ctx)
         if any(p.name == part.name for p in ctx.parts):
             ctx.fail(_key(ppath, 'name'), f'duplicate part name {part.name!r}')
