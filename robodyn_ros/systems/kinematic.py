@@ -60,10 +60,6 @@ class KinematicArmSystem(System):
         self.nq, self.nv, self.ny = 1, 0, 1
         self.initial_state_sizes = (model.nv, model.nv)
 
-    def rebuilt(self, backend):
-        """The same system on another backend."""
-        return KinematicArmSystem(self.model, self.motion, backend=backend)
-
     # -- the prescribed motion -------------------------------------------------------------
     def joint_motion(self, s: float):
         """``(q, q̇, q̈)`` (nv,) each at time s; FloatingPointError naming the joint if non-finite."""
@@ -100,8 +96,8 @@ class KinematicArmSystem(System):
         return np.zeros(1)
 
     def rhs(self, t, y, u):
-        """``[1]``: the clock; also checks that the motion is finite at y (FloatingPointError)."""
-        self.joint_motion(float(y[0]))
+        """``[1]``: the clock. (The work quadrature's :meth:`input_power`, evaluated with it at
+        every stage, raises FloatingPointError where the motion is not finite.)"""
         return np.ones(1)
 
     def config_rate(self, q, w):
