@@ -59,6 +59,18 @@ initial velocity must roll without slip), then one current per motor with ``indu
 its inputs are ``wheel_voltage`` ``[left, right]`` (V) and, with an arm mounted on it
 (``mount: <platform name>``, ``origin`` in base_link), the arm's ``effort``.
 
+Prescribed joint motion (seed 001's DH animation; :mod:`robodyn_ros.systems.kinematic`)::
+
+      - kind: kinematic_arm               # the keys of an arm part, without 'actuated', plus
+        name: arm
+        links: [...]                      # (or dh: {...})
+        motion: {joint1: pi*t, joint2: pi/3 + sin(t)}   # every 1-DOF joint: an expression of t
+
+Expressions use the whitelist of :mod:`robodyn_ros.expressions` (numbers, ``t``, ``pi``, ``e``,
+``+ - * / **``, sin, cos, exp, ...; never ``eval``), with exact q̇, q̈. The state is the clock
+``[t]`` (``initial_state`` is refused) and the system has no inputs; its joint_states effort is the
+inverse-dynamics effort that makes the arm follow the motion.
+
 Extension: a new part kind registers ``PART_KINDS[kind] = builder`` with
 ``builder(spec, path, ctx) -> Part``; a new command profile registers
 ``COMMAND_PROFILES[name] = builder`` with ``builder(params, path, ctx, system, port) ->
