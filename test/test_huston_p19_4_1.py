@@ -11,6 +11,7 @@ seed (it holds the problems only), so the figures are ours; the test prints them
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from robodyn_ros import dynamics as dyn
 from robodyn_ros.scene import load_scene
@@ -109,3 +110,50 @@ def test_link_angular_velocities_p19_4_5():
         wk = R[i] @ vb[i][:3]
         print(f'P19.4.5 omega_L{k + 1} (rad/s, in R):', np.round(wk, 6).tolist())
         assert np.abs(wk - w).max() < 1e-13, k
+
+
+def _partial_velocities(S, O, G):
+    """Huston's partial velocities (sections 19.5, 19.10) by hand: ``omega_r[k]`` (7, 6, 3), the
+    partial angular velocity of link k for coordinate r, and ``v_r[k]`` of its mass centre G_k."""
+    axes = [np.array([0.0, 0.0, 1.0])] + [S[j][:, 2] for j in range(6)]      # n_03 (base), pins 1..6
+    points = [np.zeros(3)] + [O[j] for j in range(6)]                        # a point of each axis
+    w = np.zeros((7, 6, 3))
+    v = np.zeros((7, 6, 3))
+    for r in range(7):
+        for k in range(6):
+            if r <= k + 1:  # coordinate r moves link k (r = 0: the base; r = j + 1: pin j)
+                w[r, k] = axes[r]
+                v[r, k] = np.cross(axes[r], G[k] - points[r])
+    return w, v
+
+
+def test_kinetic_energy_and_gravity_forces_by_partial_velocities():
+    """At P19.4.2 with the P19.4.5 rates (pi rad/s): the kinetic energy from Huston's partial
+    velocities (1/2 m v_G^2 + 1/2 w.I w per bar, 1/2 I_B w_B^2 for the base), and the generalised
+    gravity forces F_r = sum_k m_k g . v_r(G_k) (section 19.13), against the model's kinetic energy
+    and -RNEA(q, 0, 0)."""
+    sc, m, q = _model_state()
+    S, O = hand()
+    G = np.array([O[k] + 0.5 * LENGTH[k] * S[k][:, 0] for k in range(6)])
+    w_r, v_r = _partial_velocities(S, O, G)
+    mass = 2.0 * LENGTH  # the scene's 2 kg/m bars
+    qd = np.full(7, np.pi)
+    ke = 0.5 * 0.0025 * np.pi ** 2  # the base: solid cylinder, m r^2 / 2 = 0.0025 kg m^2 about its axis
+    for k in range(6):
+        wk = np.einsum('r,ri->i', qd, w_r[:, k])
+        vk = np.einsum('r,ri->i', qd, v_r[:, k])
+        I = S[k] @ np.diag([0.0, 1.0, 1.0]) @ S[k].T * mass[k] * LENGTH[k] ** 2 / 12.0
+        ke += 0.5 * mass[k] * vk @ vk + 0.5 * wk @ I @ wk
+    ke_model = dyn.kinetic_energy(m, q, qd)
+    print(f'P19.4.5 state: kinetic energy {ke_model:.12g} J (partial velocities {ke:.12g} J)')
+    assert abs(ke_model - ke) <= 1e-13 * ke
+    g = np.array([0.0, 0.0, -9.81])
+    F = np.array([sum(mass[k] * g @ v_r[r, k] for k in range(6)) for r in range(7)])
+    gravity = dyn.rnea(m, q, np.zeros(7), np.zeros(7))
+    print('P19.4.2 generalised gravity forces (N m):', np.round(F, 9).tolist())
+    assert F[0] == pytest.approx(0.0, abs=1e-15)  # gravity has no moment about the vertical base axis
+    assert np.abs(-gravity - F).max() <= 1e-13 * np.abs(F).max()
+    # a planted error must show: the mass centres at the pins' far ends instead of mid-link
+    F_bad = np.array([sum(mass[k] * g @ np.cross(w_r[r, k], O[k + 1] - ([np.zeros(3)] + list(O[:6]))[r])
+                          for k in range(6) if r <= k + 1) for r in range(7)])
+    assert np.abs(-gravity - F_bad).max() > 0.1 * np.abs(F).max()
