@@ -354,7 +354,7 @@ def diagnose(system, y, u, integrator: str, dt=None, t: float = 0.0) -> str:
             k = int(np.argmax(np.abs(lam)))
             text = f'fastest mode |λ| = {abs(lam[k]):.3g} 1/s (time constant {1.0 / max(abs(lam[k]), 1e-300):.3g} s)'
             name = str(integrator).lower()
-            if name in FIXED_EXPLICIT and dt:
+            if name in FIXED_EXPLICIT and dt and abs(lam[k]) > 0.0:  # (a still system has no step limit)
                 text += (f', h·|λ| = {dt * abs(lam[k]):.3g} for {name} dt={dt:g} s '
                          f'(stable up to {stable_step_limit(name, complex(lam[k])) * abs(lam[k]):.3g})')
             parts.append(text)

@@ -59,6 +59,18 @@ initial velocity must roll without slip), then one current per motor with ``indu
 its inputs are ``wheel_voltage`` ``[left, right]`` (V) and, with an arm mounted on it
 (``mount: <platform name>``, ``origin`` in base_link), the arm's ``effort``.
 
+Prescribed joint motion (seed 001's DH animation; :mod:`robodyn_ros.systems.kinematic`)::
+
+      - kind: kinematic_arm               # the keys of an arm part, without 'actuated', plus
+        name: arm
+        links: [...]                      # (or dh: {...})
+        motion: {joint1: pi*t, joint2: pi/3 + sin(t)}   # every 1-DOF joint: an expression of t
+
+Expressions use the whitelist of :mod:`robodyn_ros.expressions` (numbers, ``t``, ``pi``, ``e``,
+``+ - * / **``, sin, cos, exp, ...; never ``eval``), with exact q̇, q̈. The state is the clock
+``[t]`` (``initial_state`` is refused) and the system has no inputs; its joint_states effort is the
+inverse-dynamics effort that makes the arm follow the motion.
+
 Extension: a new part kind registers ``PART_KINDS[kind] = builder`` with
 ``builder(spec, path, ctx) -> Part``; a new command profile registers
 ``COMMAND_PROFILES[name] = builder`` with ``builder(params, path, ctx, system, port) ->
@@ -681,6 +693,49 @@ def _assemble_diff_drive(ctx: SceneContext, parts: list):
 
 
 PART_KINDS['diff_drive'] = build_diff_drive_part
+
+
+def build_kinematic_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build a ``kinematic_arm`` part: an arm whose 1-DOF joints follow functions of time.
+
+    The keys of an ``arm`` part (``dh`` or ``links``; no ``actuated``: every joint is driven)
+    plus ``motion: {<joint>: <expression of t>, ...}`` for every 1-DOF joint, written with the
+    whitelist of :mod:`robodyn_ros.expressions` (e.g. ``pi/3 + t``). The system
+    (:mod:`robodyn_ros.systems.kinematic`) publishes the inverse-dynamics efforts that make the
+    arm follow the motion. A parameter that varies in time but is not a joint variable (Betancur's
+    DH twist alpha_2(t)) is written as an extra driven joint with a massless child frame.
+    """
+    from .expressions import ExpressionError, parse_time_function
+    from .systems.kinematic import KinematicArmSystem
+    ctx.mapping(spec, path, required=_ARM_REQUIRED + ('motion',),
+                optional=tuple(k for k in _ARM_OPTIONAL if k != 'actuated'))
+    from .systems.base import backend_scope, default_backend
+    backend = default_backend()
+    with backend_scope('numpy'):  # only the validated model is kept: no compiled arm kernels for it
+        arm = build_arm_part({**{k: v for k, v in spec.items() if k != 'motion'}, 'kind': 'arm'}, path, ctx)
+    model = arm.system.model
+    mpath = _key(path, 'motion')
+    mot = ctx.mapping(spec['motion'], mpath, optional=tuple(model.dof_joint_names))
+    motion = {}
+    for j in model.dof_joint_names:
+        if j not in mot:
+            ctx.fail(_key(mpath, j), f'missing: every 1-DOF joint needs its motion; joints are {model.dof_joint_names}')
+        try:
+            f = parse_time_function(mot[j])
+        except ExpressionError as e:
+            ctx.fail(_key(mpath, j), str(e))
+        with np.errstate(all='ignore'):
+            if not np.all(np.isfinite(f.jet(0.0))):
+                ctx.fail(_key(mpath, j), f'{f.text!r} or its derivatives are not finite at t = 0')
+        motion[j] = f
+    try:
+        system = KinematicArmSystem(model, motion, backend=backend)
+    except ValueError as e:
+        ctx.fail(path, str(e))
+    return Part(name=arm.name, kind='kinematic_arm', mount=arm.mount, system=system, path=path)
+
+
+PART_KINDS['kinematic_arm'] = build_kinematic_arm_part
 
 
 def _assemble(ctx: SceneContext, parts: list) -> object:

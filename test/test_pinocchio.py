@@ -280,3 +280,19 @@ def test_bundled_scenes_against_pinocchio():
     assert n_models >= 1, f'no kinematic tree found in scenes {names}'
     per_state = {'pose': n_moving, 'wrench': 2 * n_moving, 'rnea': 2 * n_models, 'aba': 2 * n_models}
     assert_all(allerrs, {k: 2 * per_state.get(k, n_models) for k in allerrs})
+
+
+@pytest.mark.parametrize('name', ['huston_p19_4_1', 'betancur_dh_animation'])
+def test_issue11_scenes_against_pinocchio(name):
+    """The two scenes of issue 11 part B by name (so a missing or renamed scene fails here):
+    M, RNEA, ABA, joint wrenches, energies and centre of mass at 4 random states each."""
+    from robodyn_ros.scene import load_scene
+    rng = np.random.default_rng(46)
+    models = {id(mm): mm for mm in _models_in(load_scene(name))}.values()
+    assert len(models) == 1, name
+    m = next(iter(models))
+    n_moving = int((m.jtype != FIXED).sum())
+    assert n_moving == {'huston_p19_4_1': 7, 'betancur_dh_animation': 5}[name]
+    errs = compare(m, rng, 4, name)
+    per_state = {'pose': n_moving, 'wrench': 2 * n_moving, 'rnea': 2, 'aba': 2}
+    assert_all(errs, {k: 4 * per_state.get(k, 1) for k in errs})

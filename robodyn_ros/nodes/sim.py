@@ -167,6 +167,9 @@ def resolve_config(p: dict, scene) -> Config:
             raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
     if p['scripted_commands'] and mode == 'lockstep':
         raise ConfigError("scripted_commands needs mode realtime or max: lockstep advances on received commands")
+    if mode == 'lockstep' and not scene.system.inputs:
+        raise ConfigError(f"mode lockstep advances one period per command, but scene {scene.name!r} "
+                          f"({type(scene.system).__name__}) takes no commands; use mode realtime or max")
     if p['scripted_commands'] and scene.script is None:
         raise ConfigError(f'scripted_commands: scene {scene.name!r} has no scripted commands')
     if not isinstance(p['record'], str):
