@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .integrators import INTEGRATORS, IntegrationError, make_integrator
+from .stability import check_fixed_step, diagnose, preflight
 from .systems.base import System, SystemOutputs
 
 
@@ -93,10 +94,10 @@ def check_step(system: System, integrator: str, dt, y):
     (s); y: the state it starts from. Error-controlled and implicit integrators always pass
     (they adapt or are stable). Policy: refuse, do not sub-step silently — raises ValueError
     naming the time constant, the largest stable step and the alternatives. Beyond the declared
-    time constant, :func:`robodyn_ros.extremes.check_fixed_step` checks the modes of the
+    time constant, :func:`robodyn_ros.stability.check_fixed_step` checks the modes of the
     linearisation at y (finite differences) and the spin of a free base: it refuses a step that
-    amplifies one of them by more than ``extremes.REFUSE_GROWTH`` per step and warns
-    (``extremes.StepWarning``) on a slow spurious growth (explicit Euler on an oscillation).
+    amplifies one of them by more than ``stability.REFUSE_GROWTH`` per step and warns
+    (``stability.StepWarning``) on a slow spurious growth (explicit Euler on an oscillation).
     """
     name = str(integrator).lower()
     limit = STABILITY_LIMIT.get(name)
@@ -107,7 +108,6 @@ def check_step(system: System, integrator: str, dt, y):
         raise ValueError(f'{name} with dt={dt:g} s is unstable for this system: its fastest time constant is '
                          f'{tau:.3g} s ({type(system).__name__}; e.g. motor electrics L/R), so a stable {name} step is '
                          f'at most {limit * tau:.3g} s; use a smaller dt or an implicit integrator (radau, bdf)')
-    from .extremes import check_fixed_step
     check_fixed_step(system, name, dt, y)
 
 
@@ -130,7 +130,6 @@ class Simulator:
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
         self.reset()
-        from .extremes import preflight
         preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
         check_step(system, integrator, dt, self.y)
 
@@ -272,8 +271,7 @@ class Simulator:
         return self.y
 
     def _diagnosis(self, u) -> str:
-        """``'; <likely cause>'`` of a failure, from the last good state (extremes.diagnose)."""
-        from .extremes import diagnose
+        """``'; <likely cause>'`` of a failure, from the last good state (stability.diagnose)."""
         text = diagnose(self.system, self.y, u, self.settings['integrator'], self.settings['dt'], self.t)
         return f'; {text}' if text else ''
 

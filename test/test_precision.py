@@ -97,7 +97,8 @@ def test_symplectic_step_keeps_energy_bounded_over_1e4_s_while_euler_grows():
     """A 1-link pendulum (1 kg point mass on 1 m, small-angle ω = 0.05 rad/s, 80 periods in 1e4 s) at
     dt = 0.1 s: semi-implicit Euler's energy error stays bounded (no larger in the second half of the run
     than in the first); explicit Euler's grows (and the simulator warned that it would)."""
-    from robodyn_ros.extremes import StepWarning, slow_pendulum
+    from robodyn_ros.bench.extremes import slow_pendulum
+    from robodyn_ros.stability import StepWarning
     s = slow_pendulum(0.05)
     y0 = s.initial_state(np.array([0.3]))
     scale = s.total_energy(y0) + 0.05 ** 2  # the swing energy (J) above the bottom
