@@ -244,6 +244,7 @@ def test_bad_commands_rejected_node_alive_states_finite_then_timeout_zeroes_effo
     assert int(v['rejected_commands']) == 4
     assert v['effort_timed_out'] == 'true'
     assert node.alive()
+    assert states, 'no joint_states received'
     for s in states:
         assert np.all(np.isfinite(s.position)) and np.all(np.isfinite(s.velocity)) and np.all(np.isfinite(s.effort))
     log = node.output()
@@ -318,7 +319,8 @@ def test_realtime_mode_holds_rate_factor_one_at_1khz(tmp_path):
     rtf, compute = float(v['real_time_factor_overall']), float(v['real_time_factor_compute'])
     print(f'\nrealtime 1 kHz: real-time factor {rtf:.4f} overall, last interval {v["real_time_factor"]}, '
           f'compute-only {compute:.2f}, load average {os.getloadavg()}')
-    if abs(rtf - 1.0) > 0.05 and compute < 1.15:
+    assert rtf <= 1.05, v  # paced: never ahead of the wall clock, however idle the machine
+    if abs(rtf - 1.0) > 0.05 and compute < 1.15:  # behind it only because the machine is too busy: not a pass
         pytest.skip(f'machine too busy to run 1 kHz in real time: compute-only factor {compute:.2f}, '
                     f'achieved {rtf:.3f}, load {os.getloadavg()[0]:.1f}')
     assert abs(rtf - 1.0) <= 0.05, v
