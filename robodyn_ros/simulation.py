@@ -324,6 +324,10 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     diagnostics only when it publishes them), ``close()``;
     wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``).
     Returns the number of periods run. The final state stays in ``sim``.
+
+    Which command an output carries: the output at the end of a period carries the command held
+    over that period. The first period's scripted command is set before the initial state at t0
+    is published, so that output carries the command applied from t0 on (README, "The node").
     """
     if rate <= 0 or not math.isfinite(rate):
         raise ValueError(f'rate must be a positive number of Hz, got {rate!r}')
@@ -332,17 +336,24 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     n = int(round(duration * rate))
     for s in sinks:
         s.on_start(sim)
-    # publish the initial state at t0 so a recording starts where the run starts
-    out = sim.outputs(wrenches=wrenches)
-    for s in sinks:
-        s.on_output(sim.t, out, sim)
-    t_start = sim.t
-    for k in range(n):
+
+    def feed():  # the scripted command of the period starting now, held over it
         if script is not None:
             for port, values in script(sim.t, sim.y).items():
                 sim.set_command(port, values)
                 for s in sinks:
                     s.on_command(sim.t, port, sim.ports[port].value)
+    # publish the initial state at t0 so a recording starts where the run starts, with the
+    # command that is applied from t0 on
+    if n > 0:
+        feed()
+    out = sim.outputs(wrenches=wrenches)
+    for s in sinks:
+        s.on_output(sim.t, out, sim)
+    t_start = sim.t
+    for k in range(n):
+        if k > 0:
+            feed()
         sim.advance(t_start + (k + 1) / rate)
         out = sim.outputs(wrenches=wrenches)
         for s in sinks:
