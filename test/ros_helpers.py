@@ -146,6 +146,26 @@ def assert_lockstep_recording_equals_headless(rec, out):
     return len(periods)
 
 
+def assert_lockstep_recording_reproduced(rec, tmp, periods):
+    """A lockstep node recording of ``periods`` periods equals the headless run fed the same
+    commands (:func:`assert_lockstep_recording_equals_headless`), and ``robodyn resim``
+    reproduces every state message of it exactly (joint_states, odom, wrenches, TF)."""
+    import contextlib
+    import io
+
+    from robodyn_ros.cli import main as robodyn
+    assert assert_lockstep_recording_equals_headless(rec, os.path.join(tmp, 'headless.mcap')) == periods
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        assert robodyn(['resim', str(rec), '--record', os.path.join(tmp, 'resim.mcap'), '--json']) == 0
+    report = json.loads(text.getvalue())
+    assert report['max_deviation'] == 0.0
+    for topic in ('/joint_states', '/odom'):
+        assert report['topics'][topic] == {'original': periods + 1, 'resimulated': periods + 1,
+                                           'identical': periods + 1, 'max_deviation': 0.0}, topic
+    assert all(v['identical'] == v['original'] == v['resimulated'] for v in report['topics'].values())
+
+
 # ------------------------------------------------------------------------------------------
 # The PD controller process: computed-torque PD on stanford_arm, one command per new state
 # ------------------------------------------------------------------------------------------

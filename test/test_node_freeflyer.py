@@ -17,7 +17,7 @@ import pinocchio as pin
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, assert_lockstep_recording_equals_headless, start_sim  # noqa: E402
+from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, start_sim  # noqa: E402
 
 RATE = 50.0                 # the scene's publish rate (Hz): one lockstep period = 20 ms
 PUSH = np.array([3.0, 1.0, 0.0, 0.0, 0.0, 0.4])   # [fx, fy, fz, tx, ty, tz] in base_link
@@ -200,25 +200,9 @@ def test_published_diagnostics_and_wrenches_agree_with_the_messages(run):
     assert n == run['periods']
 
 
-def _resim_report(rec, out, capsys):
-    import json
-
-    from robodyn_ros.cli import main as robodyn
-    capsys.readouterr()
-    assert robodyn(['resim', str(rec), '--record', str(out), '--json']) == 0
-    return json.loads(capsys.readouterr().out)
-
-
-def test_lockstep_recording_equals_headless_run_and_resim_is_exact(run, tmp_path, capsys):
+def test_lockstep_recording_equals_headless_run_and_resim_is_exact(run, tmp_path):
     """The node in lockstep == the Simulator fed the same base wrenches and arm torques per period, byte for byte
     (joint_states, odom, wrenches, TF, commands); robodyn resim reproduces the recording exactly."""
     r = run
     assert r['rc'] == 0, r['log']
-    periods = assert_lockstep_recording_equals_headless(r['record'], tmp_path / 'headless.mcap')
-    assert periods == r['periods']
-    report = _resim_report(r['record'], tmp_path / 'resim.mcap', capsys)
-    assert report['max_deviation'] == 0.0
-    for topic in ('/joint_states', '/odom'):
-        assert report['topics'][topic] == {'original': periods + 1, 'resimulated': periods + 1,
-                                           'identical': periods + 1, 'max_deviation': 0.0}, topic
-    assert all(v['identical'] == v['original'] == v['resimulated'] for v in report['topics'].values())
+    assert_lockstep_recording_reproduced(r['record'], str(tmp_path), r['periods'])
