@@ -99,3 +99,11 @@ def test_runtime_modules_do_not_import_the_top_floor(rule):
         name = module_name(path)
         bad += [v for v in violations(name, path.read_text(), path.name == '__init__.py') if rule in v.split(';')[0]]
     assert bad == []
+
+
+def test_the_runtime_checks_sit_low_in_the_house():
+    """stability.py (step preflight, diagnosis) imports only model and dynamics from the package,
+    so the Simulator's run-time checks never pull in scenes, systems or benchmarks."""
+    path = PACKAGE / 'stability.py'
+    own = {t for _, t in imported_modules(path.read_text(), 'robodyn_ros.stability') if t.startswith('robodyn_ros')}
+    assert own and own <= {'robodyn_ros', 'robodyn_ros.model', 'robodyn_ros.model.FREE', 'robodyn_ros.dynamics'}, own
