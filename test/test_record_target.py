@@ -124,3 +124,20 @@ def test_make_run_replaces_its_recording():
     assert run, 'no run target'
     recipe = run.group(1)
     assert 'record:=runs/stanford_arm.mcap' in recipe and '-p overwrite:=true' in recipe
+
+
+def test_node_overwrite_parameter_is_declared_documented_and_validated(tmp_path):
+    from robodyn_ros.nodes.sim import PARAMETERS, ConfigError, resolve_config
+    from robodyn_ros.scene import load_scene
+    assert PARAMETERS['overwrite'][0] is False
+    assert 'overwrite: false' in Path(REPO, 'config', 'sim.yaml').read_text()
+    scene = load_scene('stanford_arm')
+    raw = {k: default for k, (default, _) in PARAMETERS.items()}
+    rec = tmp_path / 'r.mcap'
+    rec.write_bytes(KEEP)
+    with pytest.raises(ConfigError, match="parameter 'overwrite' must be true or false"):
+        resolve_config({**raw, 'record': str(rec), 'overwrite': 'yes'}, scene)
+    with pytest.raises(ConfigError, match=r"parameter 'record': .*r\.mcap: exists"):
+        resolve_config({**raw, 'record': str(rec)}, scene)
+    assert resolve_config({**raw, 'record': str(rec), 'overwrite': True}, scene).record == str(rec)
+    assert rec.read_bytes() == KEEP   # checked, not touched, before the run
