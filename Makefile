@@ -16,10 +16,11 @@ $(STAMP): constraints.txt setup.py package.xml
 venv: $(STAMP)
 
 # the sim node on stanford_arm with its scripted commands, 10 s of simulation as fast as possible,
-# recorded; it prints the run summary on exit (same format as `robodyn run`)
+# recorded (replacing the recording of the previous `make run`); it prints the run summary on exit
+# (same format as `robodyn run`)
 run: $(STAMP)
 	$(VENV)/bin/sim --ros-args -p scene:=stanford_arm -p scripted_commands:=true -p mode:=max \
-	  -p duration:=10.0 -p record:=runs/stanford_arm.mcap
+	  -p duration:=10.0 -p record:=runs/stanford_arm.mcap -p overwrite:=true
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .integrators import INTEGRATORS, IntegrationError, make_integrator
+from .stability import check_fixed_step, diagnose, preflight
 from .systems.base import System, SystemOutputs
 
 
@@ -93,10 +94,10 @@ def check_step(system: System, integrator: str, dt, y):
     (s); y: the state it starts from. Error-controlled and implicit integrators always pass
     (they adapt or are stable). Policy: refuse, do not sub-step silently — raises ValueError
     naming the time constant, the largest stable step and the alternatives. Beyond the declared
-    time constant, :func:`robodyn_ros.extremes.check_fixed_step` checks the modes of the
+    time constant, :func:`robodyn_ros.stability.check_fixed_step` checks the modes of the
     linearisation at y (finite differences) and the spin of a free base: it refuses a step that
-    amplifies one of them by more than ``extremes.REFUSE_GROWTH`` per step and warns
-    (``extremes.StepWarning``) on a slow spurious growth (explicit Euler on an oscillation).
+    amplifies one of them by more than ``stability.REFUSE_GROWTH`` per step and warns
+    (``stability.StepWarning``) on a slow spurious growth (explicit Euler on an oscillation).
     """
     name = str(integrator).lower()
     limit = STABILITY_LIMIT.get(name)
@@ -107,7 +108,6 @@ def check_step(system: System, integrator: str, dt, y):
         raise ValueError(f'{name} with dt={dt:g} s is unstable for this system: its fastest time constant is '
                          f'{tau:.3g} s ({type(system).__name__}; e.g. motor electrics L/R), so a stable {name} step is '
                          f'at most {limit * tau:.3g} s; use a smaller dt or an implicit integrator (radau, bdf)')
-    from .extremes import check_fixed_step
     check_fixed_step(system, name, dt, y)
 
 
@@ -130,7 +130,6 @@ class Simulator:
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
         self.reset()
-        from .extremes import preflight
         preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
         check_step(system, integrator, dt, self.y)
 
@@ -272,8 +271,7 @@ class Simulator:
         return self.y
 
     def _diagnosis(self, u) -> str:
-        """``'; <likely cause>'`` of a failure, from the last good state (extremes.diagnose)."""
-        from .extremes import diagnose
+        """``'; <likely cause>'`` of a failure, from the last good state (stability.diagnose)."""
         text = diagnose(self.system, self.y, u, self.settings['integrator'], self.settings['dt'], self.t)
         return f'; {text}' if text else ''
 
@@ -326,6 +324,10 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     diagnostics only when it publishes them), ``close()``;
     wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``).
     Returns the number of periods run. The final state stays in ``sim``.
+
+    Which command an output carries: the output at the end of a period carries the command held
+    over that period. The first period's scripted command is set before the initial state at t0
+    is published, so that output carries the command applied from t0 on (README, "The node").
     """
     if rate <= 0 or not math.isfinite(rate):
         raise ValueError(f'rate must be a positive number of Hz, got {rate!r}')
@@ -334,17 +336,24 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     n = int(round(duration * rate))
     for s in sinks:
         s.on_start(sim)
-    # publish the initial state at t0 so a recording starts where the run starts
-    out = sim.outputs(wrenches=wrenches)
-    for s in sinks:
-        s.on_output(sim.t, out, sim)
-    t_start = sim.t
-    for k in range(n):
+
+    def feed():  # the scripted command of the period starting now, held over it
         if script is not None:
             for port, values in script(sim.t, sim.y).items():
                 sim.set_command(port, values)
                 for s in sinks:
                     s.on_command(sim.t, port, sim.ports[port].value)
+    # publish the initial state at t0 so a recording starts where the run starts, with the
+    # command that is applied from t0 on
+    if n > 0:
+        feed()
+    out = sim.outputs(wrenches=wrenches)
+    for s in sinks:
+        s.on_output(sim.t, out, sim)
+    t_start = sim.t
+    for k in range(n):
+        if k > 0:
+            feed()
         sim.advance(t_start + (k + 1) / rate)
         out = sim.outputs(wrenches=wrenches)
         for s in sinks:

@@ -20,7 +20,12 @@ from robodyn_ros import kernels
 from robodyn_ros.scene import load_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
-pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason=f'numba unavailable: {kernels.UNAVAILABLE_REASON}')
+
+
+def test_numba_kernels_are_available():
+    """numba is a hard dependency: without it these tests fail (they never skip)."""
+    import numba  # noqa: F401
+    assert kernels.AVAILABLE, f'compiled kernels unavailable: {kernels.UNAVAILABLE_REASON}'
 
 RTOL = 1e-12
 
@@ -100,7 +105,7 @@ def test_compiled_system_equals_reference(name, changes):
             assert close(fast.project(y.copy()), ref.project(y.copy()))
             for w in (False, True):
                 oa, ob = fast.outputs(t, y.copy(), u, wrenches=w), ref.outputs(t, y.copy(), u, wrenches=w)
-                assert set(oa.wrenches) == set(ob.wrenches)
+                assert set(oa.wrenches) == set(ob.wrenches) and (ob.wrenches or not w), 'no wrenches to compare'
                 for k in ob.wrenches:
                     assert oa.wrenches[k][0] == ob.wrenches[k][0] and close(oa.wrenches[k][1], ob.wrenches[k][1], 1e-11)
                 for k, v in ob.energy.items():
@@ -150,8 +155,7 @@ def test_fused_loop_equals_simulator_reference_path(name, changes, integrator):
     assert close(a.y, b.y, 1e-11), np.abs(a.y - b.y).max()
     assert close([a.diag.work], [b.diag.work], 1e-10) or abs(a.diag.work - b.diag.work) < 1e-12
     assert not np.allclose(a.y, y0)
-    if hasattr(ref, 'singular_evaluations'):
-        assert fast.singular_evaluations == ref.singular_evaluations
+    assert getattr(fast, 'singular_evaluations', None) == getattr(ref, 'singular_evaluations', None)
 
 
 def test_compiled_systems_decline_and_fail_like_the_reference():

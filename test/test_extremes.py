@@ -1,8 +1,8 @@
 """Numerical extremes (GUIDE §3, issue 6): each has a defined behaviour and nothing non-finite is published.
 
-The scenarios live in :mod:`robodyn_ros.extremes` (``extreme_*``), which also writes the README
-table (``python -m robodyn_ros.extremes --out docs/extremes.md``); here each one is run and its
-figures are checked. The step-stability check itself is tested first on linear systems whose
+The scenarios live in :mod:`robodyn_ros.bench.extremes` (``extreme_*``), which also writes the README
+table (``python -m robodyn_ros.bench.extremes --out docs/extremes.md``); here each one is run and its
+figures are checked. The step-stability check itself (:mod:`robodyn_ros.stability`) is tested first on linear systems whose
 modes are known, against what the integrators actually do.
 """
 from __future__ import annotations
@@ -12,7 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from robodyn_ros import extremes as ex
+from robodyn_ros import stability as st
+from robodyn_ros.bench import extremes as ex
 from robodyn_ros import kernels
 from robodyn_ros.integrators import make_integrator
 from robodyn_ros.simulation import SimulationError, Simulator, run_headless
@@ -74,13 +75,13 @@ def test_stability_limit_on_a_decay_matches_the_integrator(integrator, limit):
     s = _decay(1000.0)
     y0 = np.ones(2)
     below, beyond = 0.97 * limit / 1000.0, 1.05 * limit / 1000.0
-    a = ex.analyse_step(s, integrator, below, y0)
+    a = st.analyse_step(s, integrator, below, y0)
     assert a.verdict == 'ok' and not _grows(s, integrator, below)
-    b = ex.analyse_step(s, integrator, beyond, y0)
+    b = st.analyse_step(s, integrator, beyond, y0)
     assert b.verdict == 'refuse' and _grows(s, integrator, beyond)
     assert b.dt_limit == pytest.approx(limit / 1000.0, rel=1e-3)
     with pytest.raises(ValueError, match=rf'{integrator} with dt=.* is unstable.*\|λ\| = 1e\+03 1/s'):
-        ex.check_fixed_step(s, integrator, beyond, y0)
+        st.check_fixed_step(s, integrator, beyond, y0)
 
 
 def test_oscillator_limits_per_method():
@@ -88,30 +89,30 @@ def test_oscillator_limits_per_method():
     explicit Euler has no stable step (warned for small steps, refused once the growth is 1 % per step)."""
     s = _oscillator(100.0)
     y0 = np.array([1.0, 0.0])
-    assert ex.analyse_step(s, 'semi_implicit_euler', 0.019, y0).verdict == 'ok'
+    assert st.analyse_step(s, 'semi_implicit_euler', 0.019, y0).verdict == 'ok'
     assert not _grows(s, 'semi_implicit_euler', 0.019, 2000, weights=(100.0, 1.0))
-    assert ex.analyse_step(s, 'semi_implicit_euler', 0.021, y0).verdict == 'refuse'
+    assert st.analyse_step(s, 'semi_implicit_euler', 0.021, y0).verdict == 'refuse'
     assert _grows(s, 'semi_implicit_euler', 0.021, weights=(100.0, 1.0))
-    assert ex.analyse_step(s, 'rk4', 0.028, y0).verdict == 'ok'
-    assert ex.analyse_step(s, 'rk4', 0.029, y0).verdict == 'refuse' and _grows(s, 'rk4', 0.029, weights=(100.0, 1.0))
+    assert st.analyse_step(s, 'rk4', 0.028, y0).verdict == 'ok'
+    assert st.analyse_step(s, 'rk4', 0.029, y0).verdict == 'refuse' and _grows(s, 'rk4', 0.029, weights=(100.0, 1.0))
     assert not _grows(s, 'rk4', 0.028, 2000, weights=(100.0, 1.0))
-    w = ex.analyse_step(s, 'euler', 1e-4, y0)
+    w = st.analyse_step(s, 'euler', 1e-4, y0)
     assert w.verdict == 'warn' and w.doubling_time == pytest.approx(1e-4 * math.log(2) / (0.5 * 1e-4), rel=0.01)
-    assert ex.analyse_step(s, 'euler', 2e-3, y0).verdict == 'refuse'
-    with pytest.warns(ex.StepWarning, match='doubles it every'):
-        ex.check_fixed_step(s, 'euler', 1e-4, y0)
+    assert st.analyse_step(s, 'euler', 2e-3, y0).verdict == 'refuse'
+    with pytest.warns(st.StepWarning, match='doubles it every'):
+        st.check_fixed_step(s, 'euler', 1e-4, y0)
 
 
 def test_saddle_counts_as_the_oscillation_it_becomes():
     """A pendulum released off its equilibrium linearises to a saddle ±λ; explicit Euler is still warned."""
     s = LinearSystem([[0.0, 1.0], [25.0, 0.0]], nq=1)  # eigenvalues ±5
-    a = ex.analyse_step(s, 'euler', 1e-3, np.array([1.0, 0.0]))
+    a = st.analyse_step(s, 'euler', 1e-3, np.array([1.0, 0.0]))
     assert a.verdict == 'warn' and abs(a.worst) == pytest.approx(5.0)
 
 
 def test_adaptive_integrators_are_not_checked_and_report_rejections():
     s = _decay(1e5)
-    assert ex.check_fixed_step(s, 'dop853', None, np.ones(2)) is None
+    assert st.check_fixed_step(s, 'dop853', None, np.ones(2)) is None
     sim = Simulator(s, np.ones(2), integrator='rk45', rtol=1e-6, atol=1e-9)
     sim.advance(1e-3)
     assert isinstance(sim.diagnostics_values()['rejected_steps'], int)
@@ -171,6 +172,7 @@ def test_stretched_arm_under_prescribed_end_point():
 
 def test_mass_ratio_of_1e6():
     r = ex.extreme_mass_ratio()
+    assert set(r.data) == {'heavy_then_light', 'light_then_heavy'}
     for d in r.data.values():
         assert d['rk4']['ok'] and d['rk4']['error'] < 1e-6 and d['radau']['error'] < 1e-6
         assert d['rk4']['energy_drift'] < 1e-9
@@ -211,6 +213,7 @@ def test_redundant_constraints():
 
 def test_orientation_through_pitch_90():
     r = ex.extreme_pitch_90()
+    assert set(r.data) == {'minimal', 'augmented'}
     for form, d in r.data.items():
         assert d['rk4']['quat_error'] < 1e-8 and d['dop853']['quat_error'] < 1e-10, form
         assert d['rk4']['odom_quat_norm'] == pytest.approx(1.0, abs=1e-12)
@@ -230,6 +233,8 @@ def test_huge_efforts_and_voltages():
 
 def test_zero_gravity_zero_damping_no_input_nothing_moves():
     r = ex.extreme_nothing_moves()
+    assert set(r.data) == {'stanford_arm', 'unfried_free_flyer (minimal)', 'unfried_free_flyer (augmented)',
+                           'betancur_platform'}
     for label, moved in r.data.items():
         if 'augmented' in label:
             assert moved < 1e-12, label  # Baumgarte acting on the round-off of C(x0)

@@ -190,8 +190,11 @@ def test_minimal_and_augmented_agree(scene):
             worst['wrench'] = max(worst['wrench'],
                                   np.abs(oa.wrenches['base_plane'][1] - ob.wrenches['base_plane'][1]).max() / scale)
     print(scene, {k: f'{v:.2e}' for k, v in worst.items()})
-    assert worst['q'] < 1e-8 and worst['v'] < 1e-8
-    assert worst['force'] < 1e-8 and worst['wrench'] < 1e-8
+    # ~100x the measured: orbit q 1.9e-15, v 4.8e-14, forces 2.5e-13; table (Baumgarte, stiffer)
+    # q 1.0e-10, v 6.9e-10, forces 9.5e-12
+    tol = {'unfried_free_flyer': {'q': 2e-13, 'v': 5e-12, 'force': 3e-11, 'wrench': 3e-11},
+           'unfried_air_bearing': {'q': 1e-8, 'v': 7e-8, 'force': 1e-9, 'wrench': 1e-9}}[scene]
+    assert all(worst[k] < tol[k] for k in tol), (worst, tol)
     assert np.abs(A.minimal(ra[-1])[0][7:] - A.minimal(ra[0])[0][7:]).max() > 0.1  # it moved
 
 
@@ -253,7 +256,7 @@ def test_against_pinocchio_free_flyer(scene):
                 fj = np.r_[pd.f[j].angular, pd.f[j].linear]
                 worst['aug_wrench'] = max(worst['aug_wrench'], np.abs(ob.wrenches[model.joint_names[i]][1] - fj).max())
     print(scene, {k: f'{v:.2e}' for k, v in worst.items()})
-    assert max(worst.values()) < 1e-9
+    assert max(worst.values()) < 3e-11   # measured 3.1e-13 (ABA)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -293,7 +296,7 @@ def test_torque_free_axisymmetric_body_closed_form(formulation):
         assert np.allclose(quat_to_R(q[3:7]) @ (np.diag([It, It, Ia]) @ v[:3]), h, rtol=0, atol=1e-9)
         assert abs(np.linalg.norm(q[3:7]) - 1.0) < 1e-14
     print(formulation, f'omega err {worst_w:.2e}, R err {worst_R:.2e}')
-    assert worst_w < 1e-8 and worst_R < 1e-8
+    assert worst_w < 1e-9 and worst_R < 1e-9   # measured ω 6.9e-12, R 1.1e-11 (augmented)
 
 
 def test_tumble_through_pitch_90_degrees():

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, start_sim  # noqa: E402
+from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, start_sim  # noqa: E402
 
 from robodyn_ros.recording import decode, read_raw_messages  # noqa: E402
 
@@ -133,3 +133,12 @@ def test_recording_has_wheel_wrenches_currents_and_the_voltage_commands(platform
     assert float(last['right_motor_voltage']) == 8.0  # the last diagnostics: 4 V / 8 V
     assert float(last['right_motor_current']) > float(last['left_motor_current']) > 0.0
     assert float(last['electrical_power']) > 0.0 and float(last['constraint_residual']) < 1e-12
+
+
+def test_lockstep_recording_equals_headless_run_and_resim_is_exact(platform_run, tmp_path):
+    """The node in lockstep == the Simulator fed the same voltages per period, byte for byte
+    (joint_states, odom, wrenches, TF, commands); robodyn resim reproduces the recording exactly."""
+    r = platform_run
+    assert r['rc'] == 0, r['log']
+    # one period per command sent, and one more on the refused NaN command
+    assert_lockstep_recording_reproduced(r['record'], str(tmp_path), r['sent'] + 1)

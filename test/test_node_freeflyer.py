@@ -17,7 +17,7 @@ import pinocchio as pin
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, start_sim  # noqa: E402
+from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, start_sim  # noqa: E402
 
 RATE = 50.0                 # the scene's publish rate (Hz): one lockstep period = 20 ms
 PUSH = np.array([3.0, 1.0, 0.0, 0.0, 0.0, 0.4])   # [fx, fy, fz, tx, ty, tz] in base_link
@@ -198,3 +198,11 @@ def test_published_diagnostics_and_wrenches_agree_with_the_messages(run):
         assert np.allclose(state.effort, held if prev else 0.0, atol=0.0)
         n += 1
     assert n == run['periods']
+
+
+def test_lockstep_recording_equals_headless_run_and_resim_is_exact(run, tmp_path):
+    """The node in lockstep == the Simulator fed the same base wrenches and arm torques per period, byte for byte
+    (joint_states, odom, wrenches, TF, commands); robodyn resim reproduces the recording exactly."""
+    r = run
+    assert r['rc'] == 0, r['log']
+    assert_lockstep_recording_reproduced(r['record'], str(tmp_path), r['periods'])

@@ -97,7 +97,8 @@ def test_symplectic_step_keeps_energy_bounded_over_1e4_s_while_euler_grows():
     """A 1-link pendulum (1 kg point mass on 1 m, small-angle ω = 0.05 rad/s, 80 periods in 1e4 s) at
     dt = 0.1 s: semi-implicit Euler's energy error stays bounded (no larger in the second half of the run
     than in the first); explicit Euler's grows (and the simulator warned that it would)."""
-    from robodyn_ros.extremes import StepWarning, slow_pendulum
+    from robodyn_ros.bench.extremes import slow_pendulum
+    from robodyn_ros.stability import StepWarning
     s = slow_pendulum(0.05)
     y0 = s.initial_state(np.array([0.3]))
     scale = s.total_energy(y0) + 0.05 ** 2  # the swing energy (J) above the bottom
@@ -255,3 +256,32 @@ def test_bench_precision_writes_csv_markdown_and_png(tmp_path, monkeypatch):
     assert (out / 'unfried_free_flyer.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert 'unfried_free_flyer' in (out / 'summary.md').read_text()
     assert adv.load(P._load('unfried_free_flyer')) is not None  # cached for robodyn advise
+
+
+def test_bench_precision_without_matplotlib_writes_the_tables_and_says_how_to_get_the_plot(tmp_path, monkeypatch,
+                                                                                           capsys):
+    """matplotlib missing (simulated: ``sys.modules['matplotlib'] = None`` makes every import of it
+    raise ModuleNotFoundError): CSV, markdown and summary are written, the markdown does not link a
+    PNG that is not there, and one line says how to get the diagram; exit 0, no traceback."""
+    import sys
+
+    from robodyn_ros.bench import run_argv
+    monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'xdg'))
+    monkeypatch.setitem(P.FIXED_LADDERS, 'quick', {'rk4': (0.01,)})
+    monkeypatch.setitem(P.ADAPTIVE_LADDERS, 'quick', ())
+    for mod in [m for m in sys.modules if m == 'matplotlib' or m.startswith('matplotlib.')]:
+        monkeypatch.delitem(sys.modules, mod)
+    monkeypatch.setitem(sys.modules, 'matplotlib', None)
+    with pytest.raises(ModuleNotFoundError):
+        import matplotlib  # noqa: F401  (the simulation of its absence works)
+    out = tmp_path / 'out'
+    assert run_argv(['precision', 'betancur_pendulum', '--quick', '--horizon', '0.04', '--integrators', 'rk4',
+                     '--out', str(out), '--quiet']) == 0
+    assert sorted(p.name for p in out.iterdir()) == ['betancur_pendulum.csv', 'betancur_pendulum.md', 'summary.md']
+    rows = list(csv.DictReader(open(out / 'betancur_pendulum.csv')))
+    assert [(r['integrator'], r['status']) for r in rows] == [('rk4', 'ok')]
+    md = (out / 'betancur_pendulum.md').read_text()
+    assert '## betancur_pendulum' in md and '.png' not in md
+    err = capsys.readouterr().err
+    assert 'matplotlib is not installed' in err and 'pip install matplotlib' in err
+    assert 'Traceback' not in err

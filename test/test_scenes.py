@@ -10,6 +10,7 @@ import copy
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import yaml
 from scipy.integrate import solve_ivp
@@ -67,7 +68,6 @@ def test_list_scenes_lists_the_three_bundled_scenes():
 
 @pytest.mark.parametrize('name', BUNDLED)
 def test_bundled_scene_loads_and_its_urdf_agrees_with_pinocchio(name):
-    pin = pytest.importorskip('pinocchio')
     scene = load_scene(name)
     assert scene.name == name
     assert scene.text == Path(scene.path).read_text(encoding='utf-8')

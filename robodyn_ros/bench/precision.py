@@ -713,12 +713,28 @@ def write_summary(out: str, results=()) -> str:
     return summary
 
 
+#: printed once when the diagram cannot be drawn (the measurements are written all the same)
+MATPLOTLIB_HINT = ('matplotlib is not installed, so no work-precision diagram (PNG) was drawn; the CSV and '
+                   'markdown tables are written. For the diagram: pip install matplotlib '
+                   '(or: sudo apt install python3-matplotlib), then run the benchmark again')
+
+
 def write_scene(res: SceneResult, out: str) -> dict:
-    """Write ``<scene>.csv``, ``<scene>.md``, ``<scene>.png`` in ``out``; returns their paths."""
+    """Write ``<scene>.csv`` and ``<scene>.md`` in ``out``, then draw ``<scene>.png``; returns their
+    paths (``png`` is None when matplotlib is not installed: the tables are written first, and the
+    markdown links the diagram only once it exists)."""
     os.makedirs(out, exist_ok=True)
     paths = {ext: os.path.join(out, f'{res.scene}.{ext}') for ext in ('csv', 'md', 'png')}
     write_csv(res, paths['csv'])
-    plot(res, paths['png'])
+    with open(paths['md'], 'w') as f:
+        f.write(markdown(res))
+    try:
+        plot(res, paths['png'])
+    except ModuleNotFoundError as e:
+        if not (e.name or '').startswith('matplotlib'):
+            raise
+        paths['png'] = None
+        return paths
     with open(paths['md'], 'w') as f:
         f.write(markdown(res, png=f'{res.scene}.png'))
     return paths
@@ -761,7 +777,7 @@ def main(args) -> int:
         print(f'robodyn bench precision: {e}', file=sys.stderr)
         return 2
     progress = Progress(total, quiet=args.quiet)
-    results = []
+    results, unplotted = [], []
     for name in names:
         res = run_scene(name, mode, args.horizon, args.budget, args.integrators, args.formulations, progress)
         paths = write_scene(res, args.out)
@@ -769,10 +785,15 @@ def main(args) -> int:
         if not args.no_cache:
             from ..advise import store
             store(name, res)
+        if paths['png'] is None:
+            unplotted.append(res.scene)
         if not args.quiet:
-            print(f'{res.scene}: wrote {paths["csv"]}, {paths["md"]}, {paths["png"]}', file=sys.stderr)
+            wrote = [paths[k] for k in ('csv', 'md', 'png') if paths[k]]
+            print(f'{res.scene}: wrote {", ".join(wrote)}', file=sys.stderr)
     summary = write_summary(args.out, results)
     print(summary)
+    if unplotted:
+        print(f'robodyn bench precision: {MATPLOTLIB_HINT}', file=sys.stderr)
     return 0
 
 

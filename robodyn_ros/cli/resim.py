@@ -27,7 +27,9 @@ def add_parser(sub):
     """Register the subcommand and its options."""
     p = sub.add_parser('resim', help='re-simulate the commands of a recording and compare the states')
     p.add_argument('input', help='MCAP recording made by the sim node or robodyn run')
-    p.add_argument('--record', required=True, help='MCAP file to write the re-simulation to')
+    p.add_argument('--record', required=True, help='MCAP file to write the re-simulation to (an existing file is '
+                                                   'refused)')
+    p.add_argument('--overwrite', action='store_true', help='replace the --record file if it exists')
     p.add_argument('--tolerance', type=float, default=0.0,
                    help='largest state deviation accepted (SI units of the fields; default 0: exact)')
     p.add_argument('--json', action='store_true', help='print the report as JSON')
@@ -198,10 +200,12 @@ def compare(original, resimulated, namespace='') -> dict:
 def main(args) -> int:
     """Re-simulate, print the deviation table; 1 if any deviation exceeds --tolerance, 2 if unusable."""
     from ..scene import SceneError
+    from ..recording.target import RecordPathError, check_record_path
     from ..simulation import SimulationError
     try:
         rs = Resim(args.input)
-    except (OSError, ValueError, KeyError, SceneError) as e:
+        check_record_path(args.record, overwrite=getattr(args, 'overwrite', False), source=args.input)
+    except (OSError, ValueError, KeyError, SceneError, RecordPathError) as e:
         print(f'robodyn resim: {e}', file=sys.stderr)
         return 2
     status = 0

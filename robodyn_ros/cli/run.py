@@ -12,7 +12,8 @@ def add_parser(sub):
     p = sub.add_parser('run', help='simulate a scene headless with its scripted commands')
     p.add_argument('scene', help='bundled scene name or path to a scene YAML file')
     p.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the scene\'s)')
-    p.add_argument('--record', default=None, help='MCAP file to write (default: none)')
+    p.add_argument('--record', default=None, help='MCAP file to write (default: none); an existing file is refused')
+    p.add_argument('--overwrite', action='store_true', help='replace the --record file if it exists')
     p.add_argument('--integrator', default=None, help='euler, semi_implicit_euler, rk4, rk45, dop853, radau, ...')
     p.add_argument('--dt', type=float, default=None, help='fixed step (s) for fixed-step integrators')
     p.add_argument('--rtol', type=float, default=None, help='relative tolerance (adaptive integrators)')
@@ -51,6 +52,13 @@ def main(args) -> int:
     from ..scene import SceneError, load_scene
     from ..simulation import SimulationError, Simulator, run_headless
     from ..systems.base import backend_scope, tools_backend
+    if args.record:
+        from ..recording.target import RecordPathError, check_record_path
+        try:  # before anything is simulated: never overwrite silently, never fail at the end
+            check_record_path(args.record, overwrite=args.overwrite)
+        except RecordPathError as e:
+            print(f'robodyn run: {e}', file=sys.stderr)
+            return 2
     backend = tools_backend(getattr(args, 'backend', None))
     try:
         with backend_scope(backend):
@@ -68,7 +76,6 @@ def main(args) -> int:
         return 2
     sinks = []
     if args.record:
-        os.makedirs(os.path.dirname(os.path.abspath(args.record)), exist_ok=True)
         sinks.append(McapRunSink(args.record, scene, {**st, 'mode': 'headless'},
                                  record_wrenches=not args.no_wrenches, record_tf=not args.no_tf,
                                  diagnostics_period=args.diagnostics_period))

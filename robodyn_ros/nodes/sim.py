@@ -67,7 +67,8 @@ PARAMETERS = {
     'max_lag': (0.25, 'realtime mode: wall seconds behind schedule after which the node stops catching up'),
     'command_timeout': (0.5, 'simulated seconds without a command after which inputs go to zero; 0 = never'),
     'duration': (0.0, 'simulated seconds to run, then exit; 0 = until shut down'),
-    'record': ('', "MCAP file to record to; '' = no recording"),
+    'record': ('', "MCAP file to record to; '' = no recording; an existing file is refused unless overwrite"),
+    'overwrite': (False, 'replace the record file (and its -1, -2, ... episode files) if they exist'),
     'scripted_commands': (False, "use the scene's scripted commands instead of the command topics"),
     'start_paused': (False, 'start with simulation time paused; resume with ~/pause (data: false)'),
     'initial_positions': (None, "initial joint positions (nq values; unset = the scene's)"),
@@ -174,6 +175,15 @@ def resolve_config(p: dict, scene) -> Config:
         raise ConfigError(f'scripted_commands: scene {scene.name!r} has no scripted commands')
     if not isinstance(p['record'], str):
         raise ConfigError(f"parameter 'record' must be a file path string, got {p['record']!r}")
+    if not isinstance(p.get('overwrite', False), bool):
+        raise ConfigError(f"parameter 'overwrite' must be true or false, got {p['overwrite']!r}")
+    if p['record']:  # before the simulation starts: never overwrite silently, never fail at the end
+        from ..recording.target import RecordPathError, check_record_path, episode_files
+        try:
+            check_record_path(p['record'], overwrite=p.get('overwrite', False), how_to_overwrite='overwrite:=true',
+                              also=episode_files(p['record']))
+        except RecordPathError as e:
+            raise ConfigError(f"parameter 'record': {e}") from None
     timeout = _number('command_timeout', p['command_timeout'], minimum=0.0)
     system = scene.system
     y0 = np.array(scene.y0, dtype=float)
@@ -345,7 +355,7 @@ def make_node_class():
             self._resend_subs = 0
             self._next_resend = 0.0
             self._next_idle_diag = time.monotonic() + IDLE_DIAGNOSTICS_PERIOD
-            self._publish_outputs(self.sim.outputs(wrenches=self._wrenches_wanted()))
+            self._publish_initial_state()
             self.get_logger().info(
                 f'scene {self.scene.name}: {cfg.integrator} '
                 + (f'dt={cfg.dt:g} s' if cfg.dt else f'rtol={cfg.rtol:g} atol={cfg.atol:g}')
@@ -423,6 +433,14 @@ def make_node_class():
                     self._refresh_subscribers()
                     self._run_period()
 
+        def _publish_initial_state(self):
+            """Publish the state at the start of a run (or after ~/reset). With scripted commands the
+            first period's command is set first, so that joint_states at t0 carries the effort
+            applied from t0 on (as run_headless does); from topics, it is the command in force."""
+            if self.cfg.scripted_commands:
+                self._apply_script()
+            self._publish_outputs(self.sim.outputs(wrenches=self._wrenches_wanted()))
+
         def _apply_script(self):
             for port, values in self.scene.script(self.sim.t, self.sim.y).items():
                 self.sim.set_command(port, values)
@@ -437,7 +455,7 @@ def make_node_class():
             """Scripted commands, advance one period, publish; False (and failed) on a simulation error."""
             sim = self.sim
             try:
-                if self.cfg.scripted_commands:
+                if self.cfg.scripted_commands and self.k > 0:   # period 0's: set with the initial state
                     self._apply_script()
                 # same arithmetic as run_headless, so period ends are bit-identical to a headless run
                 sim.advance(self.t_start + (self.k + 1) / self.cfg.publish_rate)
@@ -575,7 +593,7 @@ def make_node_class():
             self._commanded = False
             self._resend_subs = 0
             self._refresh_subscribers()
-            self._publish_outputs(self.sim.outputs(wrenches=self._wrenches_wanted()))
+            self._publish_initial_state()
             response.success = True
             response.message = (f'reset to the initial state at t={self.sim.t:g} s'
                                 + (f'; recording continues in {self.recorder.path}' if self.recorder else ''))

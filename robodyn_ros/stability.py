@@ -1,0 +1,364 @@
+"""Run-time stability: a fixed step checked before the run starts, and failures that name their cause.
+
+GUIDE §3: at every extreme the simulator stays within its stated error, adapts, or stops with a
+message naming the cause, and never publishes a non-finite value. This module holds the two
+checks the :class:`~robodyn_ros.simulation.Simulator` makes for that, so that they live in one
+place (``simulation.check_step`` and ``Simulator.advance`` call them). It sits low in the house
+(it imports only ``model`` and ``dynamics``); the scenarios that push the simulator to its
+extremes and write the README table are a benchmark, :mod:`robodyn_ros.bench.extremes`:
+
+**Step stability (before a fixed-step run).** A fixed explicit step ``h`` is stable on a mode
+``ẏ = λ y`` when the method's amplification ``|R(hλ)| <= 1`` (Hairer–Wanner II, §IV.2). The
+modes of a mechanical system are estimated from its linearisation at the initial state::
+
+    J = ∂f/∂y  (central finite differences, 2 ny evaluations of f)            (S1)
+    modes = eig(J), each λ with Re λ > 0 replaced by ±i|λ|,
+            plus -1/τ_sys and ±i ω_spin/2                                        (S2)
+
+A growing eigenvalue is a saddle of the configuration the run starts in (a pendulum released
+off its equilibrium); elsewhere on the path the same curvature is an oscillation of about the
+same frequency, which is what a fixed step has to survive. ``τ_sys`` is the system's declared
+``fastest_time_constant`` (motor electrics ``L/R``, Baumgarte gains), and a free base spinning
+at ``ω_spin`` turns its quaternion at ``ω_spin/2`` (``q̇ = ½ q ⊗ ω``); both are in J already and
+are added explicitly so that finite differences cannot blur them. The scalar stability functions::
+
+    euler                R(z) = 1 + z
+    rk4                  R(z) = 1 + z + z²/2 + z³/6 + z⁴/24
+    semi_implicit_euler  largest root of μ² − (2 + 2 Re z − |z|²) μ + (1 + 2 Re z) = 0
+                         (the damped oscillator q̇ = v, v̇ = −ω²q − 2ζω v with z = hλ; explicit
+                         Euler on a real, first-order mode)
+
+give the largest growth per step ``ρ = max |R(hλ)|`` over the modes and the spurious growth::
+
+    g = ln ρ                                          (per step)                     (S3)
+
+``g > REFUSE_GROWTH`` (a mode that grows by more than 1 % per step doubles within 70 steps)
+refuses the step; a smaller ``g > 0`` whose doubling time ``h ln 2 / g`` is shorter than
+``WARN_DOUBLING_TIME`` of simulated time warns (explicit Euler on any undamped oscillation: its
+energy grows without bound, slowly for small steps). The message names the dominant mode (its
+|λ|, the time constant 1/|λ|, and whether it is the declared time constant or the spin), the
+largest stable step for the method on it, and the alternatives (a smaller ``dt``, an
+error-controlled or a stiff integrator). Error-controlled integrators are not checked: they
+adapt (and report rejected steps) or are stable (radau, bdf). This is an estimate from one
+state: a run that moves into faster modes (a command that spins a joint up) is caught by the
+non-finite guard, and :func:`diagnose` then explains it.
+
+**Preflight.** ``preflight(system, y)`` evaluates ``f`` once at the initial state; a singular
+mass matrix (a moving joint that carries no inertia about its axis) or a non-finite derivative
+is refused with the joint named, instead of surfacing later as ``LinAlgError`` or NaN.
+
+**Diagnosis.** ``diagnose(...)`` explains a failed run from its last good state (the same
+linearisation, plus the largest command), so the ``SimulationError`` names the likely cause.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'StepWarning', 'StepAnalysis',
+           'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step', 'check_fixed_step',
+           'preflight', 'diagnose', 'stable_step_limit']
+
+#: spurious amplification per step (eq. S3, as ln ρ) above which a fixed step is refused
+REFUSE_GROWTH = 1e-2
+#: simulated seconds: a slower spurious growth than this doubling time passes silently
+WARN_DOUBLING_TIME = 1e5
+#: relative finite-difference step of the linearisation (central differences: ~eps^(1/3))
+FD_REL_STEP = 6e-6
+#: fixed explicit methods this module analyses
+FIXED_EXPLICIT = ('euler', 'semi_implicit_euler', 'rk4')
+
+
+class StepWarning(UserWarning):
+    """A fixed step that is stable enough to run but amplifies some mode spuriously."""
+
+
+@dataclass
+class StepAnalysis:
+    """What :func:`analyse_step` found about a fixed step on a system at a state.
+
+    integrator, dt: the method and step (s); eigenvalues: (k,) complex modes λ (1/s) checked
+    (S1–S2); lam_max: largest |λ| (1/s); tau: 1/lam_max (s); spin: angular speed of
+    a free base (rad/s, 0 without one); system_tau: the system's declared fastest time constant
+    (s); rho: largest amplification per step over the modes; growth: g = ln rho (S3); doubling_time:
+    simulated seconds for the spurious mode to double (inf when g <= 0); dt_limit: the largest
+    step for which the dominant mode passes (s); verdict: 'ok' | 'warn' | 'refuse'; message:
+    the text of a warning or refusal ('' when ok).
+    """
+
+    integrator: str
+    dt: float
+    eigenvalues: np.ndarray
+    lam_max: float
+    tau: float
+    spin: float
+    system_tau: float
+    rho: float
+    growth: float
+    doubling_time: float
+    dt_limit: float
+    verdict: str = 'ok'
+    message: str = ''
+    worst: complex = 0j
+    extra: dict = field(default_factory=dict)
+
+
+def _zero_inputs(system) -> dict:
+    """Zero commands for every input port of ``system``."""
+    return {k: np.zeros(p.size) for k, p in getattr(system, 'inputs', {}).items()}
+
+
+def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_STEP) -> np.ndarray:
+    """``J = ∂f/∂y`` (ny, ny) of ``f = system.rhs(t, ·, u)`` at y, by central differences (S1).
+
+    system: the System; y: (ny,) state; u: inputs (default zeros); t: time (s); rel_step:
+    perturbation of component j is ``rel_step * max(1, |y_j|)``. Costs 2 ny evaluations of f.
+    """
+    u = _zero_inputs(system) if u is None else u
+    y = np.array(y, dtype=float)
+    n = y.size
+    J = np.empty((n, n))
+    for j in range(n):
+        h = rel_step * max(1.0, abs(y[j]))
+        yp = y.copy()
+        ym = y.copy()
+        yp[j] += h
+        ym[j] -= h
+        fp = np.asarray(system.rhs(t, yp, u), dtype=float)
+        fm = np.asarray(system.rhs(t, ym, u), dtype=float)
+        J[:, j] = (fp - fm) / (2.0 * h)
+    return J
+
+
+def _scalar_amplification(integrator: str, z: complex) -> float:
+    """``|R(z)|`` of a method on the scalar test equation (semi-implicit Euler: on the
+    oscillator/decay pair it is exact for, approximated by its largest root)."""
+    if integrator == 'euler':
+        return abs(1 + z)
+    if integrator == 'rk4':
+        return abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24)
+    if abs(z.imag) <= 1e-12 * abs(z):  # a first-order decay (a motor current): explicit Euler on it
+        return abs(1 + z)
+    # semi-implicit Euler on q' = v, v' = -2ζω v - ω² q (modes λ = z/h): characteristic
+    # polynomial of G is μ² - (2 - 2ζωh - ω²h²) μ + (1 - 2ζωh) = 0
+    w2h2 = abs(z) ** 2
+    two_zeta_wh = -2.0 * z.real
+    b = 2.0 - two_zeta_wh - w2h2
+    c = 1.0 - two_zeta_wh
+    roots = np.roots([1.0, -b, c])
+    return float(np.max(np.abs(roots)))
+
+
+def stable_step_limit(integrator: str, lam: complex, hmax: float = 1e6) -> float:
+    """The largest h (s) with ``|R(hλ)| <= 1 + 1e-9`` on the ray through λ (bisection).
+
+    For a mode on the imaginary axis explicit Euler has no stable step (returns 0).
+    """
+    if lam == 0:
+        return math.inf
+    def ok(h):
+        return _scalar_amplification(integrator, h * lam) <= 1.0 + 1e-9
+    lo, hi = 0.0, 1.0 / abs(lam)
+    if not ok(hi * 1e-6):
+        return 0.0
+    while ok(hi):
+        lo, hi = hi, 2.0 * hi
+        if hi > hmax:
+            return math.inf
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def candidate_modes(lam, spin: float = 0.0) -> np.ndarray:
+    """The modes a fixed step must be stable on (S2): the eigenvalues ``lam`` of the linearisation
+    with each growing one (Re λ > 0, a saddle such as a pendulum released off its equilibrium)
+    replaced by the oscillation ±i|λ| it becomes elsewhere on the path, plus ±i spin/2."""
+    lam = np.asarray(lam, dtype=complex)
+    out = [l for l in lam if l.real <= 0.0]
+    for l in lam:
+        if l.real > 0.0:
+            out += [1j * abs(l), -1j * abs(l)]
+    if spin > 0:
+        out += [0.5j * spin, -0.5j * spin]
+    return np.array(out, dtype=complex)
+
+
+def spin_rate(system, y) -> float:
+    """Angular speed (rad/s) of a free-flying base at state y (0 for fixed-base systems)."""
+    model = getattr(system, 'model', None)
+    minimal = getattr(system, 'minimal', None)
+    if model is None or minimal is None or model.nb == 0:
+        return 0.0
+    from .model import FREE
+    if model.jtype[0] != FREE:
+        return 0.0
+    _, v = minimal(np.asarray(y, dtype=float))
+    return float(np.linalg.norm(v[0:3]))
+
+
+def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, J=None) -> StepAnalysis:
+    """Analyse a fixed explicit step on ``system`` at state y (module docstring, S1–S3).
+
+    system: the System; integrator: 'euler' | 'semi_implicit_euler' | 'rk4'; dt: step (s); y:
+    (ny,) state; u: inputs (default zeros); t: time; J: a precomputed Jacobian (optional).
+    Returns a :class:`StepAnalysis` whose ``verdict`` is 'ok', 'warn' or 'refuse'.
+    """
+    name = str(integrator).lower()
+    if name not in FIXED_EXPLICIT:
+        raise ValueError(f'analyse_step is for fixed explicit methods {FIXED_EXPLICIT}, got {integrator!r}')
+    h = float(dt)
+    y = np.asarray(y, dtype=float)
+    if J is None:
+        J = linearisation(system, y, u, t)
+    if not np.all(np.isfinite(J)):
+        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite')
+    lam = np.linalg.eigvals(J) if J.size else np.zeros(0, dtype=complex)
+    modes = candidate_modes(lam, spin := spin_rate(system, y))
+    sys_tau = float(system.fastest_time_constant(y)) if hasattr(system, 'fastest_time_constant') else math.inf
+    if math.isfinite(sys_tau) and sys_tau > 0:
+        modes = np.concatenate([modes, [-1.0 / sys_tau]])
+    amp = np.array([_scalar_amplification(name, complex(h * m)) for m in modes]) if modes.size else np.ones(0)
+    k = int(np.argmax(amp)) if amp.size else -1
+    rho = float(amp[k]) if k >= 0 else 1.0
+    worst = complex(modes[k]) if k >= 0 else 0j
+    growth = math.log(rho) if rho > 0 else 0.0
+    lam_max = float(np.max(np.abs(modes))) if modes.size else 0.0
+    dt_limit = stable_step_limit(name, worst) if worst != 0 else math.inf
+    doubling = h * math.log(2.0) / growth if growth > 0 else math.inf
+    a = StepAnalysis(integrator=name, dt=h, eigenvalues=modes, lam_max=lam_max,
+                     tau=1.0 / lam_max if lam_max > 0 else math.inf, spin=spin, system_tau=sys_tau, rho=rho,
+                     growth=growth, doubling_time=doubling, dt_limit=dt_limit, worst=worst)
+    source = _mode_source(worst, sys_tau, spin)
+    mode = (f'its fastest mode at the initial state has |λ| = {abs(worst):.3g} 1/s '
+            f'(λ = {worst.real:.3g}{worst.imag:+.3g}i, time constant {1.0 / abs(worst) if worst else math.inf:.3g} s'
+            f'{source})')
+    if growth > REFUSE_GROWTH:
+        limit = (f'a stable {name} step on that mode is at most {dt_limit:.3g} s'
+                 if dt_limit * abs(worst) > 1e-3 else
+                 f'{name} has no stable step on that (undamped) mode')
+        a.verdict = 'refuse'
+        a.message = (f'{name} with dt={h:g} s is unstable for this system ({type(system).__name__}): {mode}; '
+                     f'h·|λ| = {h * abs(worst):.3g} amplifies it by {rho:.3g} per step; {limit}. '
+                     f'Use a smaller dt, or an error-controlled integrator (dop853, rk45) or a stiff one '
+                     f'(radau, bdf, lsoda)')
+    elif growth > 0 and doubling < WARN_DOUBLING_TIME:
+        a.verdict = 'warn'
+        a.message = (f'{name} with dt={h:g} s amplifies a mode of {type(system).__name__} spuriously: {mode}; '
+                     f'numerical growth {growth:.2e} per step doubles it every {doubling:.3g} s of simulated '
+                     f'time (energy drifts upward); use semi_implicit_euler, rk4 or an error-controlled integrator '
+                     f'for long runs')
+    return a
+
+
+def _mode_source(lam: complex, sys_tau: float, spin: float) -> str:
+    """Words saying where a mode comes from, when it can be told."""
+    if spin > 0 and abs(lam.real) < 0.05 * abs(lam) and any(abs(abs(lam) - f * spin) <= 0.05 * spin
+                                                           for f in (0.5, 1.0)):
+        return f'; the free base spins at {spin:.3g} rad/s'
+    if math.isfinite(sys_tau) and sys_tau > 0 and abs(abs(lam) * sys_tau - 1.0) < 0.05:
+        return '; the system\'s declared fastest time constant, e.g. motor electrics L/R or Baumgarte gains'
+    return ''
+
+
+def check_fixed_step(system, integrator: str, dt, y, u=None, t: float = 0.0) -> StepAnalysis | None:
+    """Refuse (ValueError) or warn (:class:`StepWarning`) for an unstable fixed explicit step.
+
+    Returns the analysis, or None for methods this check does not apply to (error-controlled,
+    implicit) or when dt is None.
+    """
+    name = str(integrator).lower()
+    if name not in FIXED_EXPLICIT or dt is None or getattr(system, 'ny', 0) == 0:
+        return None
+    a = analyse_step(system, name, dt, y, u, t)
+    if a.verdict == 'refuse':
+        raise ValueError(a.message)
+    if a.verdict == 'warn':
+        warnings.warn(StepWarning(a.message), stacklevel=3)
+    return a
+
+
+def _singular_joint(system, y) -> str:
+    """Words naming the joint whose subtree has no inertia about its axis, or ''."""
+    model = getattr(system, 'model', None)
+    if model is None:
+        return ''
+    from . import dynamics as dyn
+    try:
+        q = system.minimal(y)[0] if hasattr(system, 'minimal') else np.asarray(y)[:model.nq]
+        M = dyn.crba(model, q)
+    except Exception:  # noqa: BLE001 - best effort: the caller reports the original error anyway
+        return ''
+    d = np.diag(M)
+    scale = max(float(np.max(np.abs(d))), 1e-300)
+    names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
+    bad = [names[k] for k in range(len(d)) if d[k] <= 1e-15 * scale]
+    if bad:
+        return (f'joint(s) {", ".join(bad)} move a subtree with no mass or inertia about their axis, so the mass '
+                f'matrix is singular; give the links beyond them a mass and inertia, or make the joint fixed')
+    w = np.linalg.eigvalsh(0.5 * (M + M.T))
+    if w[0] <= 1e-15 * max(w[-1], 1e-300):
+        return f'the mass matrix is singular (eigenvalues {w[0]:.3g} .. {w[-1]:.3g})'
+    return ''
+
+
+def preflight(system, y, t: float = 0.0) -> None:
+    """Evaluate ``f`` once at the initial state; refuse (ValueError) what cannot be integrated.
+
+    A singular mass matrix (a moving joint without inertia about its axis), a constraint system
+    the system's solver refuses, or a non-finite derivative are reported with their cause.
+    """
+    u = _zero_inputs(system)
+    try:
+        f = np.asarray(system.rhs(t, np.array(y, dtype=float), u), dtype=float)
+    except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
+        cause = _singular_joint(system, y) or f'{type(e).__name__}: {e}'
+        raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
+                         f'state: {cause}') from e
+    if not np.all(np.isfinite(f)):
+        bad = np.flatnonzero(~np.isfinite(f))[:8].tolist()
+        cause = _singular_joint(system, y) or f'components {bad} of dy/dt are non-finite'
+        raise ValueError(f'{type(system).__name__}: the state derivative at the initial state is not finite: {cause}')
+
+
+def diagnose(system, y, u, integrator: str, dt=None, t: float = 0.0) -> str:
+    """A sentence on the likely cause of a failed run, from its last good state (or '').
+
+    Linearises at y with the inputs u that were held, reports the fastest mode against the step
+    (fixed-step methods) or its stiffness (error-controlled ones) and the largest command.
+    """
+    parts = []
+    try:
+        big = {k: float(np.max(np.abs(np.asarray(x, dtype=float)))) for k, x in (u or {}).items() if np.size(x)}
+        if big:
+            k = max(big, key=big.get)
+            parts.append(f'largest command {k} = {big[k]:.3g} {getattr(system.inputs.get(k), "unit", "")}'.rstrip())
+        spin = spin_rate(system, y)
+        if spin > 0:
+            parts.append(f'base spin {spin:.3g} rad/s')
+        f = np.asarray(system.rhs(t, np.asarray(y, dtype=float), u), dtype=float)
+        if f.size and np.all(np.isfinite(f)):
+            k = int(np.argmax(np.abs(f)))
+            parts.append(f'largest state rate |dy/dt| = {abs(f[k]):.3g} (y[{k}])')
+        J = linearisation(system, y, u, t)
+        if np.all(np.isfinite(J)):
+            lam = np.linalg.eigvals(J)
+            k = int(np.argmax(np.abs(lam)))
+            text = f'fastest mode |λ| = {abs(lam[k]):.3g} 1/s (time constant {1.0 / max(abs(lam[k]), 1e-300):.3g} s)'
+            name = str(integrator).lower()
+            if name in FIXED_EXPLICIT and dt and abs(lam[k]) > 0.0:  # (a still system has no step limit)
+                text += (f', h·|λ| = {dt * abs(lam[k]):.3g} for {name} dt={dt:g} s '
+                         f'(stable up to {stable_step_limit(name, complex(lam[k])) * abs(lam[k]):.3g})')
+            parts.append(text)
+        else:
+            parts.append('the linearisation is already non-finite there')
+    except Exception as e:  # noqa: BLE001 - a diagnosis must never hide the original failure
+        parts.append(f'(no diagnosis: {type(e).__name__})')
+    return ('at the last good state: ' + '; '.join(parts)) if parts else ''
