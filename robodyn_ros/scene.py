@@ -33,7 +33,9 @@ moments obeying the triangle inequality (a slender bar's zero axial moment is al
 For DH links com/inertia are expressed in DH frame i (Corke's toolbox convention, see
 :func:`robodyn_ros.model.dh_links`); for explicit links in the link (joint) frame.
 ``damping`` is viscous (N·m·s/rad or N·s/m); ``limits`` ``[lo, hi]`` (rad or m) are recorded in
-the URDF and checked against the initial state, but the dynamics does not enforce them.
+the URDF and checked against the initial state, but the dynamics does not enforce them;
+``effort_limit`` (N·m or N, > 0) is the actuator's limit: effort commands are clamped to it, the
+clamped components counted (diagnostics ``effort_clamped``) and joint_states shows the applied effort.
 
 Errors: every defect raises :class:`SceneError` (a ValueError) with the message
 ``<file>: <key path>: <reason>``, e.g. ``arm.yaml: parts[0].dh.links[2].mass: missing key``;
@@ -72,7 +74,7 @@ import math
 import os
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -286,9 +288,9 @@ class SceneContext:
 # parts
 # --------------------------------------------------------------------------------------------
 _DH_ROW_REQUIRED = ('type', 'a', 'alpha', 'd', 'theta', 'mass')
-_DH_ROW_OPTIONAL = ('com', 'inertia', 'damping', 'limits')
+_DH_ROW_OPTIONAL = ('com', 'inertia', 'damping', 'limits', 'effort_limit')
 _LINK_REQUIRED = ('name', 'joint', 'parent', 'type')
-_LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits')
+_LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits', 'effort_limit')
 _ARM_REQUIRED = ('kind', 'name')
 _ARM_OPTIONAL = ('mount', 'origin', 'root', 'dh', 'tool', 'links', 'link_names', 'joint_names', 'actuated')
 #: ModelError wording -> the link key it is about (for mapping model errors to key paths)
@@ -313,6 +315,8 @@ def _inertial(ctx: SceneContext, row: dict, path: str) -> dict:
         out['damping'] = ctx.number(row['damping'], _key(path, 'damping'), minimum=0.0)
     if 'limits' in row:
         out['limits'] = ctx.limits(row['limits'], _key(path, 'limits'))
+    if 'effort_limit' in row:  # actuator limit: commands are clamped to ±effort_limit (and counted)
+        out['effort_limit'] = ctx.number(row['effort_limit'], _key(path, 'effort_limit'), positive=True)
     return out
 
 
@@ -377,8 +381,8 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
         jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed'))
         T = ctx.pose(r['origin'], _key(rp, 'origin')) if 'origin' in r else np.eye(4)
         axis = ctx.vector(r['axis'], _key(rp, 'axis'), 3) if 'axis' in r else np.array([0.0, 0.0, 1.0])
-        if jt == 'fixed' and ('axis' in r or 'limits' in r or 'damping' in r):
-            ctx.fail(rp, 'a fixed joint takes no axis, limits or damping')
+        if jt == 'fixed' and any(k in r for k in ('axis', 'limits', 'damping', 'effort_limit')):
+            ctx.fail(rp, 'a fixed joint takes no axis, limits, damping or effort_limit')
         parent = ctx.string(r['parent'], _key(rp, 'parent'))
         inert = _inertial(ctx, r, rp)
         specs.append(LinkSpec(name=ctx.string(r['name'], _key(rp, 'name')),
@@ -387,7 +391,8 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
                               origin_rpy=tuple(R_to_rpy(T[:3, :3])), axis=tuple(axis),
                               mass=inert.get('mass', 0.0), com=tuple(inert.get('com', np.zeros(3))),
                               inertia=inert.get('inertia', np.zeros((3, 3))),
-                              damping=inert.get('damping', 0.0), limits=inert.get('limits')))
+                              damping=inert.get('damping', 0.0), limits=inert.get('limits'),
+                              effort_limit=inert.get('effort_limit')))
         paths.append(rp)
     return specs, paths
 
@@ -408,7 +413,7 @@ def _model_error_path(err: ModelError, specs, paths, fallback: str) -> str:
     return paths[k]
 
 
-def build_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part:
     """Build an ``arm`` part: a kinematic tree from a DH table or explicit links -> ArmSystem.
 
     spec: the part mapping (see the module docstring for its keys); path: its key path
@@ -419,9 +424,11 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     name = ctx.string(spec['name'], _key(path, 'name'))
     mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
     root = ctx.string(spec.get('root', 'base_link'), _key(path, 'root'))
-    if ('dh' in spec) == ('links' in spec):
+    if specs is not None:  # built elsewhere (an imported URDF): (LinkSpecs, key paths)
+        specs, paths = specs
+    elif ('dh' in spec) == ('links' in spec):
         ctx.fail(path, "give exactly one of 'dh' (a DH table) or 'links' (explicit links)")
-    if 'dh' in spec:
+    elif 'dh' in spec:
         specs, paths = _dh_specs(ctx, spec, path, root)
     else:
         specs, paths = _explicit_specs(ctx, spec, path, root)
@@ -581,6 +588,73 @@ PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': buil
                                    'free_base': build_free_base_part}
 
 
+_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated')
+
+
+def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build a ``urdf`` part: a robot description imported by :func:`robodyn_ros.urdf.read_urdf`.
+
+    Keys: ``file`` (path, relative to the scene file) or ``urdf`` (inline URDF text), exactly
+    one; ``mount: world | <diff_drive part> | <free_base part>`` (default world; the URDF's root
+    link is then the frame it hangs from, placed by ``origin``); ``floating`` (default false:
+    the root link is welded to the mount; true: it is a free 6-DOF base in the scene's gravity,
+    environment ``free_fall`` — no ground contact — or ``orbit`` with zero gravity);
+    ``locked: {joint: position}`` freezes joints (gripper fingers, ``<mimic>`` joints);
+    ``actuated`` as for an arm (default every 1-DOF joint). The part is an arm (its kind is
+    ``arm`` once built) so it mounts wherever an arm does.
+    """
+    from .urdf import UrdfError, read_urdf
+    ctx.mapping(spec, path, required=('kind', 'name'), optional=_URDF_KEYS)
+    name = ctx.string(spec['name'], _key(path, 'name'))
+    mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
+    floating = ctx.boolean(spec.get('floating', False), _key(path, 'floating'))
+    if ('file' in spec) == ('urdf' in spec):
+        ctx.fail(path, "give exactly one of 'file' (a URDF file) or 'urdf' (the URDF text)")
+    if 'file' in spec:
+        src = Path(ctx.string(spec['file'], _key(path, 'file')))
+        if not src.is_absolute():
+            base = Path(ctx.file).parent if Path(ctx.file).is_file() else Path.cwd()
+            src = base / src
+        if not src.is_file():
+            ctx.fail(_key(path, 'file'), f'no such URDF file {str(src)!r} (relative paths start at the scene file)')
+        where = _key(path, 'file')
+    else:
+        src = ctx.string(spec['urdf'], _key(path, 'urdf'))
+        where = _key(path, 'urdf')
+    lpath = _key(path, 'locked')
+    locked = {k: ctx.number(v, _key(lpath, k)) for k, v in ctx.mapping(spec.get('locked', {}), lpath,
+                                                                         optional=tuple(spec.get('locked') or ())).items()}
+    try:
+        robot = read_urdf(src, floating=floating, locked=locked)
+    except UrdfError as e:
+        ctx.fail(where, str(e))
+    specs = robot.specs
+    if floating and (mount != 'world' or 'origin' in spec):
+        ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')
+    if any(s.friction > 0.0 for s in specs) and (floating or mount != 'world'):
+        j = next(s.joint for s in specs if s.friction > 0.0)
+        ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "
+                        "only (set friction=\"0\" or mount: world)")
+    if floating:
+        from .systems import freeflyer as ff
+        env = 'orbit' if not np.any(ctx.gravity) else 'free_fall'
+        try:
+            model = ff.free_flyer_model(specs[0], specs[1:], gravity=ctx.gravity, name=name)
+            actuated = ctx.names(spec['actuated'], _key(path, 'actuated')) if 'actuated' in spec else None
+            system = ff.FreeFlyerSystem(model, actuated=actuated, environment=env)
+        except (ModelError, ValueError) as e:
+            ctx.fail(where, str(e))
+        return Part(name=name, kind='free_base', mount='world', system=system, path=path)
+    root = robot.root
+    host = next((p for p in ctx.parts if p.name == mount and p.kind == 'free_base'), None)
+    if host is not None:  # hang from the free base's link
+        specs = [replace(s, parent=host.system.base_link) if s.parent == root else s for s in specs]
+        root = host.system.base_link
+    arm_spec = {'kind': 'arm', 'name': name, 'mount': mount, 'root': root,
+                **{k: spec[k] for k in ('origin', 'actuated') if k in spec}}
+    return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)))
+
+
 _MOTOR_KEYS = ('kind', 'torque_constant', 'resistance', 'inductance', 'gear_ratio', 'rotor_inertia',
                'viscous_friction', 'coulomb_friction', 'coulomb_velocity', 'supply_voltage')
 _WHEEL_KEYS = {'radius': 'wheel_radius', 'half_track': 'half_track', 'mass': 'wheel_mass',
@@ -681,6 +755,7 @@ def _assemble_diff_drive(ctx: SceneContext, parts: list):
 
 
 PART_KINDS['diff_drive'] = build_diff_drive_part
+PART_KINDS['urdf'] = build_urdf_part
 
 
 def _assemble(ctx: SceneContext, parts: list) -> object:
