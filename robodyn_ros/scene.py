@@ -627,7 +627,8 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     try:
         robot = read_urdf(src, floating=floating, locked=locked)
     except UrdfError as e:
-        ctx.fail(where, str(e))
+        m = re.match(r"locked joint '([^']+)'", str(e))
+        ctx.fail(_key(lpath, m.group(1)) if m else where, str(e))
     specs = robot.specs
     if floating and (mount != 'world' or 'origin' in spec):
         ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')

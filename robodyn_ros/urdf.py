@@ -212,13 +212,13 @@ def read_urdf(source, floating: bool = False, locked: dict | None = None) -> Urd
         if j.name in locked and jt != 'fixed':
             s = _lock(s, j, _float(locked[j.name], f'locked joint {j.name!r}'))
         specs.append(s)
-    _check_masses(specs, no_inertial)
-    vel = {j.name: _float(j.limit.velocity, f'joint {j.name!r}: <limit velocity>')
-           for j in robot.joints if j.limit is not None and j.limit.velocity is not None and j.type in _MOVING}
     try:  # the model's own checks (inertia, axes, ...) with the link and joint named
         build_model(specs, root='__urdf_world__' if floating else root, name=robot.name)
     except ModelError as e:
         raise UrdfError(str(e)) from None
+    _check_masses(specs, no_inertial)
+    vel = {j.name: _float(j.limit.velocity, f'joint {j.name!r}: <limit velocity>')
+           for j in robot.joints if j.limit is not None and j.limit.velocity is not None and j.type in _MOVING}
     return UrdfRobot(name=robot.name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
 
 
