@@ -88,7 +88,7 @@ from .systems.arm import ArmSystem
 
 __all__ = ['SceneError', 'Scene', 'Part', 'SceneContext', 'PART_KINDS', 'COMMAND_PROFILES',
            'DEFAULT_SETTINGS', 'load_scene', 'parse_scene', 'list_scenes', 'scene_dirs', 'find_scene',
-           'build_arm_part']
+           'build_arm_part', 'build_urdf_part', 'urdf_scene_text']
 
 #: run settings a scene's ``simulation`` section may override (the CLI/node may override again)
 DEFAULT_SETTINGS = {'integrator': 'rk4', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
@@ -1088,17 +1088,36 @@ def find_scene(name_or_path) -> Path:
 
 
 def load_scene(name_or_path) -> Scene:
-    """Load a bundled scene by name (``stanford_arm``) or a scene file by path.
+    """Load a bundled scene by name (``stanford_arm``), a scene file by path, or a URDF file.
 
-    name_or_path: name or path (str or PathLike). Returns the validated :class:`Scene`;
+    name_or_path: name or path (str or PathLike); a path ending in ``.urdf`` is imported as a
+    one-part scene (:func:`urdf_scene_text`). Returns the validated :class:`Scene`;
     raises :class:`SceneError` whose message is ``<file>: <key path>: <reason>``.
     """
+    s = os.fspath(name_or_path)
+    if s.lower().endswith('.urdf'):  # a robot description alone: a one-part scene around it
+        return parse_scene(urdf_scene_text(s), file=s, path=s)
     p = find_scene(name_or_path)
     try:
         text = p.read_text(encoding='utf-8')
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f'{p}: (file): cannot read: {e}') from None
     return parse_scene(text, file=str(p), path=str(p))
+
+
+def urdf_scene_text(urdf_file, floating: bool = False) -> str:
+    """Scene YAML of one URDF file: ``kind: urdf`` mounted on the world (or ``floating``), no
+    scripted commands, default settings. ``load_scene('robot.urdf')`` (``robodyn run robot.urdf``,
+    the node's ``robot_description_file``) loads this; a URDF whose root is a massless ``world``
+    link with a floating joint is floating anyway."""
+    p = Path(urdf_file)
+    if not p.is_file():
+        raise SceneError(f'{urdf_file}: (file): no such URDF file')
+    name = re.sub(r'[^A-Za-z0-9_]', '_', p.stem) or 'robot'
+    import json
+    return (f'name: {name}\ndescription: imported from {json.dumps(str(p.resolve()))}\nparts:\n'
+            f'  - {{kind: urdf, name: {name}, file: {json.dumps(str(p.resolve()))}'
+            f'{", floating: true" if floating else ""}}}\n')
 
 
 def list_scenes() -> list:

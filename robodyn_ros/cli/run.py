@@ -10,7 +10,8 @@ import time
 def add_parser(sub):
     """Register the subcommand and its options."""
     p = sub.add_parser('run', help='simulate a scene headless with its scripted commands')
-    p.add_argument('scene', help='bundled scene name or path to a scene YAML file')
+    p.add_argument('scene', help='bundled scene name, path to a scene YAML file, or a URDF file (robot.urdf: '
+                                 'the robot on a fixed base, no commands)')
     p.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the scene\'s)')
     p.add_argument('--record', default=None, help='MCAP file to write (default: none)')
     p.add_argument('--integrator', default=None, help='euler, semi_implicit_euler, rk4, rk45, dop853, radau, ...')

@@ -56,7 +56,8 @@ LOG_THROTTLE = 2.0
 
 #: name -> (default, description); '' / 0 defaults mean "the scene's simulation setting"
 PARAMETERS = {
-    'scene': ('stanford_arm', 'bundled scene name or path to a scene YAML file'),
+    'scene': ('stanford_arm', 'bundled scene name or path to a scene YAML file (or a .urdf file)'),
+    'robot_description_file': ('', "a URDF file to simulate on a fixed base instead of 'scene' ('' = use 'scene')"),
     'integrator': ('', "integrator name (rk4, dop853, ...); '' = the scene's"),
     'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
     'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
@@ -265,9 +266,13 @@ def make_node_class():
                 raw[name] = self.declare_parameter(name, default, desc).value
             if not isinstance(raw['scene'], str) or not raw['scene']:
                 raise ConfigError(f"parameter 'scene' must be a scene name or path, got {raw['scene']!r}")
+            urdf_file = raw['robot_description_file']
+            if not isinstance(urdf_file, str) or (urdf_file and not urdf_file.lower().endswith('.urdf')):
+                raise ConfigError(f"parameter 'robot_description_file' must be the path of a .urdf file, "
+                                  f"got {urdf_file!r}")
             from ..systems.base import backend_scope
             with backend_scope(_backend(raw['backend'])):
-                self.scene = load_scene(raw['scene'])
+                self.scene = load_scene(urdf_file or raw['scene'])
             self.cfg = cfg = resolve_config(raw, self.scene)
             self.namespace = self.get_namespace()
             try:
@@ -295,7 +300,7 @@ def make_node_class():
                 self.pub['odom'] = self._publisher('odom')
             self.wrench_pubs = {}
             for name in out0.wrenches:
-                topic = M.WRENCH_PREFIX + name
+                topic = M.wrench_topic(name)
                 self.wrench_pubs[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
             self.pub.update(self.wrench_pubs)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,

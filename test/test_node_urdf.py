@@ -1,0 +1,72 @@
+"""The sim node on a robot no one here wrote: UR5 from example-robot-data through
+``robot_description_file``, closed in lockstep by the PD controller process; and the CLI on a URDF."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, os.path.dirname(__file__))
+from ros_helpers import Domain, start_pd, start_sim  # noqa: E402
+
+from robodyn_ros.recording import read_messages, summarize  # noqa: E402
+from robodyn_ros.urdf import example_robot_data_dir  # noqa: E402
+
+UR5 = str(example_robot_data_dir() / 'ur_description/urdf/ur5_robot.urdf')
+SETPOINT = [0.3, -0.5, 0.4, -0.3, 0.2, 0.1]
+PERIODS = 150
+
+
+@pytest.fixture(scope='module')
+def ur5_lockstep(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('ur5')
+    dom = Domain()
+    rec = tmp / 'ur5.mcap'
+    node = start_sim(dom, {'robot_description_file': UR5, 'mode': 'lockstep', 'record': str(rec)}, tmp / 'node.log')
+    pd = start_pd(dom, tmp / 'pd.log', setpoint=SETPOINT, periods=PERIODS, out=str(tmp / 'pd.json'), scene=UR5,
+                  timeout=120)
+    try:
+        pd_rc = pd.wait(timeout=130)
+        time.sleep(0.2)
+        node_rc = node.stop(signal.SIGINT)
+        yield {'record': rec, 'pd_rc': pd_rc, 'node_rc': node_rc,
+               'pd': json.loads((tmp / 'pd.json').read_text()) if (tmp / 'pd.json').exists() else None,
+               'node_log': node.output(), 'pd_log': pd.output()}
+    finally:
+        pd.cleanup()
+        node.cleanup()
+        dom.release()
+
+
+def test_ur5_node_in_lockstep_reaches_setpoint_and_records_its_urdf(ur5_lockstep):
+    r = ur5_lockstep
+    assert r['pd_rc'] == 0, r['pd_log'] + r['node_log']
+    assert r['pd']['sent'] == PERIODS and r['pd']['stamp'] == [1, 500000000]
+    np.testing.assert_allclose(r['pd']['q'], SETPOINT, atol=2e-3)
+    assert r['node_rc'] == 0, r['node_log']
+    s = summarize(r['record'])
+    assert s['topics']['/joint_states']['count'] == PERIODS + 1
+    desc = [m.data for *_, m in read_messages(r['record'], topics=['/robot_description'])]
+    assert len(desc) == 1 and 'shoulder_pan_joint' in desc[0] and 'package://' in desc[0]  # its own meshes
+    js = [m for *_, m in read_messages(r['record'], topics=['/joint_states'])]
+    assert list(js[-1].name) == ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint',
+                                 'wrist_2_joint', 'wrist_3_joint']
+    lim = np.array([150.0, 150.0, 150.0, 28.0, 28.0, 28.0])  # the URDF's <limit effort>
+    assert all(np.all(np.abs(m.effort) <= lim) for m in js)
+
+
+def test_cli_runs_a_urdf_file_and_lists_how(tmp_path):
+    out = tmp_path / 'ur5.mcap'
+    cmd = [sys.executable, '-m', 'robodyn_ros.cli']
+    p = subprocess.run(cmd + ['run', UR5, '--duration', '0.2', '--record', str(out)], capture_output=True, text=True,
+                       timeout=240)
+    assert p.returncode == 0, p.stderr
+    assert summarize(out)['topics']['/joint_states']['count'] == 21
+    p = subprocess.run(cmd + ['scenes'], capture_output=True, text=True, timeout=60)
+    assert 'robot_description_file:=robot.urdf' in p.stdout and 'robodyn run robot.urdf' in p.stdout
