@@ -391,3 +391,33 @@ def test_imported_urdf_keeps_its_own_visuals():
     assert links['panda_link1'].visuals[0].geometry.mesh is not None
     pm = pin.buildModelFromXML(text)
     assert pm.nv == 7
+
+
+@pytest.mark.parametrize('scene', ['unfried_free_flyer', 'mobile_manipulator'])
+def test_urdf_part_mounts_where_an_arm_does(scene, tmp_path):
+    """The arm of a bundled scene exported to a URDF file and mounted back (free base, platform) as
+    a ``kind: urdf`` part: the scene's right-hand side is unchanged (1e-12)."""
+    import yaml
+    data = yaml.safe_load(open(load_scene(scene).path).read())
+    k = next(i for i, p in enumerate(data['parts']) if p['kind'] == 'arm')
+    arm = data['parts'][k]
+    alone = {'name': 'arm_alone', 'parts': [{**arm, 'mount': 'world'}]}
+    (tmp_path / 'arm.urdf').write_text(to_urdf(parse_scene(yaml.safe_dump(alone)).system.model))
+    data['parts'][k] = {'kind': 'urdf', 'name': arm['name'], 'mount': arm['mount'], 'file': 'arm.urdf'}
+    (tmp_path / 'scene.yaml').write_text(yaml.safe_dump(data))
+    a, b = load_scene(scene), load_scene(tmp_path / 'scene.yaml')
+    assert type(a.system) is type(b.system) and a.system.joint_names == b.system.joint_names
+    rng = np.random.default_rng(5)
+    u = {p: rng.normal(size=port.size) for p, port in a.system.inputs.items()}
+    ya, yb = a.system.rhs(0.0, a.y0, u), b.system.rhs(0.0, b.y0, u)
+    np.testing.assert_array_equal(a.y0, b.y0)
+    assert rel(yb, ya) < 1e-12
+
+
+def test_effort_limit_in_a_dh_arm():
+    text = load_scene('mobile_manipulator').text.replace('damping: 0.01', 'effort_limit: 0.05, damping: 0.01', 1)
+    assert text != load_scene('mobile_manipulator').text
+    sc = parse_scene(text)
+    assert sc.system.inputs['effort'].limit[0] == 0.05 and np.isinf(sc.system.inputs['effort'].limit[1:]).all()
+    with pytest.raises(SceneError, match=r'effort_limit: must be > 0'):
+        parse_scene(text.replace('effort_limit: 0.05', 'effort_limit: 0.0'))
