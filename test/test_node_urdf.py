@@ -2,18 +2,15 @@
 ``robot_description_file``, closed in lockstep by the PD controller process; and the CLI on a URDF."""
 from __future__ import annotations
 
-import json
 import os
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from ros_helpers import Domain, start_pd, start_sim  # noqa: E402
+from ros_helpers import lockstep_pd_run  # noqa: E402
 
 from robodyn_ros.recording import read_messages, summarize  # noqa: E402
 from robodyn_ros.urdf import example_robot_data_dir  # noqa: E402
@@ -25,23 +22,8 @@ PERIODS = 150
 
 @pytest.fixture(scope='module')
 def ur5_lockstep(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp('ur5')
-    dom = Domain()
-    rec = tmp / 'ur5.mcap'
-    node = start_sim(dom, {'robot_description_file': UR5, 'mode': 'lockstep', 'record': str(rec)}, tmp / 'node.log')
-    pd = start_pd(dom, tmp / 'pd.log', setpoint=SETPOINT, periods=PERIODS, out=str(tmp / 'pd.json'), scene=UR5,
-                  timeout=120)
-    try:
-        pd_rc = pd.wait(timeout=130)
-        time.sleep(0.2)
-        node_rc = node.stop(signal.SIGINT)
-        yield {'record': rec, 'pd_rc': pd_rc, 'node_rc': node_rc,
-               'pd': json.loads((tmp / 'pd.json').read_text()) if (tmp / 'pd.json').exists() else None,
-               'node_log': node.output(), 'pd_log': pd.output()}
-    finally:
-        pd.cleanup()
-        node.cleanup()
-        dom.release()
+    yield from lockstep_pd_run(tmp_path_factory.mktemp('ur5'), {'robot_description_file': UR5}, SETPOINT, PERIODS,
+                               timeout=120, scene=UR5)
 
 
 def test_ur5_node_in_lockstep_reaches_setpoint_and_records_its_urdf(ur5_lockstep):
