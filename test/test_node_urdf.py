@@ -52,3 +52,12 @@ def test_cli_runs_a_urdf_file_and_lists_how(tmp_path):
     assert summarize(out)['topics']['/joint_states']['count'] == 21
     p = subprocess.run(cmd + ['scenes'], capture_output=True, text=True, timeout=60)
     assert 'robot_description_file:=robot.urdf' in p.stdout and 'robodyn run robot.urdf' in p.stdout
+
+
+def test_cli_summary_counts_clamped_efforts(tmp_path):
+    from test_urdf import _LIMITED_ARM
+    (tmp_path / 'limited.yaml').write_text(_LIMITED_ARM)
+    p = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'run', str(tmp_path / 'limited.yaml'), '--duration',
+                        '0.5'], capture_output=True, text=True, timeout=240)
+    assert p.returncode == 0, p.stderr
+    assert 'limits       50 effort command components clamped to the effort limits' in p.stdout  # 50 periods, j1

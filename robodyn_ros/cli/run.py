@@ -103,6 +103,10 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
         f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
         f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
     ]
+    clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}
+    if clamped:  # actuator effort limits (URDF <limit effort>, effort_limit)
+        lines.append('limits       ' + ', '.join(f'{n} {k} command components clamped to the effort limits'
+                                                 for k, n in clamped.items()))
     if record:
         n = sum(getattr(s, 'count', 0) for s in sinks)
         lines.append(f'recording    {os.path.abspath(record)} ({n} messages; check with: robodyn check {record})')
