@@ -61,6 +61,20 @@ initial velocity must roll without slip), then one current per motor with ``indu
 its inputs are ``wheel_voltage`` ``[left, right]`` (V) and, with an arm mounted on it
 (``mount: <platform name>``, ``origin`` in base_link), the arm's ``effort``.
 
+Imported robot (:func:`build_urdf_part`, :mod:`robodyn_ros.urdf`)::
+
+      - kind: urdf
+        name: panda
+        file: panda.urdf                  # relative to the scene file; or urdf: <the URDF text>
+        mount: world                      # or a diff_drive / free_base part (then origin places it)
+        floating: false                   # true: a free 6-DOF base (environment free_fall, or orbit
+                                          # with zero gravity); no mount, no origin
+        locked: {panda_finger_joint1: 0.0}  # joints frozen as fixed (e.g. <mimic> joints)
+        actuated: [...]                   # optional, default every 1-DOF joint
+
+A path ending in ``.urdf`` given to :func:`load_scene` is such a scene of one part
+(:func:`urdf_scene_text`).
+
 Extension: a new part kind registers ``PART_KINDS[kind] = builder`` with
 ``builder(spec, path, ctx) -> Part``; a new command profile registers
 ``COMMAND_PROFILES[name] = builder`` with ``builder(params, path, ctx, system, port) ->
@@ -514,8 +528,8 @@ _FREE_BASE_OPTIONAL = ('link', 'joint', 'com', 'formulation', 'table_height', 's
 def build_free_base_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     """Build a ``free_base`` part: a 6-DOF platform (seed 003), alone or carrying arms mounted on it.
 
-    Keys: ``environment: orbit | air_bearing_table`` (orbit needs ``gravity: [0, 0, 0]``, the
-    table gravity along -z); ``mass`` (kg), ``com`` (3,) m and ``inertia`` about the com
+    Keys: ``environment: orbit | air_bearing_table | free_fall`` (orbit needs ``gravity: [0, 0,
+    0]``, the table gravity along -z; free_fall: any gravity, no contact); ``mass`` (kg), ``com`` (3,) m and ``inertia`` about the com
     (base_link axes); ``link`` (default base_link), ``joint`` (the free joint, default
     base_joint); ``formulation: minimal | augmented`` (default minimal); ``table_height`` (m,
     default the initial height); ``stabilisation: {method: baumgarte | projection | none,
