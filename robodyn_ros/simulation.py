@@ -180,9 +180,10 @@ class Simulator:
         p.value = arr
         p.applied = arr
         if spec.limit is not None:  # actuator effort limits: clamp, and count the clamped components
-            over = np.abs(arr) > spec.limit
+            lim = np.asarray(spec.limit)
+            over = np.abs(arr) > lim
             if over.any():
-                p.applied = np.clip(arr, -spec.limit, spec.limit)
+                p.applied = np.clip(arr, -lim, lim)
                 p.clamped += int(over.sum())
         p.stamp = self.t if t is None else float(t)
         p.timed_out = False

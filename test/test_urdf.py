@@ -248,7 +248,7 @@ def test_effort_limit_clamps_counts_and_is_what_the_recording_shows(tmp_path):
     from robodyn_ros.recording.run_sink import McapRunSink
     sc = parse_scene(_LIMITED_ARM)
     port = sc.system.inputs['effort']
-    assert port.limit.tolist() == [2.0, np.inf]
+    assert port.limit == (2.0, np.inf)
     sim = Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)
     sim.set_command('effort', [-7.0, 100.0])  # j2 has no limit
     assert sim.ports['effort'].clamped == 1

@@ -126,7 +126,7 @@ class InputPort:
 
     name: port name ('effort', 'wheel_voltage', 'base_wrench'); size: vector length;
     labels: element names (joint names, 'left'/'right', ...); unit: SI unit text for messages;
-    limit: optional (size,) largest |value| per element (inf = none): the Simulator clamps
+    limit: optional (size,) tuple, the largest |value| per element (inf = none): the Simulator clamps
     commands to it and counts the clamped components.
     """
 
@@ -134,7 +134,7 @@ class InputPort:
     size: int
     labels: tuple
     unit: str
-    limit: np.ndarray | None = None
+    limit: tuple | None = None
 
 
 class LazyValues(Mapping):
@@ -262,4 +262,4 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
     lim = np.array([model.specs[model.joint_names.index(n)].effort_limit or np.inf for n in actuated], dtype=float)
     units = sorted({'N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated})
     return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-',
-                                  lim if np.isfinite(lim).any() else None)
+                                  tuple(lim.tolist()) if np.isfinite(lim).any() else None)
