@@ -134,6 +134,17 @@ def read_urdf(source, floating: bool = False, locked: dict | None = None) -> Urd
         raise UrdfError(f'URDF is not well-formed XML: {e}') from None
     if xml_root.tag != 'robot':
         raise UrdfError(f"URDF root element must be <robot>, got <{xml_root.tag}>")
+    for k, e in enumerate(xml_root.findall('joint')):  # what the parser would trip over without naming it
+        jn = e.get('name')
+        if not jn or not e.get('type'):
+            raise UrdfError(f'<joint> number {k + 1} ({jn!r}): needs a name and a type attribute')
+        for end in ('parent', 'child'):
+            el = e.find(end)
+            if el is None or not el.get('link'):
+                raise UrdfError(f'joint {jn!r}: missing <{end} link="..."/>')
+    for e in xml_root.findall('link'):
+        if not e.get('name'):
+            raise UrdfError('<link> without a name attribute')
     try:
         urdf = yourdfpy.URDF.load(io.BytesIO(text.encode('utf-8')), build_scene_graph=False, load_meshes=False,
                                   build_collision_scene_graph=False, load_collision_meshes=False)
