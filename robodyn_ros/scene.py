@@ -1119,19 +1119,25 @@ def load_scene(name_or_path) -> Scene:
     return parse_scene(text, file=str(p), path=str(p))
 
 
-def urdf_scene_text(urdf_file, floating: bool = False) -> str:
-    """Scene YAML of one URDF file: ``kind: urdf`` mounted on the world (or ``floating``), no
-    scripted commands, default settings. ``load_scene('robot.urdf')`` (``robodyn run robot.urdf``,
-    the node's ``robot_description_file``) loads this; a URDF whose root is a massless ``world``
-    link with a floating joint is floating anyway."""
-    p = Path(urdf_file)
-    if not p.is_file():
-        raise SceneError(f'{urdf_file}: (file): no such URDF file')
-    name = re.sub(r'[^A-Za-z0-9_]', '_', p.stem) or 'robot'
-    import json
-    return (f'name: {name}\ndescription: imported from {json.dumps(str(p.resolve()))}\nparts:\n'
-            f'  - {{kind: urdf, name: {name}, file: {json.dumps(str(p.resolve()))}'
-            f'{", floating: true" if floating else ""}}}\n')
+def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None) -> str:
+    """Scene YAML of one URDF: ``kind: urdf`` mounted on the world (or ``floating``), no scripted
+    commands, default settings. urdf_file: its path (``load_scene('robot.urdf')``, ``robodyn run
+    robot.urdf``, the node's ``robot_description_file``), or text: the URDF itself (the node
+    reading ``robot_description``). A URDF whose root is a massless ``world`` link with a
+    floating joint is floating anyway."""
+    part = {'kind': 'urdf'}
+    if text is None:
+        p = Path(urdf_file)
+        if not p.is_file():
+            raise SceneError(f'{urdf_file}: (file): no such URDF file')
+        name, origin, part['file'] = p.stem, str(p.resolve()), str(p.resolve())
+    else:
+        m = re.search(r'<robot[^>]*\sname="([^"]*)"', text)
+        name, origin, part['urdf'] = (m.group(1) if m else 'robot'), 'robot_description', text
+    part['name'] = name = re.sub(r'[^A-Za-z0-9_]', '_', name) or 'robot'
+    if floating:
+        part['floating'] = True
+    return yaml.safe_dump({'name': name, 'description': f'imported from {origin}', 'parts': [part]}, sort_keys=False)
 
 
 def list_scenes() -> list:

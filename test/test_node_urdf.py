@@ -61,3 +61,45 @@ def test_cli_summary_counts_clamped_efforts(tmp_path):
                         '0.5'], capture_output=True, text=True, timeout=240)
     assert p.returncode == 0, p.stderr
     assert 'limits       50 effort command components clamped to the effort limits' in p.stdout  # 50 periods, j1
+
+
+def test_node_with_empty_scene_simulates_the_urdf_on_robot_description(tmp_path):
+    """scene:='' and no file: the node takes the URDF a robot_state_publisher would latch on
+    robot_description, simulates it, and does not publish a description of its own."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from ros_helpers import Domain, RosClient, start_sim
+    dom = Domain()
+    client = RosClient(dom)
+    node = None
+    try:
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             reliability=ReliabilityPolicy.RELIABLE)
+        pub = client.node.create_publisher(String, 'robot_description', latched)
+        pub.publish(String(data=open(UR5).read()))
+        node = start_sim(dom, {'scene': '', 'mode': 'max', 'duration': 0.5}, tmp_path / 'node.log')
+        states = []
+        client.node.create_subscription(JointState, 'joint_states', states.append, 100)
+        assert client.spin_until(lambda: states, 60, node), node.output()
+        assert list(states[-1].name)[:2] == ['shoulder_pan_joint', 'shoulder_lift_joint']
+        assert client.node.count_publishers('robot_description') == 1  # the test's: the node adds none
+        assert node.wait(timeout=60) == 0, node.output()
+    finally:
+        client.close()
+        if node is not None:
+            node.cleanup()
+        dom.release()
+
+
+def test_node_with_empty_scene_and_no_description_says_so(tmp_path):
+    from ros_helpers import Domain, start_sim
+    dom = Domain()
+    node = start_sim(dom, {'scene': '', 'robot_description_timeout': 1.0}, tmp_path / 'node.log')
+    try:
+        assert node.wait(timeout=60) != 0
+        assert 'no URDF arrived on robot_description within 1 s' in node.output(), node.output()
+    finally:
+        node.cleanup()
+        dom.release()
