@@ -459,16 +459,21 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
         model = build_model(specs, gravity=ctx.gravity, name=name, root=root)
     except ModelError as e:
         ctx.fail(_model_error_path(e, specs, paths, path), str(e))
+    return Part(name=name, kind='arm', mount=mount, system=ArmSystem(model, actuated=_actuated(ctx, spec, path, model)),
+                path=path)
+
+
+def _actuated(ctx: SceneContext, spec: dict, path: str, model):
+    """The part's ``actuated`` joint names, each a 1-DOF joint of ``model``; None when not given."""
+    if 'actuated' not in spec:
+        return None
     dof = model.dof_joint_names
-    if 'actuated' in spec:
-        apath = _key(path, 'actuated')
-        actuated = ctx.names(spec['actuated'], apath)
-        for i, j in enumerate(actuated):
-            if j not in dof:
-                ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}')
-    else:
-        actuated = None
-    return Part(name=name, kind='arm', mount=mount, system=ArmSystem(model, actuated=actuated), path=path)
+    apath = _key(path, 'actuated')
+    actuated = ctx.names(spec['actuated'], apath)
+    for i, j in enumerate(actuated):
+        if j not in dof:
+            ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}')
+    return actuated
 
 
 _PRESCRIBED_KEYS = ('end_effector', 'end_effector_path', 'formulation', 'baumgarte')
@@ -636,8 +641,10 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         src = ctx.string(spec['urdf'], _key(path, 'urdf'))
         where = _key(path, 'urdf')
     lpath = _key(path, 'locked')
-    locked = {k: ctx.number(v, _key(lpath, k)) for k, v in ctx.mapping(spec.get('locked', {}), lpath,
-                                                                         optional=tuple(spec.get('locked') or ())).items()}
+    given = spec.get('locked', {})
+    if not isinstance(given, dict):
+        ctx.fail(lpath, f'expected a mapping joint: position, got {_typename(given)} {given!r}')
+    locked = {k: ctx.number(v, _key(lpath, k)) for k, v in given.items()}
     try:
         robot = read_urdf(src, floating=floating, locked=locked)
     except UrdfError as e:
@@ -655,10 +662,9 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         env = 'orbit' if not np.any(ctx.gravity) else 'free_fall'
         try:
             model = ff.free_flyer_model(specs[0], specs[1:], gravity=ctx.gravity, name=name)
-            actuated = ctx.names(spec['actuated'], _key(path, 'actuated')) if 'actuated' in spec else None
-            system = ff.FreeFlyerSystem(model, actuated=actuated, environment=env)
-        except (ModelError, ValueError) as e:
+        except ModelError as e:
             ctx.fail(where, str(e))
+        system = ff.FreeFlyerSystem(model, actuated=_actuated(ctx, spec, path, model), environment=env)
         return Part(name=name, kind='free_base', mount='world', system=system, path=path)
     root = robot.root
     host = next((p for p in ctx.parts if p.name == mount and p.kind == 'free_base'), None)

@@ -199,6 +199,11 @@ def test_malformed_urdf_in_a_scene_names_the_file_and_key():
         parse_scene('name: x\nparts:\n  - {kind: urdf, name: r, file: nowhere.urdf}\n', file='s.yaml')
     with pytest.raises(SceneError, match=r"parts\[0\]: give exactly one of 'file'"):
         parse_scene('name: x\nparts:\n  - {kind: urdf, name: r}\n', file='s.yaml')
+    with pytest.raises(SceneError, match=r"parts\[0\]\.actuated\[1\]: 'nope' is not a 1-DOF joint"):
+        parse_scene(robot_scene_text('solo12').replace('    floating: true', '    floating: true\n    actuated: [FL_HAA, nope]'),
+                    file='s.yaml')
+    with pytest.raises(SceneError, match=r"parts\[0\]\.locked: expected a mapping joint: position, got int 5"):
+        parse_scene(robot_scene_text('ur5').replace('    file:', '    locked: 5\n    file:'), file='s.yaml')
     with pytest.raises(SceneError, match=r"parts\[0\]\.locked\.nope: .*no such joint"):
         parse_scene(robot_scene_text('ur5').replace('    file:', '    locked: {nope: 0.0}\n    file:'), file='s.yaml')
 
