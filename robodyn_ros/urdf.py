@@ -42,11 +42,12 @@ import numpy as np
 
 from .model import LinkSpec, ModelError, build_model
 from .spatial import R_to_rpy, rot_axis
+from .systems.motor import COULOMB_VELOCITY as _MOTOR_COULOMB_VELOCITY
 
 __all__ = ['UrdfError', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
 
-#: regularisation speed (rad/s or m/s) of the URDF Coulomb friction tanh (as the DC motor's default)
-COULOMB_VELOCITY = 0.05
+#: regularisation speed (rad/s or m/s) of the URDF Coulomb friction tanh: the DC motor's default
+COULOMB_VELOCITY = _MOTOR_COULOMB_VELOCITY
 _MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic'}
 
 
