@@ -28,7 +28,10 @@ never exercised); this module only checks what it read and maps it onto our tree
 A URDF that cannot be simulated is refused with :class:`UrdfError` naming the link or joint and the
 reason: XML errors, a link with two parents, a loop, several roots, an unknown joint type, a
 moving link whose subtree has no mass (a zero-mass or missing ``<inertial>`` leaf), a
-non-physical inertia (:func:`robodyn_ros.model.build_model`'s checks).
+non-physical inertia (:func:`robodyn_ros.model.build_model`'s checks). A link welded by fixed
+joints whose own inertia is not physical (sensor frames with made-up values) is lumped with its
+welded group into the group's moving link first (:func:`_lump_welded`); only that composite must
+be physical.
 """
 from __future__ import annotations
 
@@ -40,8 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import LinkSpec, ModelError, build_model
-from .spatial import R_to_rpy, rot_axis
+from .model import LinkSpec, ModelError, _check_inertia, build_model
+from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis
 from .systems.motor import COULOMB_VELOCITY as _MOTOR_COULOMB_VELOCITY
 
 __all__ = ['UrdfError', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
@@ -224,6 +227,7 @@ def read_urdf(source, floating: bool = False, locked: dict | None = None) -> Urd
         if j.name in locked and jt != 'fixed':
             s = _lock(s, j, _float(locked[j.name], f'locked joint {j.name!r}'))
         specs.append(s)
+    specs = _lump_welded(specs)
     try:  # the model's own checks (inertia, axes, ...) with the link and joint named
         build_model(specs, root='__urdf_world__' if floating else root, name=robot.name)
     except ModelError as e:
@@ -232,6 +236,49 @@ def read_urdf(source, floating: bool = False, locked: dict | None = None) -> Urd
     vel = {j.name: _float(j.limit.velocity, f'joint {j.name!r}: <limit velocity>')
            for j in robot.joints if j.limit is not None and j.limit.velocity is not None and j.type in _MOVING}
     return UrdfRobot(name=robot.name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
+
+
+def _physical(s: LinkSpec) -> bool:
+    try:
+        _check_inertia(s, s.name)
+        return True
+    except ModelError:
+        return False
+
+
+def _lump_welded(specs):
+    """Lump the inertias of links welded together by fixed joints into their moving head link
+    when one of them alone is not physical (real URDFs carry sensor frames with made-up
+    inertias): the dynamics sees only the welded composite, as in Pinocchio, and that composite
+    is what :func:`build_model` then checks. Links welded to a fixed base's root enter no
+    dynamics: a non-physical one just loses its inertia. specs: depth-first order (parents first).
+    """
+    index = {s.name: k for k, s in enumerate(specs)}
+    head, X = {}, {}  # head link of each link's welded group (None: welded to the world); head -> link
+    for s in specs:
+        if s.joint_type != 'fixed':
+            head[s.name], X[s.name] = s.name, np.eye(6)
+        else:
+            head[s.name] = head.get(s.parent)
+            R = np.asarray(s.origin_R, dtype=float)
+            X[s.name] = plux(R.T, np.asarray(s.origin_xyz, dtype=float)) @ X.get(s.parent, np.eye(6))
+    bad = {head[s.name] for s in specs if not _physical(s)}
+    out = list(specs)
+    for h in bad:
+        members = [s for s in specs if head[s.name] == h]
+        if h is not None and len(members) < 2:
+            continue  # a lone body: build_model refuses it with its own words
+        zero = dict(mass=0.0, com=(0.0, 0.0, 0.0), inertia=np.zeros((3, 3)))
+        for s in members:
+            if h is not None or not _physical(s):
+                out[index[s.name]] = replace(out[index[s.name]], **zero)
+        if h is None:
+            continue
+        I = sum(X[s.name].T @ mcI(float(s.mass), np.asarray(s.com, dtype=float), np.asarray(s.inertia, dtype=float))
+                @ X[s.name] for s in members)
+        m, c, Ic = inertia_parts(I)
+        out[index[h]] = replace(out[index[h]], mass=float(m), com=tuple(c), inertia=0.5 * (Ic + Ic.T))
+    return out
 
 
 def _depth_first(root, children):

@@ -24,6 +24,8 @@ ROBOTS = {
     'panda': ('panda_description/urdf/panda.urdf', False, {'panda_finger_joint1': 0.0, 'panda_finger_joint2': 0.0},
               7, 7),
     'solo12': ('solo_description/robots/solo12.urdf', True, {}, 19, 18),
+    # sensor frames with made-up inertias, welded to the base: lumped into it (as Pinocchio does)
+    'anymal_c': ('anymal_c_simple_description/urdf/anymal.urdf', True, {}, 19, 18),
 }
 
 
@@ -165,6 +167,11 @@ MALFORMED = [
     ('inertia breaking the triangle inequality',
      _robot(_link('a'), _link('b', '<inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.5" ixy="0" '
                                    'ixz="0" iyz="0"/></inertial>'), _joint('j1', 'a', 'b')),
+     "link 'b' (joint 'j1'): principal moments"),
+    ('welded composite still breaking the triangle inequality',
+     _robot(_link('a'), _link('b'), _link('c', '<inertial><mass value="0.1"/><inertia ixx="0" iyy="0" izz="1" ixy="0" '
+                                               'ixz="0" iyz="0"/></inertial>'),
+            _joint('j1', 'a', 'b'), _joint('weld', 'b', 'c', 'fixed', '')),
      "link 'b' (joint 'j1'): principal moments"),
     ('negative mass', _robot(_link('a'), _link('b', '<inertial><mass value="-1"/><inertia ixx="0.1" iyy="0.1" '
                                                     'izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial>'),
