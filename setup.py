@@ -36,10 +36,10 @@ setup(
     # numba: compiled kernels (robodyn_ros.kernels); pip-only (no rosdep key), optional at run time:
     # without it ArmSystem falls back to the numpy reference kernels
     # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba', 'yourdfpy'],
     extras_require={
         'plot': ['matplotlib'],
-        'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib'],
+        'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data'],
     },
     zip_safe=True,
     maintainer='robodyn_ros developers',

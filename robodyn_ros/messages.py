@@ -25,6 +25,16 @@ TOPIC_TYPES = {
 }
 WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 WRENCH_PREFIX = 'constraint_wrenches/'
+
+
+def wrench_topic(name: str) -> str:
+    """Topic ``constraint_wrenches/<name>`` of a joint or contact wrench; characters a ROS topic
+    name cannot hold (URDF joint names such as ``wrist_3_link-tool0_fixed_joint``) become ``_``,
+    and a token starting with a digit gets a leading ``_``."""
+    import re
+    token = re.sub(r'[^A-Za-z0-9_]', '_', name)
+    return WRENCH_PREFIX + ('_' + token if token[:1].isdigit() else token)
+
 PORT_TOPICS = {'effort': 'effort_commands', 'wheel_voltage': 'wheel_voltage_commands',
                'base_wrench': 'base_wrench_command'}
 
@@ -120,7 +130,7 @@ def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):
         msgs.append(('odom', TOPIC_TYPES['odom'], odometry(t_ns, out.odom)))
     if wrenches:
         for name, (frame, w) in out.wrenches.items():
-            msgs.append((WRENCH_PREFIX + name, WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
+            msgs.append((wrench_topic(name), WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
     if tf is not None:
         tf_msg = tf.message(t_ns, out)
         if tf_msg['transforms']:

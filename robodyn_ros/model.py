@@ -43,6 +43,10 @@ class LinkSpec:
     joint frame in the parent link frame at q = 0 (URDF convention); axis: (3,) joint axis in
     the joint frame; mass (kg), com (3,) in the link frame, inertia (3, 3) about the com in link
     axes; damping: viscous joint damping (N·m·s/rad or N·s/m); limits: optional (lower, upper).
+    friction: Coulomb joint friction (N·m or N; regularised, see :mod:`robodyn_ros.urdf`);
+    effort_limit: optional largest |effort| (N·m or N) an actuator may apply (commands are
+    clamped); visuals: URDF ``<visual>`` elements (XML text) exported as given (imported URDFs),
+    else :func:`to_urdf` draws a shape of the link's inertia.
     """
 
     name: str
@@ -58,6 +62,9 @@ class LinkSpec:
     damping: float = 0.0
     limits: tuple | None = None
     origin_R: np.ndarray | None = None  # exact rotation, overrides origin_rpy when given
+    friction: float = 0.0
+    effort_limit: float | None = None
+    visuals: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -108,6 +115,15 @@ class Model:
     def dof_joint_names(self) -> list:
         """Names of the joints that carry a DOF, in q/v order (1-DOF joints only)."""
         return [self.joint_names[i] for i in range(self.nb) if self.jtype[i] in (REVOLUTE, PRISMATIC)]
+
+    @property
+    def friction(self) -> np.ndarray:
+        """Coulomb friction (nv,) of the 1-DOF joints from their specs (0 elsewhere)."""
+        out = np.zeros(self.nv)
+        for i, s in enumerate(self.specs):
+            if self.jtype[i] in (REVOLUTE, PRISMATIC):
+                out[self.v_idx[i]] = s.friction
+        return out
 
     def body(self, link_name: str) -> int:
         """Index of the body called ``link_name``."""
@@ -252,6 +268,10 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
         if s.damping < 0 or not np.isfinite(s.damping):
             raise ModelError(f'{where}: damping must be finite and >= 0, got {s.damping!r}')
         damping += [float(s.damping)] * int(nv_j[i])
+        if not (np.isfinite(s.friction) and s.friction >= 0.0):
+            raise ModelError(f'{where}: friction must be finite and >= 0, got {s.friction!r}')
+        if s.effort_limit is not None and not (np.isfinite(s.effort_limit) and s.effort_limit > 0.0):
+            raise ModelError(f'{where}: effort limit must be a finite number > 0, got {s.effort_limit!r}')
         specs.append(s)
     q_idx = np.concatenate([[0], np.cumsum(nq_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
     v_idx = np.concatenate([[0], np.cumsum(nv_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
@@ -277,7 +297,7 @@ def dh_links(rows, convention='standard', names=None, root='base_link', tool=Tru
     ``theta`` (the constant part; the joint variable adds to theta or d), ``mass``, ``com`` (3,)
     and ``inertia`` (3x3 about the com) expressed in the DH frame of that link (frame i for
     standard DH, as in Corke's toolbox; frame i for modified DH, Craig), optional ``damping``,
-    ``limits``. convention: 'standard' (Rz(θ) Tz(d) Tx(a) Rx(α)) or 'modified'
+    ``limits``, ``effort_limit``. convention: 'standard' (Rz(θ) Tz(d) Tx(a) Rx(α)) or 'modified'
     (Rx(α_{i-1}) Tx(a_{i-1}) Rz(θ_i) Tz(d_i)). names: optional list of (link, joint) names.
     tool: for standard DH, append a massless fixed ``tool`` link at DH frame n.
 
@@ -313,7 +333,8 @@ def dh_links(rows, convention='standard', names=None, root='base_link', tool=Tru
         specs.append(LinkSpec(name=ln, joint=jn, parent=prev, joint_type=jt, origin_xyz=tuple(T[:3, 3]),
                               origin_R=T[:3, :3], origin_rpy=tuple(R_to_rpy(T[:3, :3])), axis=(0.0, 0.0, 1.0),
                               mass=float(r.get('mass', 0.0)), com=tuple(com_b), inertia=Ic_b,
-                              damping=float(r.get('damping', 0.0)), limits=r.get('limits')))
+                              damping=float(r.get('damping', 0.0)), limits=r.get('limits'),
+                              effort_limit=r.get('effort_limit')))
         prev = ln
     if convention == 'standard' and tool and n:
         specs.append(LinkSpec(name='tool', joint='tool_joint', parent=prev, joint_type='fixed',
@@ -322,12 +343,56 @@ def dh_links(rows, convention='standard', names=None, root='base_link', tool=Tru
     return specs
 
 
+#: smallest dimension (m) of a drawn visual, so that a slender bar or a thin disk stays visible
+VISUAL_MIN_SIZE = 0.01
+
+
+def inertia_visual(mass, com, Ic) -> str:
+    """A ``<visual>`` (URDF XML) of the uniform solid with the link's mass and inertia, or ''.
+
+    mass (kg), com (3,) in the link frame, Ic (3, 3) about the com. Principal moments
+    ``I1 <= I2 <= I3`` (principal axes give the orientation): three equal -> a sphere
+    (``I = 2/5 m r²``); two equal -> a cylinder along the odd axis (``I_axis = m r²/2``,
+    ``I_perp = m (3 r² + h²)/12``): slender bars, wheels, de Leva's segments; else the box with
+    ``I_x = m (y² + z²)/12`` etc. URDF has no ellipsoid. Each dimension is at least
+    :data:`VISUAL_MIN_SIZE`. Massless links get none.
+    """
+    m = float(mass)
+    if not m > 0.0:
+        return ''
+    ev, Q = np.linalg.eigh(0.5 * (np.asarray(Ic, dtype=float) + np.asarray(Ic, dtype=float).T))
+    ev = np.maximum(ev, 0.0)
+    if np.linalg.det(Q) < 0:
+        Q[:, 0] = -Q[:, 0]
+    tol = 1e-6 * max(ev.max(), 1e-300)
+    lo = VISUAL_MIN_SIZE
+
+    def ln(x):
+        return max(float(np.sqrt(max(x, 0.0))), lo)
+    if ev[2] - ev[0] <= tol:
+        geom = f'<sphere radius="{ln(2.5 * ev[0] / m)!r}"/>'
+    elif ev[1] - ev[0] <= tol or ev[2] - ev[1] <= tol:
+        k = 2 if ev[1] - ev[0] <= tol else 0  # the odd principal axis
+        Ia, Ip = ev[k], ev[1]
+        Q = np.roll(Q, 2 - k, axis=1)  # odd axis -> local z of the cylinder (a cyclic shift keeps det = +1)
+        geom = f'<cylinder radius="{ln(2.0 * Ia / m)!r}" length="{ln(12.0 * Ip / m - 6.0 * Ia / m)!r}"/>'
+    else:
+        d = [ln(6.0 * (ev[(a + 1) % 3] + ev[(a + 2) % 3] - ev[a]) / m) for a in range(3)]
+        geom = f'<box size="{d[0]!r} {d[1]!r} {d[2]!r}"/>'
+    xyz = ' '.join(repr(float(x)) for x in com)
+    rpy = ' '.join(repr(float(x)) for x in R_to_rpy(Q))
+    return (f'<visual><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geom}</geometry>'
+            '<material name="robodyn_body"><color rgba="0.6 0.65 0.7 1"/></material></visual>')
+
+
 def to_urdf(model: Model) -> str:
     """URDF text of the model; link/joint names and frames equal the simulator's.
 
     Revolute joints without limits are exported as ``revolute`` with wide limits (not
     ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
-    written as ``floating``.
+    written as ``floating``. Effort limits, damping and friction are written; each link gets its
+    own ``<visual>`` elements (imported URDFs, meshes passed through) or, failing those, the
+    shape of its inertia (:func:`inertia_visual`) so that a 3D viewer shows bodies.
     """
     def f(x):
         return ' '.join(repr(float(v)) for v in x)
@@ -343,6 +408,9 @@ def to_urdf(model: Model) -> str:
             out.append('      <inertia ixx="{!r}" ixy="{!r}" ixz="{!r}" iyy="{!r}" iyz="{!r}" izz="{!r}"/>'.format(
                 *(float(Ic[j, k]) for j, k in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))))
             out.append('    </inertial>')
+        for v in (s.visuals or (inertia_visual(s.mass, s.com, Ic),)):
+            if v:
+                out.append(f'    {v}')
         out.append('  </link>')
         jt = int(model.jtype[i])
         kind = {FIXED: 'fixed', REVOLUTE: 'revolute', PRISMATIC: 'prismatic', FREE: 'floating'}[jt]
@@ -358,9 +426,10 @@ def to_urdf(model: Model) -> str:
         if jt in (REVOLUTE, PRISMATIC):
             out.append(f'    <axis xyz="{f(model.axis[i])}"/>')
             lo, hi = s.limits if s.limits is not None else (-1e4, 1e4)
-            out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/>')
-            if s.damping:
-                out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="0"/>')
+            eff = float(s.effort_limit) if s.effort_limit is not None else 1e6
+            out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="{eff!r}" velocity="1e6"/>')
+            if s.damping or s.friction:
+                out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="{float(s.friction)!r}"/>')
         out.append('  </joint>')
     out.append('</robot>')
     return '\n'.join(out) + '\n'
@@ -389,4 +458,4 @@ def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0,
 
 
 __all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
-           'jcalc', 'build_model', 'dh_links', 'to_urdf', 'random_tree', 'skew']
+           'jcalc', 'build_model', 'dh_links', 'to_urdf', 'inertia_visual', 'random_tree', 'skew']

@@ -33,7 +33,9 @@ moments obeying the triangle inequality (a slender bar's zero axial moment is al
 For DH links com/inertia are expressed in DH frame i (Corke's toolbox convention, see
 :func:`robodyn_ros.model.dh_links`); for explicit links in the link (joint) frame.
 ``damping`` is viscous (N·m·s/rad or N·s/m); ``limits`` ``[lo, hi]`` (rad or m) are recorded in
-the URDF and checked against the initial state, but the dynamics does not enforce them.
+the URDF and checked against the initial state, but the dynamics does not enforce them;
+``effort_limit`` (N·m or N, > 0) is the actuator's limit: effort commands are clamped to it, the
+clamped components counted (diagnostics ``effort_clamped``) and joint_states shows the applied effort.
 
 Errors: every defect raises :class:`SceneError` (a ValueError) with the message
 ``<file>: <key path>: <reason>``, e.g. ``arm.yaml: parts[0].dh.links[2].mass: missing key``;
@@ -70,6 +72,19 @@ Expressions use the whitelist of :mod:`robodyn_ros.expressions` (numbers, ``t``,
 ``+ - * / **``, sin, cos, exp, ...; never ``eval``), with exact q̇, q̈. The state is the clock
 ``[t]`` (``initial_state`` is refused) and the system has no inputs; its joint_states effort is the
 inverse-dynamics effort that makes the arm follow the motion.
+Imported robot (:func:`build_urdf_part`, :mod:`robodyn_ros.urdf`)::
+
+      - kind: urdf
+        name: panda
+        file: panda.urdf                  # relative to the scene file; or urdf: <the URDF text>
+        mount: world                      # or a diff_drive / free_base part (then origin places it)
+        floating: false                   # true: a free 6-DOF base (environment free_fall, or orbit
+                                          # with zero gravity); no mount, no origin
+        locked: {panda_finger_joint1: 0.0}  # joints frozen as fixed (e.g. <mimic> joints)
+        actuated: [...]                   # optional, default every 1-DOF joint
+
+A path ending in ``.urdf`` given to :func:`load_scene` is such a scene of one part
+(:func:`urdf_scene_text`).
 
 Extension: a new part kind registers ``PART_KINDS[kind] = builder`` with
 ``builder(spec, path, ctx) -> Part``; a new command profile registers
@@ -84,7 +99,7 @@ import math
 import os
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -98,7 +113,7 @@ from .systems.arm import ArmSystem
 
 __all__ = ['SceneError', 'Scene', 'Part', 'SceneContext', 'PART_KINDS', 'COMMAND_PROFILES',
            'DEFAULT_SETTINGS', 'load_scene', 'parse_scene', 'list_scenes', 'scene_dirs', 'find_scene',
-           'build_arm_part']
+           'build_arm_part', 'build_urdf_part', 'urdf_scene_text']
 
 #: run settings a scene's ``simulation`` section may override (the CLI/node may override again)
 DEFAULT_SETTINGS = {'integrator': 'rk4', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
@@ -298,9 +313,9 @@ class SceneContext:
 # parts
 # --------------------------------------------------------------------------------------------
 _DH_ROW_REQUIRED = ('type', 'a', 'alpha', 'd', 'theta', 'mass')
-_DH_ROW_OPTIONAL = ('com', 'inertia', 'damping', 'limits')
+_DH_ROW_OPTIONAL = ('com', 'inertia', 'damping', 'limits', 'effort_limit')
 _LINK_REQUIRED = ('name', 'joint', 'parent', 'type')
-_LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits')
+_LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits', 'effort_limit')
 _ARM_REQUIRED = ('kind', 'name')
 _ARM_OPTIONAL = ('mount', 'origin', 'root', 'dh', 'tool', 'links', 'link_names', 'joint_names', 'actuated')
 #: ModelError wording -> the link key it is about (for mapping model errors to key paths)
@@ -325,6 +340,8 @@ def _inertial(ctx: SceneContext, row: dict, path: str) -> dict:
         out['damping'] = ctx.number(row['damping'], _key(path, 'damping'), minimum=0.0)
     if 'limits' in row:
         out['limits'] = ctx.limits(row['limits'], _key(path, 'limits'))
+    if 'effort_limit' in row:  # actuator limit: commands are clamped to ±effort_limit (and counted)
+        out['effort_limit'] = ctx.number(row['effort_limit'], _key(path, 'effort_limit'), positive=True)
     return out
 
 
@@ -389,8 +406,8 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
         jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed'))
         T = ctx.pose(r['origin'], _key(rp, 'origin')) if 'origin' in r else np.eye(4)
         axis = ctx.vector(r['axis'], _key(rp, 'axis'), 3) if 'axis' in r else np.array([0.0, 0.0, 1.0])
-        if jt == 'fixed' and ('axis' in r or 'limits' in r or 'damping' in r):
-            ctx.fail(rp, 'a fixed joint takes no axis, limits or damping')
+        if jt == 'fixed' and any(k in r for k in ('axis', 'limits', 'damping', 'effort_limit')):
+            ctx.fail(rp, 'a fixed joint takes no axis, limits, damping or effort_limit')
         parent = ctx.string(r['parent'], _key(rp, 'parent'))
         inert = _inertial(ctx, r, rp)
         specs.append(LinkSpec(name=ctx.string(r['name'], _key(rp, 'name')),
@@ -399,7 +416,8 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
                               origin_rpy=tuple(R_to_rpy(T[:3, :3])), axis=tuple(axis),
                               mass=inert.get('mass', 0.0), com=tuple(inert.get('com', np.zeros(3))),
                               inertia=inert.get('inertia', np.zeros((3, 3))),
-                              damping=inert.get('damping', 0.0), limits=inert.get('limits')))
+                              damping=inert.get('damping', 0.0), limits=inert.get('limits'),
+                              effort_limit=inert.get('effort_limit')))
         paths.append(rp)
     return specs, paths
 
@@ -420,7 +438,7 @@ def _model_error_path(err: ModelError, specs, paths, fallback: str) -> str:
     return paths[k]
 
 
-def build_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part:
     """Build an ``arm`` part: a kinematic tree from a DH table or explicit links -> ArmSystem.
 
     spec: the part mapping (see the module docstring for its keys); path: its key path
@@ -431,9 +449,11 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     name = ctx.string(spec['name'], _key(path, 'name'))
     mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
     root = ctx.string(spec.get('root', 'base_link'), _key(path, 'root'))
-    if ('dh' in spec) == ('links' in spec):
+    if specs is not None:  # built elsewhere (an imported URDF): (LinkSpecs, key paths)
+        specs, paths = specs
+    elif ('dh' in spec) == ('links' in spec):
         ctx.fail(path, "give exactly one of 'dh' (a DH table) or 'links' (explicit links)")
-    if 'dh' in spec:
+    elif 'dh' in spec:
         specs, paths = _dh_specs(ctx, spec, path, root)
     else:
         specs, paths = _explicit_specs(ctx, spec, path, root)
@@ -450,16 +470,21 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         model = build_model(specs, gravity=ctx.gravity, name=name, root=root)
     except ModelError as e:
         ctx.fail(_model_error_path(e, specs, paths, path), str(e))
+    return Part(name=name, kind='arm', mount=mount, system=ArmSystem(model, actuated=_actuated(ctx, spec, path, model)),
+                path=path)
+
+
+def _actuated(ctx: SceneContext, spec: dict, path: str, model):
+    """The part's ``actuated`` joint names, each a 1-DOF joint of ``model``; None when not given."""
+    if 'actuated' not in spec:
+        return None
     dof = model.dof_joint_names
-    if 'actuated' in spec:
-        apath = _key(path, 'actuated')
-        actuated = ctx.names(spec['actuated'], apath)
-        for i, j in enumerate(actuated):
-            if j not in dof:
-                ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}')
-    else:
-        actuated = None
-    return Part(name=name, kind='arm', mount=mount, system=ArmSystem(model, actuated=actuated), path=path)
+    apath = _key(path, 'actuated')
+    actuated = ctx.names(spec['actuated'], apath)
+    for i, j in enumerate(actuated):
+        if j not in dof:
+            ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}')
+    return actuated
 
 
 _PRESCRIBED_KEYS = ('end_effector', 'end_effector_path', 'formulation', 'baumgarte')
@@ -519,8 +544,8 @@ _FREE_BASE_OPTIONAL = ('link', 'joint', 'com', 'formulation', 'table_height', 's
 def build_free_base_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     """Build a ``free_base`` part: a 6-DOF platform (seed 003), alone or carrying arms mounted on it.
 
-    Keys: ``environment: orbit | air_bearing_table`` (orbit needs ``gravity: [0, 0, 0]``, the
-    table gravity along -z); ``mass`` (kg), ``com`` (3,) m and ``inertia`` about the com
+    Keys: ``environment: orbit | air_bearing_table | free_fall`` (orbit needs ``gravity: [0, 0,
+    0]``, the table gravity along -z; free_fall: any gravity, no contact); ``mass`` (kg), ``com`` (3,) m and ``inertia`` about the com
     (base_link axes); ``link`` (default base_link), ``joint`` (the free joint, default
     base_joint); ``formulation: minimal | augmented`` (default minimal); ``table_height`` (m,
     default the initial height); ``stabilisation: {method: baumgarte | projection | none,
@@ -591,6 +616,75 @@ def _assemble_free_base(ctx: SceneContext, parts: list):
 #: part kind -> builder(spec, path, ctx) -> Part
 PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': build_prescribed_arm_part,
                                    'free_base': build_free_base_part}
+
+
+_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated')
+
+
+def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build a ``urdf`` part: a robot description imported by :func:`robodyn_ros.urdf.read_urdf`.
+
+    Keys: ``file`` (path, relative to the scene file) or ``urdf`` (inline URDF text), exactly
+    one; ``mount: world | <diff_drive part> | <free_base part>`` (default world; the URDF's root
+    link is then the frame it hangs from, placed by ``origin``); ``floating`` (default false:
+    the root link is welded to the mount; true: it is a free 6-DOF base in the scene's gravity,
+    environment ``free_fall`` — no ground contact — or ``orbit`` with zero gravity);
+    ``locked: {joint: position}`` freezes joints (gripper fingers, ``<mimic>`` joints);
+    ``actuated`` as for an arm (default every 1-DOF joint). The part is an arm (its kind is
+    ``arm`` once built) so it mounts wherever an arm does.
+    """
+    from .urdf import UrdfError, read_urdf
+    ctx.mapping(spec, path, required=('kind', 'name'), optional=_URDF_KEYS)
+    name = ctx.string(spec['name'], _key(path, 'name'))
+    mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
+    floating = ctx.boolean(spec.get('floating', False), _key(path, 'floating'))
+    if ('file' in spec) == ('urdf' in spec):
+        ctx.fail(path, "give exactly one of 'file' (a URDF file) or 'urdf' (the URDF text)")
+    if 'file' in spec:
+        src = Path(ctx.string(spec['file'], _key(path, 'file')))
+        if not src.is_absolute():
+            base = Path(ctx.file).parent if Path(ctx.file).is_file() else Path.cwd()
+            src = base / src
+        if not src.is_file():
+            ctx.fail(_key(path, 'file'), f'no such URDF file {str(src)!r} (relative paths start at the scene file)')
+        where = _key(path, 'file')
+    else:
+        src = ctx.string(spec['urdf'], _key(path, 'urdf'))
+        where = _key(path, 'urdf')
+    lpath = _key(path, 'locked')
+    given = spec.get('locked', {})
+    if not isinstance(given, dict):
+        ctx.fail(lpath, f'expected a mapping joint: position, got {_typename(given)} {given!r}')
+    locked = {k: ctx.number(v, _key(lpath, k)) for k, v in given.items()}
+    try:
+        robot = read_urdf(src, floating=floating, locked=locked)
+    except UrdfError as e:
+        m = re.match(r"locked joint '([^']+)'", str(e))
+        ctx.fail(_key(lpath, m.group(1)) if m else where, str(e))
+    specs = robot.specs
+    if floating and (mount != 'world' or 'origin' in spec):
+        ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')
+    if any(s.friction > 0.0 for s in specs) and (floating or mount != 'world'):
+        j = next(s.joint for s in specs if s.friction > 0.0)
+        ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "
+                        "only (set friction=\"0\" or mount: world)")
+    if floating:
+        from .systems import freeflyer as ff
+        env = 'orbit' if not np.any(ctx.gravity) else 'free_fall'
+        try:
+            model = ff.free_flyer_model(specs[0], specs[1:], gravity=ctx.gravity, name=name)
+        except ModelError as e:
+            ctx.fail(where, str(e))
+        system = ff.FreeFlyerSystem(model, actuated=_actuated(ctx, spec, path, model), environment=env)
+        return Part(name=name, kind='free_base', mount='world', system=system, path=path)
+    root = robot.root
+    host = next((p for p in ctx.parts if p.name == mount and p.kind == 'free_base'), None)
+    if host is not None:  # hang from the free base's link
+        specs = [replace(s, parent=host.system.base_link) if s.parent == root else s for s in specs]
+        root = host.system.base_link
+    arm_spec = {'kind': 'arm', 'name': name, 'mount': mount, 'root': root,
+                **{k: spec[k] for k in ('origin', 'actuated') if k in spec}}
+    return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)))
 
 
 _MOTOR_KEYS = ('kind', 'torque_constant', 'resistance', 'inductance', 'gear_ratio', 'rotor_inertia',
@@ -693,6 +787,7 @@ def _assemble_diff_drive(ctx: SceneContext, parts: list):
 
 
 PART_KINDS['diff_drive'] = build_diff_drive_part
+PART_KINDS['urdf'] = build_urdf_part
 
 
 def build_kinematic_arm_part(spec: dict, path: str, ctx: SceneContext) -> Part:
@@ -1067,17 +1162,42 @@ def find_scene(name_or_path) -> Path:
 
 
 def load_scene(name_or_path) -> Scene:
-    """Load a bundled scene by name (``stanford_arm``) or a scene file by path.
+    """Load a bundled scene by name (``stanford_arm``), a scene file by path, or a URDF file.
 
-    name_or_path: name or path (str or PathLike). Returns the validated :class:`Scene`;
+    name_or_path: name or path (str or PathLike); a path ending in ``.urdf`` is imported as a
+    one-part scene (:func:`urdf_scene_text`). Returns the validated :class:`Scene`;
     raises :class:`SceneError` whose message is ``<file>: <key path>: <reason>``.
     """
+    s = os.fspath(name_or_path)
+    if s.lower().endswith('.urdf'):  # a robot description alone: a one-part scene around it
+        return parse_scene(urdf_scene_text(s), file=s, path=s)
     p = find_scene(name_or_path)
     try:
         text = p.read_text(encoding='utf-8')
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f'{p}: (file): cannot read: {e}') from None
     return parse_scene(text, file=str(p), path=str(p))
+
+
+def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None) -> str:
+    """Scene YAML of one URDF: ``kind: urdf`` mounted on the world (or ``floating``), no scripted
+    commands, default settings. urdf_file: its path (``load_scene('robot.urdf')``, ``robodyn run
+    robot.urdf``, the node's ``robot_description_file``), or text: the URDF itself (the node
+    reading ``robot_description``). A URDF whose root is a massless ``world`` link with a
+    floating joint is floating anyway."""
+    part = {'kind': 'urdf'}
+    if text is None:
+        p = Path(urdf_file)
+        if not p.is_file():
+            raise SceneError(f'{urdf_file}: (file): no such URDF file')
+        name, origin, part['file'] = p.stem, str(p.resolve()), str(p.resolve())
+    else:
+        m = re.search(r'<robot[^>]*\sname="([^"]*)"', text)
+        name, origin, part['urdf'] = (m.group(1) if m else 'robot'), 'robot_description', text
+    part['name'] = name = re.sub(r'[^A-Za-z0-9_]', '_', name) or 'robot'
+    if floating:
+        part['floating'] = True
+    return yaml.safe_dump({'name': name, 'description': f'imported from {origin}', 'parts': [part]}, sort_keys=False)
 
 
 def list_scenes() -> list:

@@ -35,14 +35,19 @@ class SimulationError(RuntimeError):
 class CommandPort:
     """Zero-order-hold storage of one input port.
 
-    value: (size,) last accepted command; stamp: simulation time (s) it arrived (None = never);
-    rejected: count of refused commands; timed_out: True while the timeout holds it at zero.
+    value: (size,) last accepted command (as received); applied: (size,) what the actuators
+    apply, the command clamped to the port's effort limits (``InputPort.limit``); stamp:
+    simulation time (s) it arrived (None = never); rejected: count of refused commands;
+    clamped: count of command components clamped so far; timed_out: True while the timeout
+    holds it at zero.
     """
 
     value: np.ndarray
     stamp: float | None = None
     rejected: int = 0
     timed_out: bool = False
+    applied: np.ndarray | None = None
+    clamped: int = 0
 
 
 @dataclass
@@ -172,6 +177,13 @@ class Simulator:
                                f'({", ".join(spec.labels)}) in {spec.unit}')
         p = self.ports[port]
         p.value = arr
+        p.applied = arr
+        if spec.limit is not None:  # actuator effort limits: clamp, and count the clamped components
+            lim = np.asarray(spec.limit)
+            over = np.abs(arr) > lim
+            if over.any():
+                p.applied = np.clip(arr, -lim, lim)
+                p.clamped += int(over.sum())
         p.stamp = self.t if t is None else float(t)
         p.timed_out = False
 
@@ -183,7 +195,7 @@ class Simulator:
                      and self.t - p.stamp > self.command_timeout + 1e-12)
             if stale and not p.timed_out:
                 p.timed_out = True
-            u[k] = np.zeros_like(p.value) if p.timed_out else p.value
+            u[k] = np.zeros_like(p.value) if p.timed_out else (p.value if p.applied is None else p.applied)
         return u
 
     @property
@@ -310,6 +322,8 @@ class Simulator:
             vals['real_time_factor_compute'] = d.sim_time / d.wall if d.wall > 0 else float('nan')
         for k, p in self.ports.items():
             vals[f'{k}_timed_out'] = p.timed_out
+            if self.system.inputs[k].limit is not None:
+                vals[f'{k}_clamped'] = p.clamped
         vals.update(d.extra)
         return vals
 

@@ -80,6 +80,32 @@ def start_pd(domain: Domain, log_path, **kw) -> Proc:
     return Proc(cmd, domain.env(), log_path)
 
 
+def lockstep_pd_run(tmp, sim_params: dict, setpoint, periods: int, timeout=90, **pd_kw):
+    """Generator for a module fixture: a lockstep node recording to ``tmp/lockstep.mcap`` while the
+    PD controller process closes the loop to ``setpoint`` for ``periods`` commands; then SIGINT.
+
+    Yields ``{record, pd_rc, node_rc, tmp, pd (its JSON result or None), node_log, pd_log}``; the
+    processes and the domain are always released.
+    """
+    import json
+    dom = Domain()
+    rec = tmp / 'lockstep.mcap'
+    node = start_sim(dom, {**sim_params, 'mode': 'lockstep', 'record': str(rec)}, tmp / 'node.log')
+    pd = start_pd(dom, tmp / 'pd.log', setpoint=setpoint, periods=periods, out=str(tmp / 'pd.json'),
+                  timeout=timeout, **pd_kw)
+    try:
+        pd_rc = pd.wait(timeout=timeout + 10)
+        time.sleep(0.2)
+        node_rc = node.stop(signal.SIGINT)
+        yield {'record': rec, 'pd_rc': pd_rc, 'node_rc': node_rc, 'tmp': tmp,
+               'pd': json.loads((tmp / 'pd.json').read_text()) if (tmp / 'pd.json').exists() else None,
+               'node_log': node.output(), 'pd_log': pd.output()}
+    finally:
+        pd.cleanup()
+        node.cleanup()
+        dom.release()
+
+
 class RosClient(Probe):
     """The test process's rclpy context, node and executor in a domain (see Probe)."""
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, diag_values, headless_lockstep, start_pd, start_sim  # noqa: E402
+from ros_helpers import Domain, RosClient, diag_values, headless_lockstep, lockstep_pd_run, start_sim  # noqa: E402
 
 from robodyn_ros import dynamics as dyn  # noqa: E402
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
@@ -32,23 +32,7 @@ PD_PERIODS = 150            # 1.5 s of simulation at 100 Hz
 @pytest.fixture(scope='module')
 def lockstep_run(tmp_path_factory):
     """A lockstep node recording while a PD controller (another process) closes the loop; SIGINT."""
-    tmp = tmp_path_factory.mktemp('lockstep')
-    dom = Domain()
-    rec = tmp / 'lockstep.mcap'
-    node = start_sim(dom, {'scene': 'stanford_arm', 'mode': 'lockstep', 'record': str(rec)}, tmp / 'node.log')
-    pd = start_pd(dom, tmp / 'pd.log', setpoint=SETPOINT, periods=PD_PERIODS, out=str(tmp / 'pd.json'),
-                  timeout=90)
-    try:
-        pd_rc = pd.wait(timeout=100)
-        time.sleep(0.2)
-        node_rc = node.stop(signal.SIGINT)
-        yield {'record': rec, 'pd_rc': pd_rc, 'node_rc': node_rc, 'tmp': tmp,
-               'pd': json.loads((tmp / 'pd.json').read_text()) if (tmp / 'pd.json').exists() else None,
-               'node_log': node.output(), 'pd_log': pd.output()}
-    finally:
-        pd.cleanup()
-        node.cleanup()
-        dom.release()
+    yield from lockstep_pd_run(tmp_path_factory.mktemp('lockstep'), {'scene': 'stanford_arm'}, SETPOINT, PD_PERIODS)
 
 
 def test_pd_controller_in_another_process_reaches_setpoint_in_lockstep(lockstep_run):

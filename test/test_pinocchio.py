@@ -25,11 +25,14 @@ TOL = 1e-12   # measured worst 1.8e-14 relative (README accuracy table)
 
 
 class PinBridge:
-    """A Pinocchio copy of a robodyn model and the index maps between the two."""
+    """A Pinocchio copy of a robodyn model and the index maps between the two.
 
-    def __init__(self, m: Model):
+    pm: a Pinocchio model of the same robot built elsewhere (e.g. from the original URDF file);
+    default: ``pin.buildModelFromXML(to_urdf(m))``."""
+
+    def __init__(self, m: Model, pm=None):
         self.m = m
-        self.pm = pin.buildModelFromXML(to_urdf(m))
+        self.pm = pin.buildModelFromXML(to_urdf(m)) if pm is None else pm
         self.pm.gravity.linear = np.asarray(m.gravity, dtype=float)
         self.pd = self.pm.createData()
         assert (self.pm.nq, self.pm.nv) == (m.nq, m.nv)
@@ -103,9 +106,10 @@ def rel(x, y, floor=1.0):
     return float(np.max(np.abs(x - y), initial=0.0) / max(float(np.max(np.abs(y), initial=0.0)), floor))
 
 
-def compare(m, rng, n_states=2, label=''):
-    """Errors ``{quantity: [(err, where)]}`` of robodyn against Pinocchio at random states."""
-    b = PinBridge(m)
+def compare(m, rng, n_states=2, label='', pm=None):
+    """Errors ``{quantity: [(err, where)]}`` of robodyn against Pinocchio at random states
+    (pm: the Pinocchio model to compare with, see :class:`PinBridge`)."""
+    b = PinBridge(m, pm)
     pm, pd = b.pm, b.pd
     errs = {k: [] for k in ('pose', 'M', 'rnea', 'aba', 'wrench', 'ke', 'pe', 'com')}
     for s in range(n_states):

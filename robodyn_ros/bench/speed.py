@@ -150,6 +150,27 @@ def _pin_model(model):
     return (pm, pm.createData()), ''
 
 
+#: robots imported from example-robot-data (test extras) for the kernels table: label -> scene part
+IMPORTED_ROBOTS = {
+    'panda (URDF)': "file: {d}/panda_description/urdf/panda.urdf, "
+                    "locked: {{panda_finger_joint1: 0.0, panda_finger_joint2: 0.0}}",
+    'solo12 (URDF)': "file: {d}/solo_description/robots/solo12.urdf, floating: true",
+}
+
+
+def _imported_robots(notes) -> dict:
+    """label -> Scene of :data:`IMPORTED_ROBOTS` (empty, with a note, without example-robot-data)."""
+    from ..scene import parse_scene
+    from ..urdf import example_robot_data_dir
+    d = example_robot_data_dir()
+    if d is None:
+        notes.append('imported robots (Panda, Solo12) left out: example-robot-data is not installed')
+        return {}
+    with _backend('numba'):
+        return {k: parse_scene(f'name: x\nparts:\n  - {{kind: urdf, name: robot, {v.format(d=d)}}}\n')
+                for k, v in IMPORTED_ROBOTS.items()}
+
+
 def _random_state(model, rng):
     """A random (q, v, a) valid for the model (unit quaternions for free joints)."""
     from ..model import FREE
@@ -171,9 +192,10 @@ def section_kernels(args, names) -> str:
     from .. import kernels
     rows = []
     notes = []
-    for name in names:
+    imported = _imported_robots(notes)
+    for name in names + list(imported):
         try:
-            scene = _load(name)
+            scene = imported[name] if name in imported else _load(name)
         except Exception as e:  # a scene that does not load is reported, not fatal
             notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
             continue

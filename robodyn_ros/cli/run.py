@@ -10,7 +10,8 @@ import time
 def add_parser(sub):
     """Register the subcommand and its options."""
     p = sub.add_parser('run', help='simulate a scene headless with its scripted commands')
-    p.add_argument('scene', help='bundled scene name or path to a scene YAML file')
+    p.add_argument('scene', help='bundled scene name, path to a scene YAML file, or a URDF file (robot.urdf: '
+                                 'the robot on a fixed base, no commands)')
     p.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the scene\'s)')
     p.add_argument('--record', default=None, help='MCAP file to write (default: none); an existing file is refused')
     p.add_argument('--overwrite', action='store_true', help='replace the --record file if it exists')
@@ -109,6 +110,10 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
         f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
         f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
     ]
+    clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}
+    if clamped:  # actuator effort limits (URDF <limit effort>, effort_limit)
+        lines.append('limits       ' + ', '.join(f'{n} {k} command components clamped to the effort limits'
+                                                 for k, n in clamped.items()))
     if record:
         n = sum(getattr(s, 'count', 0) for s in sinks)
         lines.append(f'recording    {os.path.abspath(record)} ({n} messages; check with: robodyn check {record})')

@@ -12,4 +12,6 @@ def main(args) -> int:
     from ..scene import list_scenes
     for name, description in list_scenes():
         print(f'{name:28s} {description.strip().splitlines()[0] if description.strip() else ""}')
+    print('\nyour own robot (URDF): robodyn run robot.urdf --record run.mcap   or a scene part '
+          '{kind: urdf, name: robot, file: robot.urdf}; ROS: sim --ros-args -p robot_description_file:=robot.urdf')
     return 0

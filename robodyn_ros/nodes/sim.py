@@ -56,7 +56,10 @@ LOG_THROTTLE = 2.0
 
 #: name -> (default, description); '' / 0 defaults mean "the scene's simulation setting"
 PARAMETERS = {
-    'scene': ('stanford_arm', 'bundled scene name or path to a scene YAML file'),
+    'scene': ('stanford_arm', 'bundled scene name or path to a scene YAML file (or a .urdf file)'),
+    'robot_description_file': ('', "a URDF file to simulate on a fixed base instead of 'scene' ('' = use 'scene')"),
+    'robot_description_timeout': (10.0, "with scene:='' and no robot_description_file: wall seconds to wait for "
+                                        "the URDF on robot_description (transient local)"),
     'integrator': ('', "integrator name (rk4, dop853, ...); '' = the scene's"),
     'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
     'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
@@ -276,11 +279,26 @@ def make_node_class():
             for name, (default, text) in PARAMETERS.items():
                 desc = ParameterDescriptor(description=text, dynamic_typing=True)
                 raw[name] = self.declare_parameter(name, default, desc).value
-            if not isinstance(raw['scene'], str) or not raw['scene']:
+            urdf_file = raw['robot_description_file']
+            if not isinstance(urdf_file, str) or (urdf_file and not urdf_file.lower().endswith('.urdf')):
+                raise ConfigError(f"parameter 'robot_description_file' must be the path of a .urdf file, "
+                                  f"got {urdf_file!r}")
+            if not isinstance(raw['scene'], str):
                 raise ConfigError(f"parameter 'scene' must be a scene name or path, got {raw['scene']!r}")
+            # scene:='' without a URDF file: the robot is the URDF another node publishes
+            self.external_description = not raw['scene'] and not urdf_file
             from ..systems.base import backend_scope
             with backend_scope(_backend(raw['backend'])):
-                self.scene = load_scene(raw['scene'])
+                if self.external_description:
+                    from ..scene import SceneError, parse_scene, urdf_scene_text
+                    text = self._read_robot_description(_number('robot_description_timeout',
+                                                                raw['robot_description_timeout'], positive=True))
+                    try:
+                        self.scene = parse_scene(urdf_scene_text(text=text), file='robot_description')
+                    except SceneError as e:
+                        raise ConfigError(f'the URDF on robot_description cannot be simulated: {e}') from None
+                else:
+                    self.scene = load_scene(urdf_file or raw['scene'])
             self.cfg = cfg = resolve_config(raw, self.scene)
             self.namespace = self.get_namespace()
             try:
@@ -308,14 +326,15 @@ def make_node_class():
                 self.pub['odom'] = self._publisher('odom')
             self.wrench_pubs = {}
             for name in out0.wrenches:
-                topic = M.WRENCH_PREFIX + name
+                topic = M.wrench_topic(name)
                 self.wrench_pubs[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
             self.pub.update(self.wrench_pubs)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                                  reliability=ReliabilityPolicy.RELIABLE)
             self.description = M.string(self.scene.system.urdf())
-            self.pub['robot_description'] = self.create_publisher(
-                _import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description', latched)
+            if not self.external_description:  # else the node that published it owns the topic
+                self.pub['robot_description'] = self.create_publisher(
+                    _import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description', latched)
             self.tf = None   # the TfTree of /tf (published and recorded) when publish_tf
             if cfg.publish_tf:
                 from ..tf import TfTree
@@ -340,8 +359,9 @@ def make_node_class():
             self.create_service(SetBool, '~/pause', self._on_pause)
 
             # -- start: description, recording, initial state at t0
-            self.pub['robot_description'].publish(M.fill(self.pub['robot_description'].msg_type(),
-                                                         self.description))
+            if 'robot_description' in self.pub:
+                self.pub['robot_description'].publish(M.fill(self.pub['robot_description'].msg_type(),
+                                                             self.description))
             if '/tf_static' in self.pub:
                 static = self.tf.static_message(M.to_ns(self.sim.t))
                 if static['transforms']:
@@ -369,6 +389,26 @@ def make_node_class():
             self._cpu_start = time.process_time()   # CPU of the run (paused spinning costs next to none)
 
         # -- set-up helpers -------------------------------------------------------------------
+        def _read_robot_description(self, timeout: float) -> str:
+            """The URDF text on ``robot_description`` (transient local: a robot_state_publisher's),
+            waiting up to ``timeout`` wall seconds; ConfigError if none arrives."""
+            import time as _time
+
+            import rclpy
+            got = []
+            qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             reliability=ReliabilityPolicy.RELIABLE)
+            sub = self.create_subscription(_import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description',
+                                           lambda msg: got.append(msg.data), qos)
+            end = _time.monotonic() + timeout
+            while not got and _time.monotonic() < end:
+                rclpy.spin_once(self, timeout_sec=0.05)
+            self.destroy_subscription(sub)
+            if not got:
+                raise ConfigError(f"scene:='' and no robot_description_file: no URDF arrived on robot_description "
+                                  f'within {timeout:g} s (robot_description_timeout)')
+            return got[-1]
+
         def _publisher(self, topic):
             return self.create_publisher(_import_msg(M.TOPIC_TYPES[topic]), topic, 10)
 

@@ -40,7 +40,7 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
         recs.append(('odom', M.TOPIC_TYPES['odom'], cdr.odometry_bytes(sec, nsec, out.odom)))
     if wrenches:
         for name, (frame, w) in out.wrenches.items():
-            topic = M.WRENCH_PREFIX + name
+            topic = M.wrench_topic(name)
             if want is None or want(topic):
                 recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
     if tf is not None and (want is None or want('/tf')):

@@ -44,6 +44,12 @@ class ArmSystem(System):
         self.joint_names = model.dof_joint_names
         self.actuated, self.B, port = effort_actuation(model, self.joint_names, actuated)  # tau = B u
         self.inputs = {'effort': port}
+        # Coulomb joint friction (URDF <dynamics friction>): compiled kernel, reference path only
+        self._friction = np.ascontiguousarray(model.friction)
+        self._has_friction = bool(np.any(self._friction > 0.0))
+        if self._has_friction and not kernels.AVAILABLE:
+            raise ValueError(f'{model.name}: Coulomb joint friction needs the compiled kernels (numba): '
+                             f'{kernels.UNAVAILABLE_REASON}')
         # child link of each 1-DOF joint, for the wrench frames
         self._dof_bodies = [i for i in range(model.nb) if model.jtype[i] in (REVOLUTE, PRISMATIC)]
 
@@ -70,9 +76,14 @@ class ArmSystem(System):
         return y
 
     def generalized_forces(self, y, u):
-        """Applied plus passive generalised forces ``B u - D v`` (nv,)."""
+        """Applied plus passive generalised forces ``B u - D v - F tanh(v / v_s)`` (nv,)."""
         _, v = self.split(y)
-        return self.B @ u['effort'] + dyn.passive_forces(self.model, v)
+        tau = self.B @ u['effort'] + dyn.passive_forces(self.model, v)
+        if self._has_friction:
+            from ..kernels.passive import add_coulomb_friction
+            from ..urdf import COULOMB_VELOCITY
+            add_coulomb_friction(self._friction, COULOMB_VELOCITY, np.ascontiguousarray(v, dtype=float), tau)
+        return tau
 
     def rhs(self, t, y, u):
         """``[q̇; v̇]`` with v̇ from the articulated-body algorithm."""
@@ -111,7 +122,8 @@ class ArmSystem(System):
         Returns ``(z1 (ny + 1,), IntegratorStats)``; raises ``IntegrationError`` like the
         reference integrator when the state becomes non-finite.
         """
-        if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact():
+        if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact() \
+                or self._has_friction:  # the fused loop has viscous damping only
             return None
         z = np.array(z0, dtype=np.float64)
         if z.shape != (self.ny + 1,):

@@ -125,13 +125,16 @@ class InputPort:
     """A named command input: its size, the names of its elements and their unit.
 
     name: port name ('effort', 'wheel_voltage', 'base_wrench'); size: vector length;
-    labels: element names (joint names, 'left'/'right', ...); unit: SI unit text for messages.
+    labels: element names (joint names, 'left'/'right', ...); unit: SI unit text for messages;
+    limit: optional (size,) tuple, the largest |value| per element (inf = none): the Simulator clamps
+    commands to it and counts the clamped components.
     """
 
     name: str
     size: int
     labels: tuple
     unit: str
+    limit: tuple | None = None
 
 
 class LazyValues(Mapping):
@@ -244,7 +247,8 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
     model: the kinematic tree (its ``v_idx`` places each joint in v); candidates: the joints
     that may be driven; actuated: the driven ones (None = all candidates); what: how the
     candidates are named in the error message. Returns ``(actuated, B (nv, m), port)`` with
-    ``tau = B u``; raises ValueError naming unknown joints.
+    ``tau = B u``; raises ValueError naming unknown joints. The port's ``limit`` holds the
+    joints' ``effort_limit`` (LinkSpec; URDF ``<limit effort>``), None when no joint has one.
     """
     from ..model import REVOLUTE
     candidates = list(candidates)
@@ -255,5 +259,7 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
     B = np.zeros((model.nv, len(actuated)))
     for k, n in enumerate(actuated):
         B[model.v_idx[model.joint_names.index(n)], k] = 1.0
+    lim = np.array([model.specs[model.joint_names.index(n)].effort_limit or np.inf for n in actuated], dtype=float)
     units = sorted({'N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated})
-    return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-')
+    return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-',
+                                  tuple(lim.tolist()) if np.isfinite(lim).any() else None)

@@ -9,6 +9,8 @@ thruster wrench as ``f_ext`` on the base.
 Environments (``ENVIRONMENTS``):
 
 * ``orbit`` — zero gravity, no constraint: 6 + n degrees of freedom.
+* ``free_fall`` — as orbit, but under the scene's gravity (no ground contact: the robot falls);
+  an imported floating-base URDF (``kind: urdf, floating: true``) runs in it.
 * ``air_bearing_table`` — gravity on, the platform floats on a horizontal table. We impose
   **three** holonomic constraints on the free joint (:func:`table_rows`): the height of the
   base_link origin, and roll = pitch = 0 (the platform's z axis stays vertical), leaving
@@ -50,7 +52,7 @@ from .base import (InputPort, System, SystemOutputs, compiled_fused_advance, eff
 __all__ = ['ENVIRONMENTS', 'STABILISATIONS', 'FORMULATIONS', 'FreeFlyerSystem', 'free_flyer_model',
            'table_rows', 'level_quaternion', 'free_base_urdf', 'momentum_about_com', 'BASE_WRENCH_LABELS']
 
-ENVIRONMENTS = ('orbit', 'air_bearing_table')
+ENVIRONMENTS = ('orbit', 'air_bearing_table', 'free_fall')
 STABILISATIONS = ('baumgarte', 'projection', 'none')
 FORMULATIONS = ('minimal', 'augmented')
 #: element order of the ``base_wrench`` port (messages.PORT_TOPICS: base_wrench_command), base_link axes
@@ -175,7 +177,7 @@ class _FreeBaseCommon(System):
     """Inputs, command handling and output bookkeeping shared by both formulations.
 
     model: the free-flyer tree (body 0 on a FREE joint); actuated: driven arm joints (default
-    every 1-DOF joint); environment: 'orbit' | 'air_bearing_table'; table_height: height (m)
+    every 1-DOF joint); environment: 'orbit' | 'air_bearing_table' | 'free_fall'; table_height: height (m)
     of the base_link origin on the table (default: the initial height given to
     :meth:`initial_state`, else 0); stabilisation: 'baumgarte' | 'projection' | 'none';
     alpha, beta: Baumgarte gains (1/s); backend: ``'numpy'`` (the methods of the classes, the

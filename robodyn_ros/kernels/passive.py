@@ -1,0 +1,21 @@
+"""Passive joint elements beyond viscous damping, compiled (numba): Coulomb joint friction.
+
+Coulomb friction ``f`` (N·m or N) at a joint of velocity ``q̇`` is regularised as the DC motor's
+(:mod:`robodyn_ros.systems.motor`): ``τ = −f tanh(q̇ / v_s)`` with the regularisation speed
+``v_s`` (:data:`robodyn_ros.urdf.COULOMB_VELOCITY`): a smooth right-hand side, no stick-slip
+events; below ``|q̇| ~ v_s`` it acts as a viscous damper of slope ``f / v_s``, so a load under
+the friction level creeps at ``~ v_s artanh(τ/f)`` instead of sticking.
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def add_coulomb_friction(friction, v_s, v, tau):
+    """``tau[k] -= friction[k] tanh(v[k] / v_s)`` for every joint k (in place; all arrays (nv,))."""
+    for k in range(v.shape[0]):
+        if friction[k] != 0.0:
+            tau[k] -= friction[k] * math.tanh(v[k] / v_s)
