@@ -450,6 +450,8 @@ def make_node_class():
             self._publish_outputs(out)
             if self.cfg.duration and sim.t - self.t_start >= self.cfg.duration - 0.5 * self.period:
                 self.finished = True
+            if self.scene.stop is not None and self.scene.stop(sim.t, sim.y):   # the scene's stop_when
+                self.finished = True
             return True
 
         def _log_throttled(self, level: str, key: str, text: str):
