@@ -104,7 +104,7 @@ class PlanarBaseSystem(ArmSystem):
             p, _, c = self._km.momentum(q, v)
             return c, p / self.model.total_mass()
         h = dyn.spatial_momentum(self.model, q, v)
-        c = dyn.center_of_mass(self.model, q)
+        c = dyn.center_of_mass(self.model, q)[0]
         return c, h[3:] / self.model.total_mass()
 
     def initial_state(self, q0=None, v0=None, com=None, com_velocity=None):
