@@ -920,7 +920,7 @@ def _initial_state(ctx: SceneContext, v, system) -> np.ndarray:
 
 #: stop_when conditions: key -> (what the system must have, builder(value, system) -> stop(t, y) -> bool)
 STOP_CONDITIONS = {
-    'com_z_below': ('com', lambda z, system: lambda t, y: system.com(*system.split(y))[0][2] < z),
+    'com_z_below': ('com', lambda z, system: lambda t, y: bool(system.com(*system.split(y))[0][2] < z)),
 }
 
 

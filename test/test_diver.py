@@ -153,7 +153,7 @@ def test_com_follows_the_ballistic_parabola(dive):
 
 
 def test_entry_ends_the_run_with_the_stated_rotation_count(dive):
-    t_entry = (3.5 + np.sqrt(3.5 ** 2 + 2 * 9.81 * 10.0)) / 9.81   # closed form, 1.8287 s
+    t_entry = (3.5 + np.sqrt(3.5 ** 2 + 2 * 9.81 * 10.0)) / 9.81   # closed form, 1.8285 s
     sim = dive['sim']
     assert sim.t == pytest.approx(np.ceil(t_entry * 100) / 100, abs=1e-12)   # first publication past the water
     assert dive['rec'][-2][3][2] >= -10.0 > dive['rec'][-1][3][2]
@@ -304,7 +304,11 @@ def test_planar_scene_syntax_and_errors():
         _mini(actuated='    actuated: [base_pitch]')
     with pytest.raises(SceneError, match=r"stop_when.com_z_above: unknown key"):
         _mini(stop='stop_when: {com_z_above: 1.0}')
-    assert _mini(stop='stop_when: {com_z_below: -1.0}').stop(0.0, sc.y0) is False
+    stop = _mini(stop='stop_when: {com_z_below: -1.0}').stop
+    y = sc.y0.copy()
+    assert stop(0.0, y) is False
+    y[1] = -1.5    # base z: the CoM (0.08 m above the base origin) is below -1 m
+    assert stop(0.0, y) is True
 
 
 def test_odom_round_trip():
