@@ -54,7 +54,7 @@ def main(args=None) -> int:
     system = scene.system
     pub = node.create_publisher(Float64MultiArray, 'effort_commands', 10)
     joints, odoms = {}, {}                 # stamp (ns) -> message, until answered
-    st = {'sent': 0, 'answered': -1, 'done': False, 'last': None, 'turns': None}
+    st = {'sent': 0, 'answered': -1, 'done': False, 'last': None, 'turns': None, 'pitch': None}
 
     def stamp(msg) -> int:
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -73,7 +73,10 @@ def main(args=None) -> int:
         q, v = state_from_outputs(system, list(js.name), js.position, js.velocity,
                                   {'position': _vec(pose.position), 'orientation': np.array([o.x, o.y, o.z, o.w]),
                                    'linear': _vec(tw.linear), 'angular': _vec(tw.angular)})
-        st['turns'] = float(q[2] / (2.0 * np.pi))
+        # odom's quaternion keeps the pitch modulo 2 pi: count the turns by continuity (report only)
+        prev = st['pitch'] if st['pitch'] is not None else q[2]
+        st['pitch'] = prev + (q[2] - prev + np.pi) % (2.0 * np.pi) - np.pi
+        st['turns'] = float(st['pitch'] / (2.0 * np.pi))
         y = np.concatenate([q, v])
         if (scene.stop is not None and scene.stop(stamp_seconds(t_ns), y)) or \
                 (p['max_periods'] and st['sent'] >= p['max_periods']):
