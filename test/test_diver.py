@@ -319,3 +319,20 @@ def test_odom_round_trip():
         o = odom_of(*qb, *vb)
         q2, v2 = base_state_from_odom(o['position'], o['orientation'], o['linear'], o['angular'])
         assert np.allclose(np.cos(q2[2] - qb[2]), 1.0) and np.allclose(q2[:2], qb[:2]) and np.allclose(v2, vb)
+
+
+def test_robodyn_plot_draws_the_stick_figure_and_the_somersault_angle(tmp_path):
+    pytest.importorskip('matplotlib')
+    from robodyn_ros.cli import main as robodyn
+    from robodyn_ros.plotting import load_recording, plot_recording
+    rec = tmp_path / 'tuck.mcap'
+    assert robodyn(['run', 'diver_tuck', '--record', str(rec)]) == 0
+    out, chosen, skipped = plot_recording(rec, out=tmp_path / 'tuck.png', panels='stick,joints')
+    assert chosen == ['stick', 'joints'] and not skipped and out.stat().st_size > 10000
+    d = load_recording(rec, ['stick'])
+    assert {'head', 'foot', 'hand', 'thigh'} <= set(d.tf_pos) and ('thigh', 'calf') in d.tf_edges
+    # the foot frame (ankle) at the entry: below the hip, the body straight and head down
+    k = -1
+    assert d.tf_pos['calf'][k][2] > d.tf_pos['thorax'][k][2] + 0.6
+    pitch = np.unwrap(2 * np.arctan2(d.odom_q[:, 1], d.odom_q[:, 3]))
+    assert pitch[-1] / (2 * np.pi) == pytest.approx(2.5, abs=1e-3)
