@@ -21,12 +21,15 @@ A scene is one YAML mapping (unknown keys anywhere are errors, so typos never pa
         links: [{name, joint, parent, type, origin: {xyz, rpy}, axis, mass, com, inertia,
                  damping, limits}, ...]   # ... or explicit links (URDF-like), not both
         actuated: [joint, ...]            # optional, default every 1-DOF joint; [] = passive
-    initial_state: {q: [...], v: [...]}   # optional, defaults neutral / zero
+    initial_state: {q: [...], v: [...]}   # optional, defaults neutral / zero (a planar base also
+                                          # takes com: [x, z], com_velocity: [vx, vz])
     commands:                             # optional scripted commands, per input port
       effort: {profile: <COMMAND_PROFILES key>, <profile parameters>}
     simulation: {integrator: rk4, dt: 0.001, rtol: .., atol: .., publish_rate: 100, duration: 10}
+    stop_when: {com_z_below: -10.0}       # optional: end the run at the first publication where
+                                          # it holds (STOP_CONDITIONS; planar bases have a CoM)
 
-Link data: ``type`` revolute | prismatic (| fixed for explicit links); ``mass`` kg (>= 0);
+Link data: ``type`` revolute | prismatic (| fixed | planar for explicit links); ``mass`` kg (>= 0);
 ``com`` (3,) m; ``inertia`` about the centre of mass, either ``[[ixx, ixy, ixz], [..], [..]]``
 or ``[ixx, iyy, izz, ixy, ixz, iyz]`` (kg·m²), symmetric positive semi-definite with principal
 moments obeying the triangle inequality (a slender bar's zero axial moment is allowed).
@@ -34,6 +37,15 @@ For DH links com/inertia are expressed in DH frame i (Corke's toolbox convention
 :func:`robodyn_ros.model.dh_links`); for explicit links in the link (joint) frame.
 ``damping`` is viscous (N·m·s/rad or N·s/m); ``limits`` ``[lo, hi]`` (rad or m) are recorded in
 the URDF and checked against the initial state, but the dynamics does not enforce them.
+
+Planar root (a tree in free flight in a plane, e.g. the diver): an explicit link with ``type:
+planar`` (no axis, limits or damping) and ``parent`` the arm's ``root`` becomes the joints
+``<joint>_x``, ``<joint>_z`` (prismatic) and ``<joint>_pitch`` (revolute about y) through two
+massless bodies, in the x–z plane of its ``origin`` (:func:`robodyn_ros.model.planar_links`).
+The part is then a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem`: ``odom`` is the
+link's pose, ``joint_states`` the inner joints, q/v the three base coordinates then the inner
+joints; ``actuated`` may name inner joints only. The ``pfl`` command profile (partial feedback
+linearisation to a posture and back, :mod:`robodyn_ros.pfl`) drives such a tree.
 
 Errors: every defect raises :class:`SceneError` (a ValueError) with the message
 ``<file>: <key path>: <reason>``, e.g. ``arm.yaml: parts[0].dh.links[2].mass: missing key``;
