@@ -12,8 +12,8 @@ set of parameters (gains, target posture, schedule: in the scene file)::
 Each state stamp is answered exactly once, when both its ``joint_states`` and its ``odom`` have
 arrived (the lockstep sim re-sends the initial state to late subscribers: same stamp, ignored).
 The node stops when the received state meets the scene's ``stop_when`` (the entry into the
-water; the sim stops there too), after ``max_periods`` commands, or after ``timeout`` wall
-seconds. Parameters: ``scene`` (name or path), ``max_periods`` (0 = no limit), ``timeout`` (s),
+water; the sim stops there too), when the sim node leaves (no subscriber on ``effort_commands``
+any more), after ``max_periods`` commands, or after ``timeout`` wall seconds. Parameters: ``scene`` (name or path), ``max_periods`` (0 = no limit), ``timeout`` (s),
 ``result`` (optional JSON file: commands sent, last stamp, rotation count).
 """
 from __future__ import annotations
@@ -54,7 +54,7 @@ def main(args=None) -> int:
     system = scene.system
     pub = node.create_publisher(Float64MultiArray, 'effort_commands', 10)
     joints, odoms = {}, {}                 # stamp (ns) -> message, until answered
-    st = {'sent': 0, 'answered': -1, 'done': False, 'last': None, 'turns': None, 'pitch': None}
+    st = {'sent': 0, 'answered': -1, 'done': False, 'last': None, 'turns': None, 'pitch': None, 'sim_left': False}
 
     def stamp(msg) -> int:
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -85,21 +85,33 @@ def main(args=None) -> int:
         pub.publish(Float64MultiArray(data=ctl.torques(stamp_seconds(t_ns), q, v).tolist()))
         st['sent'] += 1
 
-    node.create_subscription(JointState, 'joint_states',
-                             lambda m: (joints.__setitem__(stamp(m), m), step(stamp(m))), 10)
-    node.create_subscription(Odometry, 'odom', lambda m: (odoms.__setitem__(stamp(m), m), step(stamp(m))), 10)
+    # odom first, joint_states once odom and the command topic are matched: a lockstep sim re-sends
+    # its initial state (all topics) when a joint_states subscriber appears, and then both must arrive
+    odom_sub = node.create_subscription(Odometry, 'odom', lambda m: (odoms.__setitem__(stamp(m), m),
+                                                                     step(stamp(m))), 10)
     end = time.monotonic() + float(p['timeout'])
     try:
+        while time.monotonic() < end and not (odom_sub.get_publisher_count() and pub.get_subscription_count()):
+            rclpy.spin_once(node, timeout_sec=0.05)
+        node.create_subscription(JointState, 'joint_states',
+                                 lambda m: (joints.__setitem__(stamp(m), m), step(stamp(m))), 10)
+        seen_sim = False
         while not st['done'] and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
+            n = pub.get_subscription_count()
+            seen_sim = seen_sim or n > 0
+            if seen_sim and n == 0:        # the sim has gone (it stopped at the entry or was shut down)
+                st['done'] = True
+                st['sim_left'] = True
     except KeyboardInterrupt:
         pass
     print(f'diver_controller: {st["sent"]} commands; last state t={(st["last"] or 0) * 1e-9:.3f} s, '
           f'base pitch {st["turns"] if st["turns"] is not None else float("nan"):.4f} turns'
-          + ('' if st['done'] else ' (timed out)'), flush=True)
+          + ('' if st['done'] else ' (timed out)') + (' (the sim node left)' if st['sim_left'] else ''), flush=True)
     if p['result']:
         with open(p['result'], 'w') as f:
-            json.dump({'sent': st['sent'], 'last_ns': st['last'], 'turns': st['turns'], 'done': st['done']}, f)
+            json.dump({'sent': st['sent'], 'last_ns': st['last'], 'turns': st['turns'], 'done': st['done'],
+                       'sim_left': st['sim_left']}, f)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0 if st['done'] else 1
