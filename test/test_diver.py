@@ -320,6 +320,17 @@ def test_planar_scene_syntax_and_errors():
     assert stop(0.0, y) is True
 
 
+def test_massless_planar_tree_is_refused_with_its_cause():
+    """The massless intermediate bodies are harmless only while the subtree has mass (ABA divides
+    by its articulated inertia): a massless tree is refused at start, naming the joints."""
+    text = _MINI.format(stop='', extra='', actuated='').replace('mass: 2.0, inertia: [0.1, 0.1, 0.1, 0, 0, 0]',
+                                                                'mass: 0.0')
+    text = text.replace('mass: 1.0, com: [0, 0, 0.2], inertia: [0.01, 0.01, 0.001, 0, 0, 0]', 'mass: 0.0')
+    sc = parse_scene(text, 'mini.yaml')
+    with pytest.raises(ValueError, match='base_x, base_z, base_pitch, j move a subtree with no mass'):
+        Simulator(sc.system, sc.y0)
+
+
 def test_odom_round_trip():
     from robodyn_ros.systems.planar import base_state_from_odom, odom_of
     rng = np.random.default_rng(1)

@@ -119,6 +119,8 @@ class PlanarBaseSystem(ArmSystem):
         for name, val in (('com', com), ('com_velocity', com_velocity)):
             if val is not None and np.shape(val) != (2,):
                 raise ValueError(f'{name} must be [x, z] (2 values), got {val!r}')
+        if com is None and com_velocity is None:
+            return y
         c, cd = self.com(q, v)
         if com is not None:
             q[0] += com[0] - c[0]
