@@ -105,6 +105,7 @@ def test_planar_root_matches_pinocchio_joint_model_planar():
         M = dyn.crba(m, q)
         Mo = P.T @ M @ P   # ours in Pinocchio's inner-joint order
         err = np.abs(T.T @ Mp @ T - Mo).max() / np.abs(Mp).max()
+        print(f'diver vs Pinocchio JointModelPlanar: M {err:.1e} relative')
         assert err <= 1e-9
         assert pin.computeKineticEnergy(pm, pd, qp, vp) == pytest.approx(dyn.kinetic_energy(m, q, v), rel=1e-12)
 
