@@ -50,6 +50,7 @@ setup(
         'console_scripts': [
             'sim = robodyn_ros.nodes.sim:main',
             'robodyn = robodyn_ros.cli:main',
+            'diver_controller = robodyn_ros.nodes.diver_controller:main',
         ],
     },
 )

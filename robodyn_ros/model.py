@@ -30,6 +30,10 @@ _NQ = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 7}
 _NV = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 6}
 
 
+#: joint-name suffixes of the three joints of a planar composite, in q order
+PLANAR_SUFFIXES = ('_x', '_z', '_pitch')
+
+
 class ModelError(ValueError):
     """A kinematic tree that cannot be built; the message names the link/joint and the reason."""
 
@@ -52,7 +56,7 @@ class LinkSpec:
     name: str
     joint: str
     parent: str | None
-    joint_type: str = 'revolute'
+    joint_type: str = 'revolute'  # or 'planar' (expanded by planar_links, see the module docstring)
     origin_xyz: Sequence[float] = (0.0, 0.0, 0.0)
     origin_rpy: Sequence[float] = (0.0, 0.0, 0.0)
     axis: Sequence[float] = (0.0, 0.0, 1.0)
@@ -200,6 +204,7 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
     Raises :class:`ModelError` naming the offending link for unknown parents, cycles, duplicate
     names, bad joint types, non-unit axes and non-physical inertias.
     """
+    links = [x for s in links for x in (planar_links(s) if s.joint_type == 'planar' else (s,))]
     by_name = {}
     for s in links:
         if s.name in by_name or s.name == root:
@@ -281,6 +286,44 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
     return Model(name=name, root=root, link_names=tuple(order), joint_names=tuple(by_name[n].joint for n in order),
                  parent=parent, jtype=jtype, axis=axis, Xtree=Xtree, I=I, q_idx=q_idx, v_idx=v_idx,
                  nq_j=nq_j, nv_j=nv_j, damping=np.asarray(damping), gravity=g, specs=tuple(specs))
+
+
+def planar_links(spec: LinkSpec) -> list:
+    """The three LinkSpecs of a planar joint (x–z plane of the joint frame, pitch about its y).
+
+    spec: a LinkSpec with ``joint_type='planar'`` (its axis, limits and damping must be left at
+    their defaults). Returns ``[J_x_link (prismatic x), J_z_link (prismatic z), L (revolute y)]``
+    with joints ``J_x, J_z, J_pitch``; the first two bodies are massless (see the module docstring).
+    """
+    from dataclasses import replace
+    where = f'link {spec.name!r} (joint {spec.joint!r})'
+    if spec.limits is not None or spec.damping:
+        raise ModelError(f'{where}: a planar joint takes no limits or damping')
+    if tuple(float(a) for a in spec.axis) != (0.0, 0.0, 1.0):
+        raise ModelError(f'{where}: a planar joint takes no axis (its plane is the x-z plane of its '
+                         'joint frame; rotate the plane with the origin rpy)')
+    jx, jz, jp = (spec.joint + s for s in PLANAR_SUFFIXES)
+    return [LinkSpec(name=f'{jx}_link', joint=jx, parent=spec.parent, joint_type='prismatic',
+                     origin_xyz=spec.origin_xyz, origin_rpy=spec.origin_rpy, origin_R=spec.origin_R,
+                     axis=(1.0, 0.0, 0.0)),
+            LinkSpec(name=f'{jz}_link', joint=jz, parent=f'{jx}_link', joint_type='prismatic', axis=(0.0, 0.0, 1.0)),
+            replace(spec, joint=jp, parent=f'{jz}_link', joint_type='revolute', origin_xyz=(0.0, 0.0, 0.0),
+                    origin_rpy=(0.0, 0.0, 0.0), origin_R=None, axis=(0.0, 1.0, 0.0))]
+
+
+def planar_root(model: Model):
+    """``(joint name J, index of body L)`` when bodies 0-2 of ``model`` are a planar composite
+    attached to the root frame (as :func:`planar_links` builds it), else None."""
+    if model.nb < 3 or model.parent[0] != -1 or list(model.parent[1:3]) != [0, 1]:
+        return None
+    j = model.joint_names[0][:-len(PLANAR_SUFFIXES[0])]
+    want = [(PRISMATIC, (1.0, 0.0, 0.0)), (PRISMATIC, (0.0, 0.0, 1.0)), (REVOLUTE, (0.0, 1.0, 0.0))]
+    for i, (jt, ax) in enumerate(want):
+        if model.joint_names[i] != j + PLANAR_SUFFIXES[i] or model.jtype[i] != jt or tuple(model.axis[i]) != ax:
+            return None
+    if np.any(model.I[:2]) or not (np.allclose(model.Xtree[1], np.eye(6)) and np.allclose(model.Xtree[2], np.eye(6))):
+        return None
+    return j, 2
 
 
 def _homog(R, p):
@@ -458,4 +501,5 @@ def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0,
 
 
 __all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
-           'jcalc', 'build_model', 'dh_links', 'to_urdf', 'inertia_visual', 'random_tree', 'skew']
+           'jcalc', 'build_model', 'dh_links', 'to_urdf', 'inertia_visual', 'random_tree', 'skew',
+           'PLANAR_SUFFIXES', 'planar_links', 'planar_root']

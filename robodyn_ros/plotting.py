@@ -21,6 +21,10 @@ Panels (:data:`PANELS`, in their default order) and where their data come from:
 ``constraint``  ``diagnostics`` ``constraint_residual`` / ``constraint_velocity_residual``
                 (log scale).
 ``wrenches``    ``constraint_wrenches/*``: |force| and |torque| of every joint/contact wrench.
+``stick``       ``/tf`` + ``/tf_static`` of a base in the x–z plane (``odom`` orientation a
+                pure pitch, e.g. the diver): stick-figure snapshots (every link frame joined
+                to its parent's, side view, every 0.1 s), and the somersault angle (odom
+                pitch, unwrapped, in turns) against time.
 ==============  ==========================================================================
 
 Diagnostics are recorded at their own (low, 1 Hz by default) rate, so those panels draw
@@ -50,7 +54,8 @@ __all__ = ['PANELS', 'DPI', 'WIDTH_IN', 'PlotError', 'UnreadableRecording', 'cho
            'default_output', 'default_title']
 
 #: every panel name, in the order panels are stacked by default
-PANELS = ('joints', 'path', 'speed', 'yaw_rate', 'currents', 'energy', 'momentum', 'constraint', 'wrenches')
+PANELS = ('joints', 'path', 'speed', 'yaw_rate', 'currents', 'energy', 'momentum', 'constraint', 'wrenches',
+          'stick')
 #: resolution of the PNG (dots per inch); fixed so the output does not depend on the machine
 DPI = 100
 #: figure width (inches); 12 in at 100 dpi = 1200 px
@@ -138,7 +143,7 @@ def choose_panels(summary: dict) -> List[str]:
         out.append('energy')
     if _wrench_topics(topics):
         out.append('wrenches')
-    return out
+    return out   # 'stick' is added by plot_recording when the loaded odom is a pitch-only base
 
 
 def parse_panels(spec: Optional[str]) -> Optional[List[str]]:
@@ -179,12 +184,17 @@ class RecordingData:
     odom_t: np.ndarray = None
     odom_xyz: np.ndarray = None
     odom_yaw: np.ndarray = None
+    odom_q: np.ndarray = None
     odom_lin: np.ndarray = None
     odom_ang: np.ndarray = None
     diag: Dict[str, tuple] = field(default_factory=dict)
     voltage_t: np.ndarray = None
     voltage: np.ndarray = None
     wrenches: Dict[str, tuple] = field(default_factory=dict)
+    #: stick panel: times (n,), link name -> (n, 3) world positions of its frame, (parent, child) pairs
+    tf_t: np.ndarray = None
+    tf_pos: Dict[str, np.ndarray] = field(default_factory=dict)
+    tf_edges: List[tuple] = field(default_factory=list)
 
 
 def _number(text: str) -> Optional[float]:
@@ -256,6 +266,9 @@ def _topics_for(panels, topics) -> List[str]:
         want.update(filter(None, [_find_topic(topics, _VOLT)]))
     if 'wrenches' in panels:
         want.update(_wrench_topics(topics))
+    if 'stick' in panels and _find_topic(topics, _ODOM):
+        want.update(filter(None, [_find_topic(topics, _ODOM), _find_topic(topics, 'tf'),
+                                  _find_topic(topics, 'tf_static')]))
     return sorted(want)
 
 
@@ -278,8 +291,17 @@ def load_recording(path, panels=PANELS, summary: Optional[dict] = None) -> Recor
     wr: Dict[str, tuple] = {}
     js_topic, od_topic, diag_topic = _find_topic(topics, _JS), _find_topic(topics, _ODOM), _find_topic(topics, _DIAG)
     volt_topic, desc_topic = _find_topic(topics, _VOLT), _find_topic(topics, _DESC)
+    tf_topic, tfs_topic = _find_topic(topics, 'tf'), _find_topic(topics, 'tf_static')
+    tf_static, tf_frames = {}, []
     for topic, _type, t_ns, msg in (read_messages(path, topics=wanted) if wanted else ()):
         t = t_ns * 1e-9
+        if topic in (tf_topic, tfs_topic) and 'stick' in panels:
+            rows = {tr.child_frame_id: (tr.header.frame_id, _tf_pose(tr.transform)) for tr in msg.transforms}
+            if topic == tfs_topic:
+                tf_static.update(rows)
+            else:
+                tf_frames.append((t, rows))
+            continue
         if topic == js_topic:
             names = list(msg.name)
             if js_name is None:
@@ -327,7 +349,8 @@ def load_recording(path, panels=PANELS, summary: Optional[dict] = None) -> Recor
     if od['t']:
         d.odom_t = np.asarray(od['t'])
         d.odom_xyz = np.asarray(od['xyz'], dtype=float)
-        d.odom_yaw = np.unwrap(_yaw(np.asarray(od['q'], dtype=float)))
+        d.odom_q = np.asarray(od['q'], dtype=float)
+        d.odom_yaw = np.unwrap(_yaw(d.odom_q))
         d.odom_lin = np.asarray(od['lin'], dtype=float)
         d.odom_ang = np.asarray(od['ang'], dtype=float)
     d.diag = {k: (np.asarray(tt), np.asarray(xx)) for k, (tt, xx) in sorted(diag.items())}
@@ -338,7 +361,40 @@ def load_recording(path, panels=PANELS, summary: Optional[dict] = None) -> Recor
                   for k, (a, b, c) in sorted(wr.items())}
     if diag_topic in wanted:
         s['diagnostic_keys'] = sorted(diag)
+    if tf_frames:
+        _stick_data(d, tf_frames, tf_static)
     return d
+
+
+def _tf_pose(tr):
+    """``(R (3, 3), p (3,))`` of a geometry_msgs/Transform."""
+    from .spatial import quat_to_R
+    r, p = tr.rotation, tr.translation
+    return quat_to_R(np.array([r.x, r.y, r.z, r.w])), np.array([p.x, p.y, p.z])
+
+
+def _stick_data(d: RecordingData, frames, static):
+    """World (odom) positions of every TF frame at every /tf message, and the tree's edges."""
+    d.tf_t = np.array([t for t, _ in frames])
+    pos: Dict[str, list] = {}
+    edges = set()
+    for _, rows in frames:
+        tree = {**static, **rows}
+        cache = {}
+
+        def world(name):
+            if name not in tree:
+                return np.eye(3), np.zeros(3)   # a root (odom)
+            if name not in cache:
+                parent, (R, p) = tree[name]
+                Rp, pp = world(parent)
+                cache[name] = (Rp @ R, Rp @ p + pp)
+            return cache[name]
+        for child, (parent, _) in tree.items():
+            pos.setdefault(child, []).append(world(child)[1])
+            edges.add((parent, child))
+    d.tf_pos = {k: np.asarray(v) for k, v in pos.items() if len(v) == len(frames)}
+    d.tf_edges = sorted(e for e in edges if e[0] in d.tf_pos and e[1] in d.tf_pos)
 
 
 # -- drawing --------------------------------------------------------------------------------------
@@ -679,9 +735,57 @@ def _rows_wrenches(data) -> List[_Row]:
                           column(1, '|torque| (N·m)', 'constraint wrenches: torque magnitude')])]
 
 
+def _pitch_only(data) -> bool:
+    """Is the recorded odom orientation a rotation about y only (a base in the x–z plane)?"""
+    return data.odom_q is not None and bool(np.abs(data.odom_q[:, [0, 2]]).max() < 1e-9) and \
+        bool(np.abs(data.odom_xyz[:, 1]).max() < 1e-9)
+
+
+def _rows_stick(data) -> List[_Row]:
+    if not _has_data('stick', data):
+        return []   # no TF, or not a base in the x-z plane
+    pitch = np.unwrap(2.0 * np.arctan2(data.odom_q[:, 1], data.odom_q[:, 3]))
+
+    def _figure(ax, last):
+        t = data.tf_t
+        picks = sorted({int(k) for k in np.searchsorted(t, np.arange(t[0], t[-1] + 1e-9, 0.1))} | {len(t) - 1})
+        picks = [k for k in picks if k < len(t)]
+        cmap = _mpl_cmap('viridis')
+        for n, k in enumerate(picks):
+            c = cmap(n / max(len(picks) - 1, 1))
+            for a, b in data.tf_edges:
+                pa, pb = data.tf_pos[a][k], data.tf_pos[b][k]
+                ax.plot([pa[0], pb[0]], [pa[2], pb[2]], color=c, lw=1.6, solid_capstyle='round')
+            leaves = [f for f in data.tf_pos if f != 'odom' and not any(a == f for a, _ in data.tf_edges)]
+            ax.plot([data.tf_pos[f][k][0] for f in leaves], [data.tf_pos[f][k][2] for f in leaves], 'o', color=c,
+                    ms=3)
+        ax.plot(data.odom_xyz[:, 0], data.odom_xyz[:, 2], color='0.6', lw=0.8, ls='--', label='base_link path')
+        ax.set_aspect('equal', adjustable='datalim')
+        ax.set_xlabel('x in odom (m)')
+        ax.set_ylabel('z in odom (m)')
+        ax.grid(True, alpha=0.3)
+        ax.set_title(f'stick figure every 0.1 s (t = {t[picks[0]]:g} … {t[picks[-1]]:g} s, dark → light)',
+                     fontsize='medium')
+
+    def _angle(ax, last):
+        turns = pitch / (2.0 * np.pi)
+        ax.plot(data.odom_t, turns, color='tab:purple', label='base pitch')
+        ax.set_xlabel('time (s)')
+        ax.set_ylabel('somersault angle (turns)')
+        ax.grid(True, alpha=0.3)
+        ax.set_title(f'somersault angle: {turns[-1]:.4f} turns at t = {data.odom_t[-1]:g} s', fontsize='medium')
+        ax.set_xlim(data.odom_t[0], data.odom_t[-1])
+    return [_Row(PATH_IN * 1.6, [_figure, _angle], time=False)]
+
+
+def _mpl_cmap(name):
+    import matplotlib
+    return matplotlib.colormaps[name]
+
+
 _ROWS = {'joints': _rows_joints, 'path': _rows_path, 'speed': _rows_speed, 'yaw_rate': _rows_yaw_rate,
          'currents': _rows_currents, 'energy': _rows_energy, 'momentum': _rows_momentum,
-         'constraint': _rows_constraint, 'wrenches': _rows_wrenches}
+         'constraint': _rows_constraint, 'wrenches': _rows_wrenches, 'stick': _rows_stick}
 
 
 def _has_data(panel: str, data: RecordingData) -> bool:
@@ -698,6 +802,8 @@ def _has_data(panel: str, data: RecordingData) -> bool:
         return any(k.startswith('momentum_') for k in data.diag)
     if panel == 'constraint':
         return 'constraint_residual' in data.diag or 'constraint_velocity_residual' in data.diag
+    if panel == 'stick':
+        return data.tf_t is not None and data.odom_t is not None and _pitch_only(data)
     return bool(data.wrenches)
 
 
@@ -795,6 +901,8 @@ def plot_recording(path, out=None, panels=None, title: Optional[str] = None):
     data = load_recording(path, panels or PANELS, summary=s)
     if panels is None:
         chosen = [p for p in choose_panels(s) if _has_data(p, data)]
+        if _has_data('stick', data):   # a base in the x-z plane: its stick figure first
+            chosen = ['stick'] + [p for p in chosen if p not in ('path', 'yaw_rate')]
         skipped = []
     else:
         chosen = [p for p in panels if _has_data(p, data)]

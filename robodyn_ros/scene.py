@@ -21,12 +21,15 @@ A scene is one YAML mapping (unknown keys anywhere are errors, so typos never pa
         links: [{name, joint, parent, type, origin: {xyz, rpy}, axis, mass, com, inertia,
                  damping, limits}, ...]   # ... or explicit links (URDF-like), not both
         actuated: [joint, ...]            # optional, default every 1-DOF joint; [] = passive
-    initial_state: {q: [...], v: [...]}   # optional, defaults neutral / zero
+    initial_state: {q: [...], v: [...]}   # optional, defaults neutral / zero (a planar base also
+                                          # takes com: [x, z], com_velocity: [vx, vz])
     commands:                             # optional scripted commands, per input port
       effort: {profile: <COMMAND_PROFILES key>, <profile parameters>}
     simulation: {integrator: rk4, dt: 0.001, rtol: .., atol: .., publish_rate: 100, duration: 10}
+    stop_when: {com_z_below: -10.0}       # optional: end the run at the first publication where
+                                          # it holds (STOP_CONDITIONS; planar bases have a CoM)
 
-Link data: ``type`` revolute | prismatic (| fixed for explicit links); ``mass`` kg (>= 0);
+Link data: ``type`` revolute | prismatic (| fixed | planar for explicit links); ``mass`` kg (>= 0);
 ``com`` (3,) m; ``inertia`` about the centre of mass, either ``[[ixx, ixy, ixz], [..], [..]]``
 or ``[ixx, iyy, izz, ixy, ixz, iyz]`` (kg·m²), symmetric positive semi-definite with principal
 moments obeying the triangle inequality (a slender bar's zero axial moment is allowed).
@@ -36,6 +39,15 @@ For DH links com/inertia are expressed in DH frame i (Corke's toolbox convention
 the URDF and checked against the initial state, but the dynamics does not enforce them;
 ``effort_limit`` (N·m or N, > 0) is the actuator's limit: effort commands are clamped to it, the
 clamped components counted (diagnostics ``effort_clamped``) and joint_states shows the applied effort.
+
+Planar root (a tree in free flight in a plane, e.g. the diver): an explicit link with ``type:
+planar`` (no axis, limits or damping) and ``parent`` the arm's ``root`` becomes the joints
+``<joint>_x``, ``<joint>_z`` (prismatic) and ``<joint>_pitch`` (revolute about y) through two
+massless bodies, in the x–z plane of its ``origin`` (:func:`robodyn_ros.model.planar_links`).
+The part is then a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem`: ``odom`` is the
+link's pose, ``joint_states`` the inner joints, q/v the three base coordinates then the inner
+joints; ``actuated`` may name inner joints only. The ``pfl`` command profile (partial feedback
+linearisation to a posture and back, :mod:`robodyn_ros.pfl`) drives such a tree.
 
 Errors: every defect raises :class:`SceneError` (a ValueError) with the message
 ``<file>: <key path>: <reason>``, e.g. ``arm.yaml: parts[0].dh.links[2].mass: missing key``;
@@ -107,7 +119,7 @@ import numpy as np
 import yaml
 
 from . import dynamics as dyn
-from .model import JOINT_TYPES, PRISMATIC, REVOLUTE, LinkSpec, ModelError, build_model, dh_links
+from .model import JOINT_TYPES, PRISMATIC, REVOLUTE, LinkSpec, ModelError, build_model, dh_links, planar_root
 from .spatial import R_to_rpy, rpy_to_R
 from .systems.arm import ArmSystem
 
@@ -119,7 +131,7 @@ __all__ = ['SceneError', 'Scene', 'Part', 'SceneContext', 'PART_KINDS', 'COMMAND
 DEFAULT_SETTINGS = {'integrator': 'rk4', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
 _SETTING_KEYS = ('integrator', 'dt', 'rtol', 'atol', 'publish_rate', 'duration')
 _TOP_KEYS_REQUIRED = ('name', 'parts')
-_TOP_KEYS_OPTIONAL = ('description', 'source', 'gravity', 'initial_state', 'commands', 'simulation')
+_TOP_KEYS_OPTIONAL = ('description', 'source', 'gravity', 'initial_state', 'commands', 'simulation', 'stop_when')
 
 
 class SceneError(ValueError):
@@ -149,7 +161,8 @@ class Scene:
     data: the parsed mapping; system: the System to integrate (an ArmSystem for now);
     y0: (ny,) initial state; script: ``script(t, y) -> {port: (size,) array}`` for the
     commanded ports, or None; settings: simulation defaults (integrator, dt, publish_rate,
-    duration, and rtol/atol when given); parts: part names in file order.
+    duration, and rtol/atol when given); parts: part names in file order; stop: ``stop(t, y) ->
+    bool`` from ``stop_when`` (the run ends at the first publication where it is true), or None.
     """
 
     name: str
@@ -161,6 +174,7 @@ class Scene:
     script: Callable | None
     settings: dict
     parts: list = field(default_factory=list)
+    stop: Callable | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -215,6 +229,7 @@ class SceneContext:
         self.file = file
         self.gravity = np.array([0.0, 0.0, -9.81])
         self.parts: list[Part] = []
+        self.y0 = None  # the initial state, once known (command profiles are built after it)
 
     def fail(self, path: str, reason: str):
         """Raise ``SceneError('<file>: <path>: <reason>')``."""
@@ -403,11 +418,11 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
     for i, r in enumerate(items):
         rp = _key(lpath, i)
         ctx.mapping(r, rp, required=_LINK_REQUIRED, optional=_LINK_OPTIONAL)
-        jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed'))
+        jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed', 'planar'))
         T = ctx.pose(r['origin'], _key(rp, 'origin')) if 'origin' in r else np.eye(4)
         axis = ctx.vector(r['axis'], _key(rp, 'axis'), 3) if 'axis' in r else np.array([0.0, 0.0, 1.0])
-        if jt == 'fixed' and any(k in r for k in ('axis', 'limits', 'damping', 'effort_limit')):
-            ctx.fail(rp, 'a fixed joint takes no axis, limits, damping or effort_limit')
+        if jt in ('fixed', 'planar') and any(k in r for k in ('axis', 'limits', 'damping', 'effort_limit')):
+            ctx.fail(rp, f'a {jt} joint takes no axis, limits, damping or effort_limit')
         parent = ctx.string(r['parent'], _key(rp, 'parent'))
         inert = _inertial(ctx, r, rp)
         specs.append(LinkSpec(name=ctx.string(r['name'], _key(rp, 'name')),
@@ -470,20 +485,31 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
         model = build_model(specs, gravity=ctx.gravity, name=name, root=root)
     except ModelError as e:
         ctx.fail(_model_error_path(e, specs, paths, path), str(e))
-    return Part(name=name, kind='arm', mount=mount, system=ArmSystem(model, actuated=_actuated(ctx, spec, path, model)),
-                path=path)
+    planar = planar_root(model) is not None
+    actuated = _actuated(ctx, spec, path, model, planar=planar)
+    if planar:  # a tree in free flight in the x-z plane (systems.planar)
+        from .systems.planar import PlanarBaseSystem
+        try:
+            system = PlanarBaseSystem(model, actuated=actuated)
+        except ValueError as e:
+            ctx.fail(path, str(e))
+    else:
+        system = ArmSystem(model, actuated=actuated)
+    return Part(name=name, kind='arm', mount=mount, system=system, path=path)
 
 
-def _actuated(ctx: SceneContext, spec: dict, path: str, model):
-    """The part's ``actuated`` joint names, each a 1-DOF joint of ``model``; None when not given."""
+def _actuated(ctx: SceneContext, spec: dict, path: str, model, planar: bool = False):
+    """The part's ``actuated`` joint names, each a 1-DOF joint of ``model`` (not a planar root
+    joint when ``planar``); None when not given."""
     if 'actuated' not in spec:
         return None
-    dof = model.dof_joint_names
+    dof = model.dof_joint_names[3:] if planar else model.dof_joint_names
     apath = _key(path, 'actuated')
     actuated = ctx.names(spec['actuated'], apath)
     for i, j in enumerate(actuated):
         if j not in dof:
-            ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}')
+            ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}'
+                     + (' (the planar root joints are never actuated)' if planar else ''))
     return actuated
 
 
@@ -975,6 +1001,15 @@ COMMAND_PROFILES: dict[str, Callable] = {
 }
 
 
+def _pfl_profile(params, path, ctx, system, port):
+    """``pfl``: partial feedback linearisation of a planar-base tree (:mod:`robodyn_ros.pfl`)."""
+    from .pfl import pfl_profile
+    return pfl_profile(params, path, ctx, system, port)
+
+
+COMMAND_PROFILES['pfl'] = _pfl_profile
+
+
 def _registered(ctx: SceneContext, spec, path: str, key: str, registry: dict, what: str, plural: str,
                 mapping_hint: str = ''):
     """The builder that ``spec[key]`` names in ``registry`` (part kinds, command profiles).
@@ -1013,6 +1048,7 @@ def _script(ctx: SceneContext, commands, system):
     def script(t, y):
         """Scripted commands at time t (s) and state y: {port: (size,) array}."""
         return {port: f(t, y) for port, f in fns.items()}
+    script.profiles = fns  # port -> f(t, y), e.g. to reach a controller profile's object
     return script
 
 
@@ -1021,7 +1057,8 @@ def _script(ctx: SceneContext, commands, system):
 # --------------------------------------------------------------------------------------------
 def _initial_state(ctx: SceneContext, v, system) -> np.ndarray:
     """State vector y0 from ``initial_state: {q, v}`` (defaults: neutral q, zero v)."""
-    ctx.mapping(v, 'initial_state', optional=('q', 'v'))
+    extra_keys = tuple(getattr(system, 'initial_state_keys', ()))  # e.g. a planar base: com, com_velocity
+    ctx.mapping(v, 'initial_state', optional=('q', 'v') + extra_keys)
     model = getattr(system, 'model', None)
     names = getattr(system, 'coordinate_names', None) or getattr(system, 'joint_names', None)
     what_q = f'values (one per joint: {", ".join(names)})' if names else 'values'
@@ -1037,10 +1074,35 @@ def _initial_state(ctx: SceneContext, v, system) -> np.ndarray:
                 if not lo <= q0[k] <= hi:
                     ctx.fail(_key('initial_state.q', k), f'{float(q0[k])!r} is outside the limits [{lo}, {hi}] '
                                                          f'of joint {s.joint!r}')
+    extra = {k: ctx.vector(v[k], _key('initial_state', k), 2, 'values [x, z]') for k in extra_keys if k in v}
     try:
-        return system.initial_state(q0, v0)
+        return system.initial_state(q0, v0, **extra)
     except ValueError as e:  # e.g. a prescribed end point that the initial configuration cannot reach
         ctx.fail('initial_state', str(e))
+
+
+#: stop_when conditions: key -> (what the system must have, builder(value, system) -> stop(t, y) -> bool)
+STOP_CONDITIONS = {
+    'com_z_below': ('com', lambda z, system: lambda t, y: bool(system.com(*system.split(y))[0][2] < z)),
+}
+
+
+def _stop_condition(ctx: SceneContext, v, system):
+    """``stop(t, y) -> bool`` from ``stop_when: {<condition>: <value>}`` (one condition).
+
+    ``com_z_below: z`` (m): the centre of mass is below height z in the world frame (systems
+    with a ``com(q, v)`` method: the planar base). Evaluated after every publication period by
+    ``robodyn run`` and the sim node: the run ends at the first period end where it holds (or at
+    ``duration``, whichever comes first), so its resolution is one period.
+    """
+    ctx.mapping(v, 'stop_when', optional=tuple(STOP_CONDITIONS))
+    if len(v) != 1:
+        ctx.fail('stop_when', f'give one condition of {", ".join(STOP_CONDITIONS)}')
+    (key, value), = v.items()
+    needs, build = STOP_CONDITIONS[key]
+    if not hasattr(system, needs):
+        ctx.fail(_key('stop_when', key), f'{type(system).__name__} has no {needs}(); {key} needs a planar base')
+    return build(ctx.number(value, _key('stop_when', key)), system)
 
 
 def _known_integrators():
@@ -1103,10 +1165,12 @@ def parse_scene(text: str, file: str = '<string>', path: str | None = None) -> S
         ctx.parts.append(part)
     system = _assemble(ctx, ctx.parts)
     y0 = _initial_state(ctx, data.get('initial_state', {}), system)
+    ctx.y0 = y0  # command profiles may start from the initial state (e.g. a posture path)
     script = _script(ctx, data.get('commands', {}), system)
     settings = _settings(ctx, data.get('simulation', {}))
+    stop = _stop_condition(ctx, data['stop_when'], system) if 'stop_when' in data else None
     return Scene(name=name, path=path or file, text=text, data=data, system=system, y0=y0, script=script,
-                 settings=settings, parts=[p.name for p in ctx.parts])
+                 settings=settings, parts=[p.name for p in ctx.parts], stop=stop)
 
 
 def scene_dirs() -> list:

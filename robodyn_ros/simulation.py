@@ -328,7 +328,7 @@ class Simulator:
         return vals
 
 
-def run_headless(sim: Simulator, duration: float, rate: float, script=None, sinks=(), wrenches=None):
+def run_headless(sim: Simulator, duration: float, rate: float, script=None, sinks=(), wrenches=None, stop=None):
     """Run ``duration`` s at ``rate`` Hz publications, feeding scripted commands, calling sinks.
 
     sim: the simulator; duration: seconds of simulation time; rate: publication (and scripted
@@ -336,7 +336,9 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     start of each period and held (zero-order); sinks: objects with ``on_start(sim)``,
     ``on_command(t, port, values)``, ``on_output(t, outputs, sim)`` (a sink asks ``sim`` for
     diagnostics only when it publishes them), ``close()``;
-    wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``).
+    wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``);
+    stop: optional ``stop(t, y) -> bool`` checked after every period's outputs (a scene's
+    ``stop_when``): the run ends at the first period where it holds.
     Returns the number of periods run. The final state stays in ``sim``.
 
     Which command an output carries: the output at the end of a period carries the command held
@@ -372,4 +374,6 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
         out = sim.outputs(wrenches=wrenches)
         for s in sinks:
             s.on_output(sim.t, out, sim)
+        if stop is not None and stop(sim.t, sim.y):
+            return k + 1
     return n

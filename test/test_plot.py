@@ -76,7 +76,7 @@ def test_parse_panels():
     assert parse_panels(None) is None and parse_panels('auto') is None
     assert parse_panels('path, joints,path') == ['path', 'joints']
     assert set(PANELS) == {'joints', 'path', 'speed', 'yaw_rate', 'currents', 'energy', 'momentum',
-                           'constraint', 'wrenches'}
+                           'constraint', 'wrenches', 'stick'}
     with pytest.raises(PlotError, match='unknown panel.*bogus'):
         parse_panels('joints,bogus')
 

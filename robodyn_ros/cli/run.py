@@ -83,7 +83,7 @@ def main(args) -> int:
     w0, c0 = time.perf_counter(), time.process_time()
     status = 0
     try:
-        run_headless(sim, st['duration'], st['rate'], scene.script, sinks)
+        run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop)
     except SimulationError as e:
         print(f'robodyn run: simulation stopped: {e}', file=sys.stderr)
         status = 1
@@ -117,6 +117,9 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     if record:
         n = sum(getattr(s, 'count', 0) for s in sinks)
         lines.append(f'recording    {os.path.abspath(record)} ({n} messages; check with: robodyn check {record})')
+    report = getattr(scene.system, 'run_report', None)  # e.g. a planar base: rotations at the end
+    if report is not None:
+        lines.append(report(sim.y))
     if sim.failed:
         lines.append(f'FAILED       {sim.failed}')
     return '\n'.join(lines)

@@ -53,6 +53,9 @@ LOCKSTEP_RESEND_PERIOD = 0.1
 IDLE_DIAGNOSTICS_PERIOD = 1.0
 #: wall seconds between throttled repeats of the same warning or error
 LOG_THROTTLE = 2.0
+#: wall seconds the node keeps spinning after its last period (duration or stop_when reached), so
+#: that the last published state reaches subscribers (a lockstep controller) before it exits
+FINISH_LINGER = 0.3
 
 #: name -> (default, description); '' / 0 defaults mean "the scene's simulation setting"
 PARAMETERS = {
@@ -511,6 +514,8 @@ def make_node_class():
             self._publish_outputs(out)
             if self.cfg.duration and sim.t - self.t_start >= self.cfg.duration - 0.5 * self.period:
                 self.finished = True
+            if self.scene.stop is not None and self.scene.stop(sim.t, sim.y):   # the scene's stop_when
+                self.finished = True
             return True
 
         def _log_throttled(self, level: str, key: str, text: str):
@@ -764,6 +769,10 @@ def main(args=None) -> int:
         while not stop.requested and not node.finished:
             executor.spin_once(timeout_sec=wait)
             wait = node.work()
+        if node.finished:   # the last state was just published: let DDS deliver it before leaving
+            end = time.monotonic() + FINISH_LINGER
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.02)
     except (ConfigError, SceneError) as e:
         print(f'sim: {e}', file=sys.stderr)
         status = 2

@@ -1,0 +1,203 @@
+"""Collocated partial feedback linearisation (PFL) of a tree in free flight: the diver's controller.
+
+A planar-base system (:mod:`robodyn_ros.systems.planar`) has ``n = 3 + m`` coordinates: the base
+``b = [x, z, pitch]`` (unactuated) and ``m`` inner joints ``a`` (all actuated). Its dynamics
+(M and h = C v + g + D v from the compiled CRBA and RNEA, :mod:`robodyn_ros.kernels`)::
+
+    M_bb q̈_b + M_ba q̈_a + h_b = 0                    (3 unactuated rows)
+    M_ab q̈_b + M_aa q̈_a + h_a = τ                    (m actuated rows)
+
+Choosing the inner accelerations ``q̈_a = α = q̈_d + K_d (q̇_d − q̇_a) + K_p (q_d − q_a)`` and
+eliminating the base accelerations with the first rows (``q̈_b = −M_bb⁻¹ (M_ba α + h_b)``) gives::
+
+    τ = M_ab q̈_b + M_aa α + h_a
+
+so every inner error ``e = q_d − q_a`` obeys ``ë + K_d ė + K_p e = 0`` exactly (between
+controller updates), while the base moves as the momentum allows: the torques are internal, so
+the centre of mass stays on its parabola and the angular momentum about it stays constant.
+Uniform gravity is the generalised force ``−M g_b`` of a rigid translation, so it cancels: τ
+is the same for g = 9.81 and g = 0.
+
+Desired paths (:class:`PosturePath`): from the initial posture to a target posture along a
+quintic (zero velocity and acceleration at both ends) between ``schedule[0]`` and
+``schedule[1]``, held, and back to the initial posture between ``schedule[2]`` and
+``schedule[3]`` (before the entry into the water).
+
+The same :class:`PFLController` runs in the ``pfl`` command profile of a scene (headless
+``robodyn run``, scripted commands of the sim node) and in the ``diver_controller`` node, and
+both compute it from the same published values (``joint_states`` + ``odom``, through
+:func:`state_from_outputs`, time from the integer stamp), so a lockstep node run equals the
+headless run byte for byte. Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
+
+    kp: 100.0            # 1/s², scalar or one per inner joint
+    kd: 20.0             # 1/s, scalar or one per inner joint
+    target: {hip: 2.3, knee: 2.3, ...}   # posture (rad) by inner joint name; others keep the initial angle
+    schedule: [t0, t1, t2, t3]           # s: go t0 -> t1, hold, return t2 -> t3 (increasing)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import dynamics as dyn
+from . import kernels
+
+__all__ = ['quintic', 'PosturePath', 'PFLController', 'state_from_outputs', 'controller_from_scene',
+           'pfl_profile', 'stamp_seconds']
+
+
+def quintic(t, t0, t1):
+    """``(s, ṡ, s̈)`` of the quintic 10τ³ − 15τ⁴ + 6τ⁵ from 0 at t0 to 1 at t1 (constant outside)."""
+    if t <= t0:
+        return 0.0, 0.0, 0.0
+    if t >= t1:
+        return 1.0, 0.0, 0.0
+    T = t1 - t0
+    r = (t - t0) / T
+    return (r ** 3 * (10.0 - 15.0 * r + 6.0 * r * r), 30.0 * r * r * (1.0 - r) ** 2 / T,
+            60.0 * r * (1.0 - r) * (1.0 - 2.0 * r) / (T * T))
+
+
+class PosturePath:
+    """Desired inner angles: ``start`` -> ``target`` (quintic, schedule[0..1]), hold, -> ``start``
+    (quintic, schedule[2..3]). start, target: (m,) rad; schedule: 4 increasing times (s)."""
+
+    def __init__(self, start, target, schedule):
+        self.start = np.asarray(start, dtype=float)
+        self.delta = np.asarray(target, dtype=float) - self.start
+        self.schedule = tuple(float(x) for x in schedule)
+
+    def __call__(self, t):
+        """``(q_d, q̇_d, q̈_d)`` at time t (s)."""
+        t0, t1, t2, t3 = self.schedule
+        s1, d1, a1 = quintic(t, t0, t1)
+        s2, d2, a2 = quintic(t, t2, t3)
+        return self.start + (s1 - s2) * self.delta, (d1 - d2) * self.delta, (a1 - a2) * self.delta
+
+
+class PFLController:
+    """The control law above for a planar-base system.
+
+    system: a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem` whose inner joints are all
+    actuated; path: a :class:`PosturePath` over the inner joints; kp, kd: (m,) gains.
+    :meth:`torques` returns the ``effort`` command (actuated-joint order).
+    """
+
+    def __init__(self, system, path: PosturePath, kp, kd):
+        model = system.model
+        self.model = model
+        self.nv = model.nv
+        m = self.nv - 3
+        inner = list(system.inner_joint_names)
+        if list(system.actuated) != inner:
+            raise ValueError(f'PFL needs every inner joint actuated, in joint order {inner}; '
+                             f'actuated are {list(system.actuated)}')
+        self.kp = np.broadcast_to(np.asarray(kp, dtype=float), (m,)).copy()
+        self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (m,)).copy()
+        self.path = path
+        self.damping = np.asarray(model.damping, dtype=float)
+        self._km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
+        self._zero = np.zeros(self.nv)
+
+    def mass_and_bias(self, q, v):
+        """``(M (n, n), h (n,))`` with h = C v + g + D v (compiled CRBA and RNEA; the numpy
+        reference without numba)."""
+        q = np.ascontiguousarray(q, dtype=float)
+        v = np.ascontiguousarray(v, dtype=float)
+        if self._km is not None:
+            M, h = self._km.crba(q), self._km.rnea(q, v, self._zero)
+        else:
+            M, h = dyn.crba(self.model, q), dyn.rnea(self.model, q, v, self._zero)
+        return M, h + self.damping * v
+
+    def desired_accelerations(self, t, q, v):
+        """``α = q̈_d + K_d (q̇_d − q̇_a) + K_p (q_d − q_a)`` (m,) of the inner joints."""
+        qd, vd, ad = self.path(t)
+        return ad + self.kd * (vd - v[3:]) + self.kp * (qd - q[3:])
+
+    def torques(self, t, q, v):
+        """Inner joint torques (m,) at time t (s), coordinates q (n,), velocities v (n,)."""
+        M, h = self.mass_and_bias(q, v)
+        alpha = self.desired_accelerations(t, q, v)
+        qdd_b = -np.linalg.solve(M[:3, :3], M[:3, 3:] @ alpha + h[:3])
+        return M[3:, :3] @ qdd_b + M[3:, 3:] @ alpha + h[3:]
+
+
+def state_from_outputs(system, names, position, velocity, odom):
+    """``(q, v)`` of a planar-base system from published values.
+
+    names, position, velocity: ``joint_states`` fields (any order, names of the inner joints);
+    odom: dict with 'position', 'orientation' (x, y, z, w), 'linear', 'angular' (the
+    ``nav_msgs/Odometry`` pose and twist, :func:`robodyn_ros.systems.planar.odom_of`).
+    """
+    from .systems.planar import base_state_from_odom
+    index = {n: k for k, n in enumerate(names)}
+    try:
+        idx = [index[n] for n in system.inner_joint_names]
+    except KeyError as e:
+        raise ValueError(f'joint_states lacks joint {e.args[0]!r}; expected {system.inner_joint_names}') from None
+    qb, vb = base_state_from_odom(odom['position'], odom['orientation'], odom['linear'], odom['angular'])
+    position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
+    return np.concatenate([qb, position[idx]]), np.concatenate([vb, velocity[idx]])
+
+
+def stamp_seconds(t_ns: int) -> float:
+    """Controller time (s) from a message stamp in integer nanoseconds (both paths use this)."""
+    return t_ns * 1e-9
+
+
+def _params(ctx, params, path, system, start):
+    """Validated ``(PosturePath, kp, kd)`` from the profile's keys (see the module docstring)."""
+    from .scene import _key
+    ctx.mapping(params, path, required=('profile', 'target', 'schedule'), optional=('kp', 'kd'))
+    inner = list(system.inner_joint_names)
+    m = len(inner)
+
+    def gains(k, default):
+        v = params.get(k, default)
+        if isinstance(v, list):
+            return ctx.vector(v, _key(path, k), m, f'values (one per inner joint: {", ".join(inner)})', minimum=0.0)
+        return np.full(m, ctx.number(v, _key(path, k), positive=True))
+    kp, kd = gains('kp', 100.0), gains('kd', 20.0)
+    tpath = _key(path, 'target')
+    target = np.array(start, dtype=float)
+    for name, val in ctx.mapping(params['target'], tpath, optional=inner).items():
+        target[inner.index(name)] = ctx.number(val, _key(tpath, name))
+    sched = ctx.vector(params['schedule'], _key(path, 'schedule'), 4, 'times [t0, t1, t2, t3]', minimum=0.0)
+    if not np.all(np.diff(sched) > 0.0):
+        ctx.fail(_key(path, 'schedule'), f'times must increase strictly, got {sched.tolist()}')
+    return PosturePath(start, target, sched), kp, kd
+
+
+def pfl_profile(params, path, ctx, system, port):
+    """Command profile ``pfl``: ``f(t, y) -> effort`` of :class:`PFLController`, from the outputs
+    the system publishes at (t, y) (the values a node would receive)."""
+    from .messages import to_ns
+    from .scene import _key
+    if port != 'effort' or not hasattr(system, 'inner_joint_names'):
+        ctx.fail(_key(path, 'profile'), "pfl needs the 'effort' port of a tree on a planar root joint "
+                                        "(an arm part whose root link has type: planar)")
+    start = np.asarray(system.split(ctx.y0)[0][3:], dtype=float)
+    pathf, kp, kd = _params(ctx, params, path, system, start)
+    try:
+        ctl = PFLController(system, pathf, kp, kd)
+    except ValueError as e:
+        ctx.fail(path, str(e))
+    zero = system.zero_inputs()
+
+    def f(t, y):
+        out = system.outputs(t, y, zero, wrenches=False)
+        q, v = state_from_outputs(system, out.joint_names, out.position, out.velocity, out.odom)
+        return ctl.torques(stamp_seconds(to_ns(t)), q, v)
+    f.controller = ctl
+    return f
+
+
+def controller_from_scene(scene) -> PFLController:
+    """The :class:`PFLController` of a loaded scene's ``pfl`` effort profile (ValueError if none)."""
+    if scene.script is None:
+        raise ValueError(f'scene {scene.name!r} has no scripted commands (a pfl effort profile)')
+    f = scene.script.profiles.get('effort') if hasattr(scene.script, 'profiles') else None
+    ctl = getattr(f, 'controller', None)
+    if ctl is None:
+        raise ValueError(f"scene {scene.name!r}: its effort command is not a 'pfl' profile")
+    return ctl
