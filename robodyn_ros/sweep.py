@@ -175,8 +175,11 @@ def _lookup(data, path: str):
             if key not in node:
                 if last:
                     return True, None, ''
+                import difflib
                 keys_here = ', '.join(str(x) for x in node)
-                return False, None, f'{where} has no key {key!r} (keys: {keys_here})'
+                near = difflib.get_close_matches(str(key), [str(x) for x in node], n=1)
+                hint = f'; did you mean {near[0]!r}?' if near else ''
+                return False, None, f'{where} has no key {key!r} (keys: {keys_here}){hint}'
             node = node[key]
         else:
             return False, None, f'{where} is a value ({node!r}), it has no key {key!r}'
@@ -371,24 +374,43 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
                 else scene_ref, scene_file=str(scene_path), scene_text=scene_text, seed=seed, samples=samples,
                 duration=0.0, backend=backend, grid=grid, random=random, reference=reference,
                 figures=tuple(f for f in FIGURES if f in figures), record=record)
-    # every grid point with its first draw must make a valid scene (the scene loader's own reasons)
+    # every grid point must make a valid scene (the scene loader's own reasons); random draws of
+    # keys the scene has are checked per run (an unlucky draw is an 'invalid' row, not a bad
+    # spec), those of keys it lacks here with the first draw (the scene may not allow that key)
+    absent = {k for k, _ in random if k not in SETTINGS and _lookup(scene_data, k)[1] is None}
     seen = set()
     for g in range(spec.n_grid):
         task = expand(spec, [g * spec.samples])[0]
-        scene_params = json.dumps({k: v for k, v in task['params'].items() if k not in SETTINGS})
-        if scene_params in seen:
+        params = {k: v for k, v in task['params'].items() if k not in SETTINGS and (k in absent or
+                                                                                    k not in dict(random))}
+        if json.dumps(params) in seen:
             continue
-        seen.add(scene_params)
+        seen.add(json.dumps(params))
         try:
-            scene = build_scene(spec.scene_text, spec.scene_file, task['params'], spec.backend)
+            scene = build_scene(spec.scene_text, spec.scene_file, params, spec.backend)
         except SceneError as e:
-            params = ', '.join(f'{k}={_short(v)}' for k, v in task['params'].items() if k not in SETTINGS)
-            where = ('grid' if spec.grid else 'random') if params else 'scene'
-            _fail(file, where, f'the scene refuses these parameters ({params}): {e}')
+            _blame(spec, params, e)
         if g == 0:
             spec.settings = dict(scene.settings)
     spec.duration = float(duration) if duration is not None else float(spec.settings.get('duration', 10.0))
     return spec
+
+
+def _blame(spec: Spec, params: dict, err):
+    """Raise SweepError for a scene that refused ``params``: at the one parameter that the scene
+    refuses on its own (``grid.<path>`` or ``random.<path>``), else at the section."""
+    from .scene import SceneError
+    section = {k: 'grid' for k, _ in spec.grid} | {k: 'random' for k, _ in spec.random}
+    for k, v in params.items():
+        if k in SETTINGS:
+            continue
+        try:
+            build_scene(spec.scene_text, spec.scene_file, {k: v}, spec.backend)
+        except SceneError as e1:
+            _fail(spec.file, f'{section[k]}.{k}', f'the scene refuses {k} = {_short(v)}: {e1}')
+    where = 'grid' if spec.grid else 'random'
+    shown = ', '.join(f'{k}={_short(v)}' for k, v in params.items() if k not in SETTINGS)
+    _fail(spec.file, where, f'the scene refuses these parameters together ({shown}): {err}')
 
 
 def _short(v) -> str:
