@@ -332,3 +332,22 @@ def test_resume_after_sigint_skips_finished_runs(slow, tmp_path):
     assert f'({n - len(done)} run now, {len(done)} found done)' in stdout
     rows = S.read_table(str(out / 'results.parquet'))
     assert _comparable(rows) == _comparable(baseline)
+
+
+def test_bench_precision_on_dask_writes_the_same_tables(tmp_path):
+    """``robodyn bench precision --workers 2`` (references and methods as Dask tasks) writes the CSV
+    rows of the in-process ladder, timing columns aside, in the same order."""
+    import csv
+
+    from robodyn_ros.cli import main
+    timing = {'wall_per_sim_s', 'cpu_per_sim_s'}
+    tables = {}
+    for workers in (0, 2):
+        out = tmp_path / f'w{workers}'
+        assert main(['bench', 'precision', 'betancur_pendulum', '--quick', '--integrators', 'rk4', 'dop853',
+                     '--horizon', '0.1', '--no-cache', '--quiet', '--out', str(out), '--workers', str(workers)]) == 0
+        with open(out / 'betancur_pendulum.csv', newline='') as f:
+            tables[workers] = [{k: v for k, v in r.items() if k not in timing} for r in csv.DictReader(f)]
+    assert len(tables[0]) == 7 and [r['integrator'] for r in tables[0]] == ['rk4'] * 3 + ['dop853'] * 4
+    assert all(r['status'] == 'ok' and float(r['error']) < 1e-2 for r in tables[0])
+    assert tables[2] == tables[0]
