@@ -95,6 +95,10 @@ _SPEC_OPTIONAL = ('seed', 'samples', 'duration', 'backend', 'grid', 'random', 'r
                   'description')
 #: the table layout; bump when the meaning of a column changes (a DIR of another format is refused)
 FORMAT = 1
+#: Dask tasks per worker thread a sweep aims at, and the most runs one task carries (a task costs
+#: the scheduler, the worker and the client a few ms, more than a tenth of a short run on a busy
+#: machine: ``robodyn bench sweep``)
+TASKS_PER_THREAD, MAX_CHUNK = 4, 8
 #: env var naming a directory where every task execution leaves a file (tests count executions)
 TRACE_ENV = 'ROBODYN_SWEEP_TRACE'
 
@@ -584,6 +588,11 @@ def _simulate(scene, st, sinks=()):
 _REFERENCES: dict = {}
 
 
+def clear_reference_cache():
+    """Forget the reference runs kept in this process (benchmarks time sweeps from scratch)."""
+    _REFERENCES.clear()
+
+
 def _reference_state(task, scene, st_run):
     """Final state of the reference run of this task's parameters, or ``(None, reason)``."""
     ref = dict(task['reference'])
@@ -749,11 +758,19 @@ class Pool:
         self.client = self.cluster = None
         return False
 
-    def run(self, fn, items, name='task'):
+    def threads(self) -> int:
+        """Worker threads that run tasks now (1 in process)."""
+        if self.inline:
+            return 1
+        return max(1, sum(w.get('nthreads', 1) for w in self.client.scheduler_info()['workers'].values()))
+
+    def run(self, fn, items, name='task', chunk: int = 1):
         """Run ``fn(arg)`` for every ``(key, arg)`` of ``items``; yield ``(key, result)`` as each
         finishes (an exception inside fn is returned as ``{'error': ...}``, see :func:`_run_guarded`).
 
-        Dask reruns the task of a worker that died; the caller keeps the first result of each key.
+        chunk: items per Dask task (consecutive items; their results arrive together), so that
+        the scheduling cost of a task is shared by several short runs. Dask reruns the task of a
+        worker that died (fn must be idempotent); the caller keeps the first result of each key.
         """
         items = list(items)
         if self.inline:
@@ -762,22 +779,37 @@ class Pool:
             return
         from dask.distributed import as_completed
         token = hashlib.sha256(os.urandom(16)).hexdigest()[:8]
+        chunk = max(1, int(chunk))
         futures = {}
-        for key, arg in items:
-            fut = self.client.submit(_run_guarded, fn, arg, key=f'{name}-{key}-{token}', pure=False, retries=2)
-            futures[fut] = key
+        for k in range(0, len(items), chunk):
+            batch = items[k:k + chunk]
+            fut = self.client.submit(_run_batch, fn, [arg for _, arg in batch], key=f'{name}-{batch[0][0]}-{token}',
+                                     pure=False)
+            futures[fut] = [key for key, _ in batch]
         try:
             for fut in as_completed(futures):
+                keys = futures[fut]
                 try:
-                    res = fut.result()
-                except Exception as e:  # noqa: BLE001 — a task lost beyond its retries (KilledWorker): a row says so
-                    res = {'error': f'{type(e).__name__}: {e}'}
-                yield futures[fut], res
+                    results = fut.result()
+                except Exception as e:  # noqa: BLE001 — a task lost beyond Dask's retries (KilledWorker): rows say so
+                    results = [{'error': f'{type(e).__name__}: {e}'}] * len(keys)
+                yield from zip(keys, results)
                 fut.release()
         finally:
             for fut in futures:
                 if not fut.done():
                     fut.cancel()
+
+
+def _run_batch(fn, args) -> list:
+    """One Dask task: ``fn`` over several arguments, guarded one by one."""
+    return [_run_guarded(fn, a) for a in args]
+
+
+def chunk_size(runs: int, threads: int) -> int:
+    """Runs per Dask task: about ``TASKS_PER_THREAD`` tasks per worker thread (load balance), at
+    most ``MAX_CHUNK`` runs each (a lost task is rerun whole, and rows arrive a task at a time)."""
+    return max(1, min(MAX_CHUNK, runs // (TASKS_PER_THREAD * max(1, threads))))
 
 
 def _worker_version():
@@ -835,11 +867,12 @@ class Progress:
 # the sweep: resume, rows on disk, the table
 # ---------------------------------------------------------------------------------------------
 def _write_atomic(path: str, data: bytes):
+    """Write ``path`` whole or not at all (a temporary file renamed over it): a process killed
+    while writing leaves no half row. No fsync: the rows must survive the death of a process,
+    and the page cache outlives it (an operating-system crash may cost the last rows)."""
     tmp = f'{path}.tmp-{os.getpid()}'
     with open(tmp, 'wb') as f:
         f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
     os.replace(tmp, path)
 
 
@@ -896,12 +929,12 @@ class SweepResult:
 
 
 def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str | None = None,
-              progress: Progress | None = None, plot: bool = True) -> SweepResult:
+              progress: Progress | None = None, plot: bool = True, pool: Pool | None = None) -> SweepResult:
     """Run the missing runs of ``spec`` into ``out`` and write the table (module docstring).
 
     workers: LocalCluster processes (default one per core; 0 = in this process); scheduler: a
-    Dask scheduler address instead. On KeyboardInterrupt the finished rows stay in ``out`` and the
-    result says ``interrupted``.
+    Dask scheduler address instead; pool: an entered :class:`Pool` to use instead of both (it stays
+    open). On KeyboardInterrupt the finished rows stay in ``out`` and the result says ``interrupted``.
     """
     w0 = time.perf_counter()
     done = _prepare(spec, out)
@@ -911,9 +944,11 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
     executed, interrupted = 0, False
     if todo:
         tasks = {t['index']: t for t in expand(spec, todo)}
+        import contextlib
         try:
-            with Pool(workers, scheduler) as pool:
-                for i, res in pool.run(execute_run, tasks.items(), name='run'):
+            with (contextlib.nullcontext(pool) if pool is not None else Pool(workers, scheduler)) as p:
+                chunk = chunk_size(len(tasks), p.threads())
+                for i, res in p.run(execute_run, tasks.items(), name='run', chunk=chunk):
                     if os.path.exists(_row_path(out, i)):
                         continue  # a rerun of a task already written
                     if 'error' in res:

@@ -351,3 +351,31 @@ def test_bench_precision_on_dask_writes_the_same_tables(tmp_path):
     assert len(tables[0]) == 7 and [r['integrator'] for r in tables[0]] == ['rk4'] * 3 + ['dop853'] * 4
     assert all(r['status'] == 'ok' and float(r['error']) < 1e-2 for r in tables[0])
     assert tables[2] == tables[0]
+
+
+def test_bench_sweep_runs_and_compares_tables(tmp_path):
+    """``robodyn bench sweep``'s measurement on a small spec: every table equals the in-process one
+    and the report names the overhead (the figures themselves are timings, never asserted)."""
+    from robodyn_ros.bench import sweep as B
+    path = tmp_path / 'spec.yaml'
+    path.write_text(SPEC)
+    m = B.measure(str(path), workers=(1,), repeat=1)
+    assert m['same_rows'] and m['runs'] == 8 and set(m['dask']) == {1}
+    assert m['dask'][1]['busy'] > 0 and m['row_time'] > 0
+    assert 'scheduling overhead per run (1 worker)' in B.report(m)
+
+
+def test_per_run_mcap(tmp_path):
+    """record: true leaves one MCAP per run in DIR/mcap, readable, with the run's publications."""
+    from robodyn_ros.recording.reader import summarize
+    spec = _spec(tmp_path, 'scene: stanford_arm\nseed: 2\nsamples: 2\nduration: 0.05\nrecord: true\n'
+                           'random: {parts.0.dh.links.2.mass: {uniform: [4, 5]}}\nfigures: [energy_drift]\n')
+    S.run_sweep(spec, str(tmp_path / 'out'), workers=0, plot=False)
+    files = sorted(os.listdir(tmp_path / 'out' / 'mcap'))
+    assert files == ['run-000000.mcap', 'run-000001.mcap']
+    for f in files:
+        s = summarize(str(tmp_path / 'out' / 'mcap' / f))
+        assert s['finished'] and s['error'] is None, s
+        assert s['topics']['/joint_states']['count'] == 6  # t = 0 and five 10 ms periods
+        assert s['topics']['/effort_commands']['count'] == 5
+        assert s['end_time_ns'] == 50_000_000
