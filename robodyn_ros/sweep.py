@@ -79,7 +79,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import yaml
 
-__all__ = ['SweepError', 'Spec', 'parse_spec', 'load_spec', 'expand', 'execute_run', 'Pool', 'Progress',
+__all__ = ['SweepError', 'ClusterError', 'Spec', 'parse_spec', 'load_spec', 'expand', 'execute_run', 'Pool', 'Progress',
            'run_sweep', 'read_table', 'TIMING_COLUMNS', 'FIGURES']
 
 #: figures a spec may ask for (status, message, steps, rhs_evals, y_final and timings always come)
@@ -99,12 +99,18 @@ FORMAT = 1
 #: the scheduler, the worker and the client a few ms, more than a tenth of a short run on a busy
 #: machine: ``robodyn bench sweep``)
 TASKS_PER_THREAD, MAX_CHUNK = 4, 8
+#: seconds a sweep on a remote scheduler waits for its first worker
+WORKER_WAIT = 60.0
 #: env var naming a directory where every task execution leaves a file (tests count executions)
 TRACE_ENV = 'ROBODYN_SWEEP_TRACE'
 
 
 class SweepError(ValueError):
     """A sweep spec that cannot be run; the message is ``<file>: <key path>: <reason>``."""
+
+
+class ClusterError(RuntimeError):
+    """The Dask cluster cannot run the sweep (unreachable scheduler, no worker, another version)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -476,11 +482,16 @@ def expand(spec: Spec, indices=None) -> list:
             for path, dist in spec.random:
                 current = None if path in SETTINGS else _lookup(scene_data, path)[1]
                 params[path] = _draw(rng, dist, current)
-        out.append({'index': int(i), 'grid_point': g, 'sample': s, 'params': params,
+        out.append({'index': int(i), 'grid_point': g, 'sample': s, 'params': params, 'version': _version(),
                     'scene_text': spec.scene_text, 'scene_file': spec.scene_file, 'backend': spec.backend,
                     'duration': spec.duration, 'figures': spec.figures, 'reference': spec.reference,
                     'record': spec.record})
     return out
+
+
+def _version() -> str:
+    from .version import __version__
+    return __version__
 
 
 def build_scene(scene_text: str, scene_file: str, params: dict, backend: str):
@@ -616,6 +627,9 @@ def execute_run(task: dict) -> dict:
 
     Never raises for a run that goes wrong: the row's status and message say what happened.
     """
+    if task.get('version', _version()) != _version():  # a worker that joined after the client's check
+        raise ClusterError(f'this worker runs robodyn_ros {_version()}, the client {task["version"]}; install the '
+                           'same version on every worker')
     trace = os.environ.get(TRACE_ENV)
     if trace:  # tests count executions
         os.makedirs(trace, exist_ok=True)
@@ -732,7 +746,16 @@ class Pool:
 
         from dask.distributed import Client, LocalCluster
         if self.scheduler:
-            self.client = Client(self.scheduler, timeout='30s')
+            try:
+                self.client = Client(self.scheduler, timeout='30s')
+            except OSError as e:
+                raise ClusterError(f'cannot reach the Dask scheduler {self.scheduler}: {e}') from None
+            try:
+                self.client.wait_for_workers(1, timeout=WORKER_WAIT)
+            except TimeoutError:
+                self.client.close()
+                raise ClusterError(f'no Dask worker has joined the scheduler {self.scheduler} within {WORKER_WAIT:g} s '
+                                   f'(start some: dask worker {self.scheduler} --nthreads 1)') from None
         else:
             self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                         dashboard_address=None, silence_logs=logging.ERROR)
@@ -742,11 +765,11 @@ class Pool:
         return self
 
     def _check_versions(self):
-        from .version import __version__
-        seen = self.client.run(_worker_version)
-        bad = {w: v for w, v in seen.items() if v != __version__}
+        seen = self.client.run(_version)
+        bad = {w: v for w, v in seen.items() if v != _version()}
         if bad:
-            raise RuntimeError(f'Dask workers run another robodyn_ros version than this client ({__version__}): '
+            self.__exit__(None, None, None)
+            raise ClusterError(f'Dask workers run another robodyn_ros version than this client ({_version()}): '
                                + ', '.join(f'{w}: {v}' for w, v in sorted(bad.items()))
                                + '; install the same version on every worker')
 
@@ -810,11 +833,6 @@ def chunk_size(runs: int, threads: int) -> int:
     """Runs per Dask task: about ``TASKS_PER_THREAD`` tasks per worker thread (load balance), at
     most ``MAX_CHUNK`` runs each (a lost task is rerun whole, and rows arrive a task at a time)."""
     return max(1, min(MAX_CHUNK, runs // (TASKS_PER_THREAD * max(1, threads))))
-
-
-def _worker_version():
-    from .version import __version__
-    return __version__
 
 
 class Progress:
@@ -881,12 +899,13 @@ def _row_path(out: str, index: int) -> str:
 
 
 def _prepare(spec: Spec, out: str) -> set:
-    """Create ``out`` (or check that it holds this spec's sweep) and return the finished run indices."""
+    """Create ``out`` (or check that it holds this spec's sweep) and return the finished run indices
+    (rows of status 'error' — a task that raised, a lost or misconfigured worker — are removed so
+    that the runs are tried again; ok, failed, refused and invalid rows are results)."""
     os.makedirs(os.path.join(out, 'runs'), exist_ok=True)
     meta_path = os.path.join(out, 'sweep.json')
-    from .version import __version__
     meta = {'format': FORMAT, 'digest': spec.digest, 'runs': spec.n_runs, 'spec_file': os.path.abspath(spec.file),
-            'scene': spec.scene_name, 'version': __version__, 'spec': spec.text}
+            'scene': spec.scene_name, 'version': _version(), 'spec': spec.text}
     if os.path.exists(meta_path):
         with open(meta_path, encoding='utf-8') as f:
             old = json.load(f)
@@ -900,8 +919,13 @@ def _prepare(spec: Spec, out: str) -> set:
     for name in os.listdir(os.path.join(out, 'runs')):
         if name.endswith('.json') and name[:-5].isdigit():
             i = int(name[:-5])
-            if 0 <= i < spec.n_runs:
-                done.add(i)
+            if not 0 <= i < spec.n_runs:
+                continue
+            with open(os.path.join(out, 'runs', name), encoding='utf-8') as f:
+                if json.load(f).get('status') == 'error':
+                    os.unlink(os.path.join(out, 'runs', name))  # an unexpected failure is tried again
+                    continue
+            done.add(i)
     return done
 
 

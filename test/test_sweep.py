@@ -379,3 +379,74 @@ def test_per_run_mcap(tmp_path):
         assert s['topics']['/joint_states']['count'] == 6  # t = 0 and five 10 ms periods
         assert s['topics']['/effort_commands']['count'] == 5
         assert s['end_time_ns'] == 50_000_000
+
+
+# --------------------------------------------------------------------------------------------
+# a remote scheduler (on this machine's loopback), versions, retried errors
+# --------------------------------------------------------------------------------------------
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def test_remote_scheduler_gives_the_same_table(inline, tmp_path):
+    """``--scheduler tcp://127.0.0.1:PORT`` with a ``dask scheduler`` and a ``dask worker`` (2
+    processes) started by hand, as on a cluster: the rows of the in-process run."""
+    spec, rows = inline
+    port = _free_port()
+    address = f'tcp://127.0.0.1:{port}'
+    procs = [subprocess.Popen([sys.executable, '-m', 'distributed.cli.dask_scheduler', '--host', '127.0.0.1',
+                               '--port', str(port), '--no-dashboard'], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    try:
+        procs.append(subprocess.Popen([sys.executable, '-m', 'distributed.cli.dask_worker', address, '--nworkers', '2',
+                                       '--nthreads', '1', '--no-dashboard'], stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL))
+        res = S.run_sweep(spec, str(tmp_path / 'remote'), scheduler=address, plot=False)
+        got = S.read_table(res.table)
+    finally:
+        for p in reversed(procs):
+            p.send_signal(signal.SIGINT)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    assert _comparable(got) == _comparable(rows)
+    assert len({r['worker'] for r in got}) == 2
+
+
+def test_workers_of_another_version_are_refused(inline):
+    """A worker of another robodyn_ros version: refused when the client connects (naming it), and a
+    task that reaches one anyway (a worker that joined later) raises instead of computing a row."""
+    spec, _ = inline
+
+    class Client:
+        def run(self, fn):
+            return {'tcp://10.0.0.1:4000': '0.0.1', 'tcp://10.0.0.2:4000': fn()}
+
+        def close(self):
+            pass
+    pool = S.Pool(1)
+    pool.client = Client()
+    with pytest.raises(S.ClusterError, match=r'tcp://10\.0\.0\.1:4000: 0\.0\.1; install the same version'):
+        pool._check_versions()
+    task = S.expand(spec, [0])[0]
+    with pytest.raises(S.ClusterError, match='the client 0.0.1'):
+        S.execute_run(dict(task, version='0.0.1'))
+
+
+def test_resume_retries_error_rows(tmp_path):
+    """A row of status 'error' (a task that raised) is run again on resume; other rows are kept."""
+    spec = _spec(tmp_path, 'scene: betancur_pendulum\nduration: 0.02\ngrid: {dt: [0.001, 0.002]}\n'
+                           'figures: [energy_drift]\n')
+    out = tmp_path / 'out'
+    S.run_sweep(spec, str(out), workers=0, plot=False)
+    row = json.loads((out / 'runs' / '000001.json').read_text())
+    (out / 'runs' / '000001.json').write_text(json.dumps(dict(row, status='error', message='boom')))
+    res = S.run_sweep(spec, str(out), workers=0, plot=False)
+    assert (res.skipped, res.executed) == (1, 1)
+    assert [r['status'] for r in S.read_table(res.table)] == ['ok', 'ok']

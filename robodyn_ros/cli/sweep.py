@@ -22,8 +22,9 @@ def add_parser(sub):
 
 
 def main(args) -> int:
-    """Run the sweep; 0 when every run has a row, 130 when interrupted (re-run to resume), 2 for a bad spec."""
-    from ..sweep import Progress, SweepError, load_spec, read_table, run_sweep
+    """Run the sweep; 0 when every run has a row, 130 when interrupted (re-run to resume), 2 for a bad
+    spec or a DIR of another sweep, 1 when the cluster cannot run it."""
+    from ..sweep import ClusterError, Progress, SweepError, load_spec, read_table, run_sweep
     try:
         spec = load_spec(args.spec)
     except SweepError as e:
@@ -42,6 +43,9 @@ def main(args) -> int:
     except SweepError as e:
         print(f'robodyn sweep: {e}', file=sys.stderr)
         return 2
+    except ClusterError as e:
+        print(f'robodyn sweep: {e}', file=sys.stderr)
+        return 1
     if res.interrupted:
         print(f'robodyn sweep: interrupted; {res.skipped + res.executed} of {res.runs} runs are kept in {args.out}; '
               'run the same command again to finish the others', file=sys.stderr)
