@@ -757,8 +757,10 @@ class Pool:
                 raise ClusterError(f'no Dask worker has joined the scheduler {self.scheduler} within {WORKER_WAIT:g} s '
                                    f'(start some: dask worker {self.scheduler} --nthreads 1)') from None
         else:
+            # preload: dask_setup below runs in every worker process (restarted ones too)
             self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.ERROR)
+                                        dashboard_address=None, silence_logs=logging.ERROR,
+                                        preload=[__name__])
             self.client = Client(self.cluster)
         if self.check_version:
             self._check_versions()
@@ -822,6 +824,16 @@ class Pool:
             for fut in futures:
                 if not fut.done():
                     fut.cancel()
+
+
+def dask_setup(worker):
+    """Worker preload of the local cluster: Ctrl-C in a terminal reaches every process of the
+    group; the workers ignore it and the client, which keeps the finished rows, shuts them down
+    (instead of a KeyboardInterrupt traceback from each worker)."""
+    import signal
+    import threading
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _run_batch(fn, args) -> list:

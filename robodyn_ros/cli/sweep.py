@@ -47,6 +47,8 @@ def main(args) -> int:
         print(f'robodyn sweep: {e}', file=sys.stderr)
         return 1
     if res.interrupted:
+        if progress.tty and not args.quiet:
+            print(file=sys.stderr)  # end the progress line
         print(f'robodyn sweep: interrupted; {res.skipped + res.executed} of {res.runs} runs are kept in {args.out}; '
               'run the same command again to finish the others', file=sys.stderr)
         return 130
