@@ -675,10 +675,10 @@ def execute_run(task: dict) -> dict:
         finally:
             for s in sinks[1:]:
                 s.close()
-        if tmp:
-            with open(tmp, 'rb') as f:
-                mcap = f.read()
-            os.unlink(tmp)
+            if tmp:  # the recording goes back to the client, which writes DIR (workers need no shared disk)
+                with open(tmp, 'rb') as f:
+                    mcap = f.read()
+                os.unlink(tmp)
         row.update(status=status, message=msg, cpu_time=cpu)
         if sim is not None:
             d = sim.diag
