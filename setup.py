@@ -35,8 +35,11 @@ setup(
     ] + _config_files(),
     # numba: compiled kernels (robodyn_ros.kernels); pip-only (no rosdep key), optional at run time:
     # without it ArmSystem falls back to the numpy reference kernels
-    # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba', 'yourdfpy'],
+    # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels;
+    # yourdfpy reads URDF files (robodyn_ros.urdf); dask + distributed run `robodyn sweep` (and the
+    # precision ladder) on a local or remote cluster, pyarrow writes its Parquet table
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba',
+                      'yourdfpy', 'dask', 'distributed', 'pyarrow'],
     extras_require={
         'plot': ['matplotlib'],
         'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data'],

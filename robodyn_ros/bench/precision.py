@@ -42,6 +42,10 @@ log–log, one line per method and formulation) and ``summary.md`` (the cheapest
 scene). The measurements are also cached for ``robodyn advise`` (see :mod:`robodyn_ros.advise`).
 
 ``--quick`` uses the short ladder ``robodyn advise`` runs when it has no measurements.
+``--workers N`` / ``--scheduler ADDRESS`` run every scene's reference and each method's ladder as
+tasks on Dask (:class:`robodyn_ros.sweep.Pool`, the machinery of ``robodyn sweep``), side by side;
+the tables are the same apart from the timing columns. The default (0) runs them one after the
+other in this process, so that no timed run shares the CPU with another.
 """
 from __future__ import annotations
 
@@ -489,47 +493,107 @@ class SceneResult:
 
 
 def run_scene(name, mode='full', horizon=None, budget=None, integrators=None, formulations_only=None,
-              progress=None) -> SceneResult:
+              progress=None, pool=None) -> SceneResult:
     """Measure one scene over its ladder (see the module docstring).
 
     name: bundled scene name or path; mode: 'full' | 'quick'; horizon: simulated seconds
     (default ``HORIZONS[mode]``); budget: wall seconds per run (default ``BUDGETS[mode]``);
     integrators: restrict to these names; formulations_only: restrict to these formulations;
-    progress: a :class:`Progress` (counted once per run and once for the reference).
+    progress: a :class:`Progress` (counted once per run and once for the reference); pool: a
+    :class:`robodyn_ros.sweep.Pool` to run on (default: this process).
     """
-    scene = _load(name)
+    return next(measure_scenes([name], mode, horizon, budget, integrators, formulations_only, progress, pool))
+
+
+def _reference_task(args):
+    """Task: the reference of a scene (:func:`reference`) from ``(name, horizon)``."""
+    name, horizon = args
+    return reference(_load(name), horizon)
+
+
+def _method_task(args):
+    """Task: the ladder of one method in one formulation of a scene, in order, from ``(name,
+    formulation, [(integrator, dt, rtol, atol)], horizon, budget)``. One task per method, because
+    a setting that runs out of budget skips the longer ones after it; its first use (imports,
+    compiled kernels, caches) is a warm-up run of one period, not measured."""
+    name, form, settings, horizon, budget = args
+    sc = dict(formulations(_load(name)))[form]
+    period = 1.0 / float(sc.settings.get('publish_rate', 100.0))
+    integ, dt, rtol, atol = settings[0]
+    simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=period, sample=False)
+    runs, over_budget = [], False
+    for integ, dt, rtol, atol in settings:
+        if over_budget:
+            r = Run(scene=sc.name, formulation=form, integrator=integ,
+                    kind='fixed' if dt is not None else 'adaptive', dt=dt, rtol=rtol, atol=atol,
+                    horizon=horizon, status='skipped', note='a cheaper setting of this method ran out of budget')
+        else:
+            r = simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=horizon, budget=budget, formulation=form)
+            over_budget = r.status == 'budget'
+        runs.append(r)
+    return runs
+
+
+def measure_scenes(names, mode='full', horizon=None, budget=None, integrators=None, formulations_only=None,
+                   progress=None, pool=None):
+    """Measure several scenes (arguments of :func:`run_scene`); yields their :class:`SceneResult`
+    in the order of ``names``. Every scene's reference and methods are tasks of one ``pool``
+    (default: this process), so on a Dask pool they run side by side; each result is put
+    together as :func:`run_scene` always did (errors against the reference, runs in ladder order).
+    """
+    from ..sweep import Pool
     horizon = HORIZONS[mode] if horizon is None else float(horizon)
     budget = BUDGETS[mode] if budget is None else float(budget)
-    variants = formulations(scene)
     keep = None if not formulations_only else set(formulations_only) | {''}
-    ref = reference(scene, horizon, variants)
-    if progress:
-        progress.step(f'{scene.name}: reference ({ref.kind})')
-    runs = []
-    for form, sc in variants:
-        if keep is not None and form not in keep:
-            continue
-        over_budget, warm = set(), set()
-        period = 1.0 / float(sc.settings.get('publish_rate', 100.0))
-        for integ, dt, rtol, atol in ladder(sc, mode, integrators):
-            if integ not in warm:  # first use: imports, compiled kernels, caches; not measured
-                warm.add(integ)
-                simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=period, sample=False)
-            if integ in over_budget:
-                r = Run(scene=sc.name, formulation=form, integrator=integ,
-                        kind='fixed' if dt is not None else 'adaptive', dt=dt, rtol=rtol, atol=atol,
-                        horizon=horizon, status='skipped', note='a cheaper setting of this method ran out of budget')
-            else:
-                r = simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=horizon, budget=budget, formulation=form)
-                if r.status == 'budget':
-                    over_budget.add(integ)
-            if r.y is not None:
-                r.error = state_error(r.y, ref.y)
-                r.error_floor = r.error <= max(ref.error_estimate, 0.0)
-            runs.append(r)
+    plans, items = [], []
+    for k, name in enumerate(names):
+        where = os.path.abspath(name) if os.path.isfile(str(name)) else name  # workers may run elsewhere
+        scene = _load(where)
+        groups = []
+        for form, sc in formulations(scene):
+            if keep is not None and form not in keep:
+                continue
+            steps = ladder(sc, mode, integrators)
+            for integ in dict.fromkeys(s[0] for s in steps):
+                groups.append([s for s in steps if s[0] == integ])
+                items.append(((k, len(groups)), (where, form, groups[-1], horizon, budget)))
+        items.insert(len(items) - len(groups), ((k, 0), (where, horizon)))
+        plans.append((scene, len(groups)))
+    done, emitted = {}, 0
+    with (pool if pool is not None else Pool(workers=0)) as p:
+        tasks = [(key, (_reference_task if key[1] == 0 else _method_task, arg)) for key, arg in items]
+        for key, res in p.run(_precision_task, tasks, name='precision'):
+            if isinstance(res, dict) and 'error' in res:
+                raise RuntimeError(f'{names[key[0]]}: {res["error"]}')
+            done[key] = res
             if progress:
-                progress.step(f'{sc.name} {r.label} {r.setting}: {r.status}'
-                              + (f' err {r.error:.1e}' if r.status == 'ok' else ''))
+                scene = plans[key[0]][0]
+                if key[1] == 0:
+                    progress.step(f'{scene.name}: reference ({res.kind})')
+                else:
+                    ref = done.get((key[0], 0))
+                    for r in res:
+                        err = f' err {state_error(r.y, ref.y):.1e}' if ref is not None and r.status == 'ok' else ''
+                        progress.step(f'{r.scene} {r.label} {r.setting}: {r.status}{err}')
+            while emitted < len(plans) and all((emitted, g) in done for g in range(plans[emitted][1] + 1)):
+                yield _assemble(plans[emitted][0], mode, horizon, [done.pop((emitted, g))
+                                                                   for g in range(plans[emitted][1] + 1)])
+                emitted += 1
+
+
+def _precision_task(fn_arg):
+    """One task of :func:`measure_scenes`: ``(_reference_task or _method_task, its argument)``."""
+    fn, arg = fn_arg
+    return fn(arg)
+
+
+def _assemble(scene, mode, horizon, results) -> SceneResult:
+    """A scene's :class:`SceneResult` from its reference and method tasks' results (in plan order)."""
+    ref, runs = results[0], [r for group in results[1:] for r in group]
+    for r in runs:
+        if r.y is not None:
+            r.error = state_error(r.y, ref.y)
+            r.error_floor = r.error <= max(ref.error_estimate, 0.0)
     from .timing import machine_line
     return SceneResult(scene=scene.name, horizon=runs[0].horizon if runs else horizon,
                        rate=float(scene.settings.get('publish_rate', 100.0)), mode=mode, reference=ref, runs=runs,
@@ -757,6 +821,11 @@ def add_arguments(p):
     p.add_argument('--formulations', nargs='*', default=None, help='only these formulations (e.g. minimal kkt)')
     p.add_argument('--no-cache', action='store_true', help='do not store the measurements for robodyn advise')
     p.add_argument('--quiet', action='store_true', help='no progress bar')
+    p.add_argument('--workers', type=int, default=0,
+                   help='Dask worker processes running the references and methods side by side (robodyn sweep\'s '
+                        'machinery; default 0: one after the other in this process, so that no run shares the CPU '
+                        'with another while it is timed)')
+    p.add_argument('--scheduler', default=None, help='address of a Dask scheduler (tcp://host:8786) to run on')
     return p
 
 
@@ -778,8 +847,11 @@ def main(args) -> int:
         return 2
     progress = Progress(total, quiet=args.quiet)
     results, unplotted = [], []
-    for name in names:
-        res = run_scene(name, mode, args.horizon, args.budget, args.integrators, args.formulations, progress)
+    from ..sweep import Pool
+    pool = Pool(getattr(args, 'workers', 0), getattr(args, 'scheduler', None))
+    for res in measure_scenes(names, mode, args.horizon, args.budget, args.integrators, args.formulations, progress,
+                              pool):
+        name = names[len(results)]
         paths = write_scene(res, args.out)
         results.append(res)
         if not args.no_cache:

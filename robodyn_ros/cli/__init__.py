@@ -9,7 +9,7 @@ import argparse
 import importlib
 import sys
 
-SUBCOMMANDS = ['run', 'check', 'scenes', 'resim', 'replay', 'plot', 'bench', 'advise']
+SUBCOMMANDS = ['run', 'check', 'scenes', 'resim', 'replay', 'plot', 'bench', 'advise', 'sweep']
 
 
 def build_parser() -> argparse.ArgumentParser:
