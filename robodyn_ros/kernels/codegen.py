@@ -16,8 +16,8 @@ The generated module (``aba(q, v, tau, qdd)``, and ``arm_rhs``/``integrate_arm``
 the unchanged source of :func:`robodyn_ros.kernels.core.integrate_arm`, bound to the generated
 ``arm_rhs``) is written once per model to :data:`GENERATED_DIR` under a name made from a hash of
 the packed model, this generator and ``core.py``, and numba caches its machine code beside it,
-so the second start of the same scene loads it. Trees with FREE joints are not specialised
-(:func:`specialize` returns None; the generic kernels handle them).
+so the second start of the same scene loads it. Trees with FREE or SPHERICAL joints are not
+specialised (:func:`specialize` returns None; the generic kernels handle them).
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ import sys
 
 import numpy as np
 
-from ..model import FIXED, FREE, PRISMATIC, REVOLUTE
+from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
 
 #: relative distance to 0 or ±1 under which a model coefficient is snapped
 SNAP = 1e-15
@@ -235,8 +235,8 @@ def aba_source(model) -> str | None:
     """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE joints)."""
     from . import merge_fixed
     a = merge_fixed(model)
-    if np.any(a['jtype'] == FREE):
-        return None
+    if np.any(a['jtype'] == FREE) or np.any(a['jtype'] == SPHERICAL):
+        return None  # the generic kernels compute these trees
     nb = len(a['parent'])
     Z = _Zs()
     E, r, vb, c, IA, pA = [None] * nb, [None] * nb, [None] * nb, [None] * nb, [None] * nb, [None] * nb
@@ -361,7 +361,7 @@ _LOADED: dict = {}
 def specialize(model):
     """The generated module for ``model`` (written and compiled on first use), or None.
 
-    Returns None for trees with FREE joints. The module has ``aba(q, v, tau, qdd)`` and
+    Returns None for trees with FREE or SPHERICAL joints. The module has ``aba(q, v, tau, qdd)`` and
     ``integrate_arm(mi, mf, damping, tau_app, nq, method, z, dt, n_full, h_last)`` with the
     arguments of :func:`robodyn_ros.kernels.core.integrate_arm` (mi/mf: the merged packing).
     """

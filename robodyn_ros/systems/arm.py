@@ -33,6 +33,9 @@ class ArmSystem(System):
             raise ValueError(f'unknown backend {backend!r}; valid: {", ".join(BACKENDS)}')
         if backend != 'numpy' and not kernels.AVAILABLE:
             raise ValueError(f'backend {backend} unavailable (no numba): {kernels.UNAVAILABLE_REASON}')
+        if backend == 'numpy' and model.has_spherical:
+            raise ValueError(f'{model.name}: spherical joints are computed by the compiled kernels only; '
+                             "backend 'numpy' cannot simulate this model (use 'numba' or 'generated')")
         self.backend = backend
         self._km = kernels.CompiledModel(model, specialize=backend == 'generated') if backend != 'numpy' else None
         self._grids = {}

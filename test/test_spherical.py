@@ -1,0 +1,235 @@
+"""Spherical joints (issue 11): the compiled kernels against Pinocchio, and the joint's conventions.
+
+Pinocchio is the independent oracle: each seeded random tree is built directly in Pinocchio
+(``JointModelSpherical`` for ours, ``JointModelFreeFlyer`` for a free root, unaligned revolute /
+prismatic joints for the rest), body by body from the same placements and inertias — not through
+our URDF export, which writes a spherical joint as three revolute joints. Conventions bridged:
+
+* spherical joint: q = quaternion (x, y, z, w), v = angular velocity in the child frame — both the
+  same in Pinocchio; its ``S = [1; 0]`` is Pinocchio's (linear; angular) ``[0; 1]``;
+* free joint: q identical, v (linear, angular) in Pinocchio, [angular; linear] here;
+* spatial vectors (linear, angular) in Pinocchio, [angular; linear] here.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from robodyn_ros import dynamics as dyn
+from robodyn_ros import kernels
+from robodyn_ros.model import (FREE, PRISMATIC, REVOLUTE, SPHERICAL, SphericalJointError, bryan_angles,
+                               random_tree, to_urdf)
+from robodyn_ros.spatial import R_to_quat, quat_to_R
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='spherical joints need the compiled kernels')
+
+TOL = 1e-9
+N_SPH_TREES = 12
+
+
+def pin_model(m):
+    """The robodyn model ``m`` rebuilt joint by joint in Pinocchio; returns ``(pin model, qmap, vmap, jid)``."""
+    pm = pin.Model()
+    pm.gravity.linear = np.asarray(m.gravity, dtype=float)
+    jid = {}
+    qmap = np.empty(m.nq, dtype=int)
+    vmap = np.empty(m.nv, dtype=int)
+    order, stack = [], [i for i in range(m.nb - 1, -1, -1) if m.parent[i] < 0]
+    while stack:   # depth first: Pinocchio's algorithms assume each subtree's v indices are contiguous
+        i = stack.pop()
+        order.append(i)
+        stack += [c for c in range(m.nb - 1, i, -1) if m.parent[c] == i]
+    for i in order:
+        X = m.Xtree[i]
+        E = X[:3, :3]
+        rx = -(E.T @ X[3:, :3])
+        placement = pin.SE3(E.T.copy(), np.array([rx[2, 1], rx[0, 2], rx[1, 0]]))
+        parent = 0 if m.parent[i] < 0 else jid[int(m.parent[i])]
+        jt = int(m.jtype[i])
+        if jt == SPHERICAL:
+            jm = pin.JointModelSpherical()
+        elif jt == FREE:
+            jm = pin.JointModelFreeFlyer()
+        elif jt == REVOLUTE:
+            jm = pin.JointModelRevoluteUnaligned(*m.axis[i])
+        elif jt == PRISMATIC:
+            jm = pin.JointModelPrismaticUnaligned(*m.axis[i])
+        else:
+            raise AssertionError('the random trees here have no fixed joints')
+        j = pm.addJoint(parent, jm, placement, m.joint_names[i])
+        s = m.specs[i]
+        pm.appendBodyToJoint(j, pin.Inertia(float(s.mass), np.asarray(s.com, float), np.asarray(s.inertia, float)),
+                             pin.SE3.Identity())
+        jid[i] = j
+        jmod = pm.joints[j]
+        q0, v0 = m.q_idx[i], m.v_idx[i]
+        qmap[q0:q0 + jmod.nq] = jmod.idx_q + np.arange(jmod.nq)
+        if jt == FREE:
+            vmap[v0:v0 + 6] = jmod.idx_v + np.array([3, 4, 5, 0, 1, 2])
+        else:
+            vmap[v0:v0 + jmod.nv] = jmod.idx_v + np.arange(jmod.nv)
+    assert sorted(qmap) == list(range(m.nq)) and sorted(vmap) == list(range(m.nv))
+    return pm, qmap, vmap, jid
+
+
+def random_state(m, rng):
+    q = rng.uniform(-np.pi, np.pi, size=m.nq)
+    for i in range(m.nb):
+        s = m.q_idx[i]
+        if m.jtype[i] == FREE:
+            q[s:s + 3] = rng.normal(size=3)
+            s += 3
+        if m.jtype[i] in (FREE, SPHERICAL):
+            quat = rng.normal(size=4)
+            q[s:s + 4] = quat / np.linalg.norm(quat)
+    return q, rng.normal(size=m.nv), rng.normal(size=m.nv), rng.normal(size=m.nv) * 3
+
+
+def sph_trees():
+    out = []
+    for k in range(N_SPH_TREES):
+        rng = np.random.default_rng(7100 + k)
+        nb = 2 + k % 9
+        m = random_tree(nb, rng, chain=k % 3 == 0, spherical_fraction=0.5, free_root=k % 2 == 1,
+                        gravity=(0.0, 0.0, -9.81) if k % 4 else (1.0, -2.0, -9.0))
+        out.append((f'sph{k}', m))
+    return out
+
+
+def rel(x, y, floor=1.0):
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    return float(np.max(np.abs(x - y), initial=0.0) / max(float(np.max(np.abs(y), initial=0.0)), floor))
+
+
+def test_spherical_trees_against_pinocchio():
+    """M, RNEA, ABA (with and without external forces), joint wrenches, energies on 12 seeded trees
+    with spherical joints (half of them on a free root) at 3 random states each."""
+    rng = np.random.default_rng(77)
+    errs = {k: [] for k in ('M', 'rnea', 'aba', 'aba_fext', 'wrench', 'ke', 'pe', 'pose')}
+    n_sph = 0
+    for label, m in sph_trees():
+        n_sph += int((m.jtype == SPHERICAL).sum())
+        km = kernels.CompiledModel(m)
+        pm, qmap, vmap, jid = pin_model(m)
+        pd = pm.createData()
+        for s in range(3):
+            q, v, a, tau = random_state(m, rng)
+            qp, vp, ap = np.empty(m.nq), np.empty(m.nv), np.empty(m.nv)
+            qp[qmap], vp[vmap], ap[vmap] = q, v, a
+            taup = np.empty(m.nv)
+            taup[vmap] = tau
+            where = f'{label} state {s}'
+            Mp = pin.crba(pm, pd, qp)
+            Mp = np.triu(Mp) + np.triu(Mp, 1).T
+            errs['M'].append((rel(km.crba(q), Mp[np.ix_(vmap, vmap)]), where))
+            tau_ref = pin.rnea(pm, pd, qp, vp, ap)[vmap]
+            tau_k, f = km.rnea_wrenches(q, v, a)
+            errs['rnea'].append((rel(tau_k, tau_ref), where))
+            scale = max(1.0, max(np.abs(pd.f[j].vector).max() for j in jid.values()))
+            for i, j in jid.items():
+                fj = np.concatenate([pd.f[j].angular, pd.f[j].linear])
+                errs['wrench'].append((np.abs(f[i] - fj).max() / scale, f'{where} joint {m.joint_names[i]}'))
+            errs['aba'].append((rel(km.aba(q, v, tau), pin.aba(pm, pd, qp, vp, taup)[vmap]), where))
+            qdd_w, f_w = km.joint_wrenches(q, v, tau)   # ABA then RNEA wrenches: Pinocchio RNEA at that qdd
+            qddp = np.empty(m.nv)
+            qddp[vmap] = qdd_w
+            pin.rnea(pm, pd, qp, vp, qddp)
+            for i, j in jid.items():
+                fj = np.concatenate([pd.f[j].angular, pd.f[j].linear])
+                errs['wrench'].append((np.abs(f_w[i] - fj).max() / max(1.0, np.abs(fj).max()), f'{where} fd {i}'))
+            fext = rng.normal(size=(m.nb, 6))
+            fl = [pin.Force.Zero() for _ in range(pm.njoints)]
+            for i, j in jid.items():
+                fl[j] = pin.Force(np.concatenate([fext[i, 3:], fext[i, :3]]))
+            fp = pin.StdVec_Force(fl)
+            errs['aba_fext'].append((rel(km.aba(q, v, tau, fext), pin.aba(pm, pd, qp, vp, taup, fp)[vmap]), where))
+            T, V = km.energies(q, v)
+            errs['ke'].append((rel(T, pin.computeKineticEnergy(pm, pd, qp, vp)), where))
+            errs['pe'].append((rel(V, pin.computePotentialEnergy(pm, pd, qp)), where))
+            pin.forwardKinematics(pm, pd, qp)
+            R, p = km.body_poses(q)
+            for i, j in jid.items():
+                errs['pose'].append((max(rel(R[i], pd.oMi[j].rotation), rel(p[i], pd.oMi[j].translation)), where))
+    assert n_sph >= 20, n_sph      # the family really exercises the joint
+    for k, e in errs.items():
+        assert len(e) >= 3 * N_SPH_TREES, k
+        worst = max(e, key=lambda x: x[0])
+        assert worst[0] < TOL, f'{k}: {worst[0]:.3g} at {worst[1]}'
+
+
+def test_generated_backend_falls_back_to_generic_kernels():
+    """The code generator declines spherical trees; the 'generated' ArmSystem then uses the generic
+    kernels (same qdd), and the numpy backend is refused with a clear error."""
+    from robodyn_ros.kernels import codegen
+    from robodyn_ros.systems.arm import ArmSystem
+    m = random_tree(4, np.random.default_rng(5), spherical_fraction=0.7)
+    assert m.has_spherical
+    assert codegen.aba_source(m) is None
+    sys_g = ArmSystem(m, backend='generated')
+    assert sys_g._km.gen is None
+    q, v, _, tau = random_state(m, np.random.default_rng(6))
+    assert np.allclose(kernels.CompiledModel(m).aba(q, v, tau), sys_g._km.aba(q, v, tau), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match='spherical'):
+        ArmSystem(m, backend='numpy')
+    with pytest.raises(SphericalJointError, match='compiled kernels'):
+        dyn.aba(m, q, v, tau)
+    with pytest.raises(SphericalJointError):
+        dyn.qdot(m, q, v)
+
+
+def test_bryan_angles_rebuild_the_rotation_even_at_gimbal_lock():
+    """joint_states publishes a spherical joint as Huston's Bryan angles (eq. 20.3.2,
+    R = Rx(α) Ry(β) Rz(γ)); the three angles must rebuild the quaternion's rotation everywhere,
+    including β = ±90° exactly, where α and γ are not unique."""
+    def rx(a):
+        return np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+
+    def ry(a):
+        return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+
+    def rz(a):
+        return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    rng = np.random.default_rng(9)
+    quats = [q / np.linalg.norm(q) for q in rng.normal(size=(200, 4))]
+    for b in (math.pi / 2, -math.pi / 2):   # exact and near gimbal lock
+        for eps in (0.0, 1e-9, 1e-5):
+            Rl = rx(0.3) @ ry(b - np.sign(b) * eps) @ rz(-1.1)
+            quats.append(R_to_quat(Rl))
+    worst = 0.0
+    for qt in quats:
+        a, b, c = bryan_angles(qt)
+        assert -math.pi / 2 <= b <= math.pi / 2
+        worst = max(worst, np.abs(rx(a) @ ry(b) @ rz(c) - quat_to_R(qt)).max())
+    assert worst < 1e-12, worst
+
+
+def test_urdf_writes_three_revolute_joints_with_massless_links():
+    """URDF has no ball joint: ``<joint>_x/_y/_z`` revolute about x, y', z'' with two massless links;
+    Pinocchio, loading that URDF, sees the Bryan-angle chain, whose kinematics at the published
+    angles must equal ours at the quaternion."""
+    m = random_tree(5, np.random.default_rng(11), spherical_fraction=0.8, free_root=True)
+    assert int((m.jtype == SPHERICAL).sum()) >= 2
+    pm = pin.buildModelFromXML(to_urdf(m))   # our free root is written as 'floating': a free flyer
+    km = kernels.CompiledModel(m)
+    rng = np.random.default_rng(12)
+    q, _, _, _ = random_state(m, rng)
+    qp = pin.neutral(pm)
+    names = list(pm.names)
+    for i in range(m.nb):
+        s = m.q_idx[i]
+        if m.jtype[i] == SPHERICAL:
+            for suf, ang in zip(('_x', '_y', '_z'), bryan_angles(q[s:s + 4])):
+                qp[pm.joints[names.index(m.joint_names[i] + suf)].idx_q] = ang
+        elif m.jtype[i] in (REVOLUTE, PRISMATIC):
+            qp[pm.joints[names.index(m.joint_names[i])].idx_q] = q[s]
+    qp[pm.joints[names.index(m.joint_names[0])].idx_q + np.arange(7)] = q[:7]   # free root: same layout
+    pin.framesForwardKinematics(pm, pd := pm.createData(), qp)
+    R, p = km.body_poses(q)
+    worst = 0.0
+    for i in range(m.nb):
+        fid = pm.getFrameId(m.link_names[i])
+        worst = max(worst, np.abs(pd.oMf[fid].rotation - R[i]).max(), np.abs(pd.oMf[fid].translation - p[i]).max())
+    assert worst < 1e-12, worst
