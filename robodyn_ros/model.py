@@ -63,7 +63,12 @@ class LinkSpec:
     frame); joint_type: 'revolute' | 'prismatic' | 'fixed' | 'free'; origin_xyz, origin_rpy:
     joint frame in the parent link frame at q = 0 (URDF convention); axis: (3,) joint axis in
     the joint frame; mass (kg), com (3,) in the link frame, inertia (3, 3) about the com in link
-    axes; damping: viscous joint damping (N·m·s/rad or N·s/m); limits: optional (lower, upper).
+    axes; damping: viscous joint damping (N·m·s/rad or N·s/m); limits: optional (lower, upper)
+    (rad or m; a spherical joint: three ``(lower, upper)`` pairs, one per component of its
+    rotation vector, ±inf allowed). limit_stiffness k, limit_damping c: the joint-limit moments of
+    Huston eq. (20.2.1) (:func:`limit_table`; both 0 = limits reported only); limit_return: the
+    moment while the joint moves back toward its range, ``'none'`` (eq. 20.2.1 as printed: M = 0)
+    or ``'spring'`` (``-k (θ - θlim)`` without damping).
     """
 
     name: str
@@ -79,6 +84,9 @@ class LinkSpec:
     damping: float = 0.0
     limits: tuple | None = None
     origin_R: np.ndarray | None = None  # exact rotation, overrides origin_rpy when given
+    limit_stiffness: float = 0.0
+    limit_damping: float = 0.0
+    limit_return: str = 'none'
 
 
 @dataclass(frozen=True)
@@ -146,6 +154,19 @@ class Model:
             elif self.jtype[i] == SPHERICAL:
                 q[self.q_idx[i] + 3] = 1.0
         return q
+
+    def state_index(self, name: str) -> tuple:
+        """``(body, v index)`` of a ``joint_states`` entry (:attr:`state_joint_names`); ValueError if unknown."""
+        if name in self.joint_names:
+            i = self.joint_names.index(name)
+            if self.jtype[i] in (REVOLUTE, PRISMATIC):
+                return i, int(self.v_idx[i])
+        for k, suf in enumerate(SPHERICAL_AXES):
+            if name.endswith(suf) and name[:-2] in self.joint_names:
+                i = self.joint_names.index(name[:-2])
+                if self.jtype[i] == SPHERICAL:
+                    return i, int(self.v_idx[i]) + k
+        raise ValueError(f'{name!r} is not a joint_states entry of {self.name}; entries are {self.state_joint_names}')
 
     @property
     def has_spherical(self) -> bool:
@@ -217,6 +238,52 @@ def _check_inertia(spec: LinkSpec, where: str):
     if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()):
         raise ModelError(f'{where}: principal moments {ev.tolist()} violate the triangle inequality '
                          '(no physical body has them)')
+
+
+#: ``limit_return`` values -> mode codes of :func:`limit_table` (kernels.core.limit_moment)
+LIMIT_RETURNS = {'none': 1, 'spring': 2}
+
+
+def _check_limits(s: LinkSpec, jt: int, where: str):
+    """Refuse limit data that do not fit the joint (shape, order, signs, unknown return mode)."""
+    if s.limit_return not in LIMIT_RETURNS:
+        raise ModelError(f'{where}: limit_return must be one of {sorted(LIMIT_RETURNS)}, got {s.limit_return!r}')
+    for name in ('limit_stiffness', 'limit_damping'):
+        x = getattr(s, name)
+        if not np.isfinite(x) or x < 0.0:
+            raise ModelError(f'{where}: {name} must be finite and >= 0, got {x!r}')
+    if s.limits is None:
+        if s.limit_stiffness or s.limit_damping:
+            raise ModelError(f'{where}: limit stiffness/damping given without limits')
+        return
+    if jt not in (REVOLUTE, PRISMATIC, SPHERICAL):
+        raise ModelError(f'{where}: only revolute, prismatic and spherical joints take limits')
+    pairs = np.asarray(s.limits, dtype=float).reshape(-1, 2) if np.size(s.limits) in (2, 6) else None
+    if pairs is None or len(pairs) != (3 if jt == SPHERICAL else 1):
+        raise ModelError(f'{where}: limits must be (lower, upper)' +
+                         (' per rotation-vector component, 3 pairs' if jt == SPHERICAL else '') + f', got {s.limits!r}')
+    for lo, hi in pairs:
+        if np.isnan(lo) or np.isnan(hi) or not lo < hi:
+            raise ModelError(f'{where}: limits need lower < upper, got {s.limits!r}')
+
+
+def limit_table(model) -> np.ndarray:
+    """The joints with limit moments as rows ``[jtype, q index, v index, mode, lo0, hi0, lo1, hi1, lo2, hi2,
+    k, c]`` (float (nl, 12)) for :func:`robodyn_ros.kernels.core.limit_forces_add`; a 1-DOF joint uses
+    pair 0, a spherical joint its three rotation-vector components. Joints whose limits have neither
+    stiffness nor damping are left out (reported only)."""
+    rows = []
+    for i, s in enumerate(model.specs):
+        if s.limits is None or not (s.limit_stiffness or s.limit_damping):
+            continue
+        pairs = np.full((3, 2), np.inf)
+        pairs[:, 0] = -np.inf
+        lim = np.asarray(s.limits, dtype=float).reshape(-1, 2)
+        pairs[:len(lim)] = lim
+        rows.append([float(model.jtype[i]), float(model.q_idx[i]), float(model.v_idx[i]),
+                     float(LIMIT_RETURNS[s.limit_return]), *pairs.reshape(-1), float(s.limit_stiffness),
+                     float(s.limit_damping)])
+    return np.ascontiguousarray(np.array(rows, dtype=float).reshape(-1, 12))
 
 
 def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robot',
@@ -296,6 +363,7 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
         if s.damping < 0 or not np.isfinite(s.damping):
             raise ModelError(f'{where}: damping must be finite and >= 0, got {s.damping!r}')
         damping += [float(s.damping)] * int(nv_j[i])
+        _check_limits(s, jt, where)
         specs.append(s)
     q_idx = np.concatenate([[0], np.cumsum(nq_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
     v_idx = np.concatenate([[0], np.cumsum(nv_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
@@ -404,7 +472,7 @@ def to_urdf(model: Model) -> str:
         out.append(f'    <origin xyz="{f(r)}" rpy="{f(R_to_rpy(R))}"/>')
         if jt in (REVOLUTE, PRISMATIC):
             out.append(f'    <axis xyz="{f(model.axis[i])}"/>')
-            lo, hi = s.limits if s.limits is not None else (-1e4, 1e4)
+            lo, hi = np.ravel(s.limits) if s.limits is not None else (-1e4, 1e4)
             out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/>')
             if s.damping:
                 out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="0"/>')
@@ -488,5 +556,5 @@ def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0,
 
 
 __all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'SPHERICAL', 'SPHERICAL_AXES', 'SphericalJointError',
-           'refuse_spherical', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
+           'refuse_spherical', 'LIMIT_RETURNS', 'limit_table', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
            'jcalc', 'build_model', 'bryan_angles', 'spherical_link_names', 'dh_links', 'to_urdf', 'random_tree', 'skew']

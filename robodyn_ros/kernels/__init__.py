@@ -170,6 +170,8 @@ class CompiledModel:
         self.mi_r, self.mf_r = pack_model(model, merge=True)
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
+        from ..model import limit_table
+        self.lim = limit_table(model)   # joint-limit moments (Huston eq. 20.2.1), 0 rows = none
         self._zf = np.zeros((self.nb, 6))
         self.gen = None
         if specialize:
@@ -234,6 +236,11 @@ class CompiledModel:
         return constrained.momentum(self.mi, self.mf, np.ascontiguousarray(q, dtype=float),
                                     np.ascontiguousarray(v, dtype=float))
 
+    def limit_forces(self, q, v):
+        """Joint-limit generalised forces (nv,) of Huston eq. (20.2.1) at (q, v) (``core.limit_forces_add``)."""
+        return core.limit_forces(self.lim, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+                                 self.nv)
+
     def qdot(self, q, v):
         """Configuration rate ``dq/dt`` (nq,) (quaternion-aware)."""
         return core.qdot(self.mi, q, v)
@@ -252,7 +259,7 @@ class CompiledModel:
         index of the first non-finite step or -1.
         """
         run = core.integrate_arm if self.gen is None else self.gen.integrate_arm
-        return run(self.mi_r, self.mf_r, self.damping, tau_app, self.nq, FUSED_METHODS[method],
+        return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
                    z, float(dt), int(n_full), float(h_last))
 
 

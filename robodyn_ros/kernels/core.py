@@ -842,6 +842,93 @@ def normalize_into(mi, q):
 
 
 # ----------------------------------------------------------------------------------------------
+# joint-limit moments (Huston eq. 20.2.1)
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def limit_moment(th, thd, lo, hi, k, c, mode):
+    """The joint-limit moment of Huston eq. (20.2.1) at angle th, rate thd (range [lo, hi]).
+
+    Inside the range M = 0. Beyond the upper limit, moving on outward (``θ̇ >= 0``),
+    ``M = -k (θ - θmax) - c θ̇``; moving back (``θ̇ < 0``) the "restoring aspect" is off:
+    mode 1 (``'none'``, the equation as printed) ``M = 0``; mode 2 (``'spring'``) ``M = -k (θ -
+    θmax)``, the spring without its damper. Mirror image below the lower limit. (The printed
+    cases leave ``θ̇ = 0`` open; it counts as moving outward, so a joint can rest on its stop.)
+    Its power ``M θ̇`` is never positive in mode 1: the stop only takes energy out.
+    """
+    if th > hi:
+        if thd >= 0.0:
+            return -k * (th - hi) - c * thd
+        return -k * (th - hi) if mode == 2 else 0.0
+    if th < lo:
+        if thd <= 0.0:
+            return -k * (th - lo) - c * thd
+        return -k * (th - lo) if mode == 2 else 0.0
+    return 0.0
+
+
+@njit(**_JIT)
+def rotation_vector(x, y, z, w, out):
+    """Rotation vector φ (3,) of the unit quaternion (x, y, z, w) into out, |φ| <= π; returns the
+    coefficient b of ``J_r⁻¹(φ) = 1 + ½ φ× + b φ×²`` (right Jacobian: ``φ̇ = J_r⁻¹(φ) ω``, ω in the
+    rotated frame), ``b = 1/θ² - (1 + cos θ)/(2 θ sin θ)``, series ``1/12 + θ²/720`` near 0."""
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    sn = math.sqrt(x * x + y * y + z * z)
+    th = 2.0 * math.atan2(sn, w)
+    f = th / sn if sn > 1e-12 else 2.0 / w
+    out[0], out[1], out[2] = f * x, f * y, f * z
+    if th < 1e-3:
+        return 1.0 / 12.0 + th * th / 720.0
+    return 1.0 / (th * th) - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))
+
+
+@njit(**_JIT)
+def limit_forces_add(lim, q, v, tau):
+    """``tau += `` the joint-limit moments of every row of ``lim`` (:func:`robodyn_ros.model.limit_table`).
+
+    A 1-DOF joint: :func:`limit_moment` of ``(q, v)``. A spherical joint: per component of its
+    rotation vector φ (joint frame) with ``φ̇ = J_r⁻¹(φ) ω``; the moments M (conjugate to φ) act
+    on ω as ``J_r⁻ᵀ M`` (same power ``M·φ̇``).
+    """
+    phi = np.empty(3)
+    for r in range(lim.shape[0]):
+        jt = int(lim[r, 0])
+        qi = int(lim[r, 1])
+        vi = int(lim[r, 2])
+        mode = int(lim[r, 3])
+        k = lim[r, 10]
+        c = lim[r, 11]
+        if jt != SPHERICAL:
+            tau[vi] += limit_moment(q[qi], v[vi], lim[r, 4], lim[r, 5], k, c, mode)
+            continue
+        b = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
+        p0, p1, p2 = phi[0], phi[1], phi[2]
+        w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
+        pp = p0 * p0 + p1 * p1 + p2 * p2
+        # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
+        J00, J01, J02 = 1.0 + b * (p0 * p0 - pp), -0.5 * p2 + b * p0 * p1, 0.5 * p1 + b * p0 * p2
+        J10, J11, J12 = 0.5 * p2 + b * p1 * p0, 1.0 + b * (p1 * p1 - pp), -0.5 * p0 + b * p1 * p2
+        J20, J21, J22 = -0.5 * p1 + b * p2 * p0, 0.5 * p0 + b * p2 * p1, 1.0 + b * (p2 * p2 - pp)
+        d0 = J00 * w0 + J01 * w1 + J02 * w2
+        d1 = J10 * w0 + J11 * w1 + J12 * w2
+        d2 = J20 * w0 + J21 * w1 + J22 * w2
+        m0 = limit_moment(p0, d0, lim[r, 4], lim[r, 5], k, c, mode)
+        m1 = limit_moment(p1, d1, lim[r, 6], lim[r, 7], k, c, mode)
+        m2 = limit_moment(p2, d2, lim[r, 8], lim[r, 9], k, c, mode)
+        tau[vi] += J00 * m0 + J10 * m1 + J20 * m2
+        tau[vi + 1] += J01 * m0 + J11 * m1 + J21 * m2
+        tau[vi + 2] += J02 * m0 + J12 * m1 + J22 * m2
+
+
+@njit(**_JIT)
+def limit_forces(lim, q, v, nv):
+    """The joint-limit generalised forces (nv,) alone (:func:`limit_forces_add` on zeros)."""
+    tau = np.zeros(nv)
+    limit_forces_add(lim, q, v, tau)
+    return tau
+
+
+# ----------------------------------------------------------------------------------------------
 # one-call entry points (called from Python)
 # ----------------------------------------------------------------------------------------------
 @njit(**_JIT)
@@ -921,27 +1008,30 @@ def qdot(mi, q, v):
 # fused fixed-step integration of an arm with its work quadrature
 # ----------------------------------------------------------------------------------------------
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, tau_app, nq, nv, z, dz, tauv, W):
-    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v``.
+def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
+    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``.
 
-    tau_app (nv,) = B u held over the call; damping (nv,) = D; tauv (nv,) scratch.
+    tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
+    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch.
     (ArmSystem.rhs and .input_power of the reference path.)
     """
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
+    for k in range(nv):
+        tauv[k] = tau_app[k] - damping[k] * v[k]
+    if lim.shape[0]:
+        limit_forces_add(lim, q, v, tauv)
     P = 0.0
     for k in range(nv):
-        tk = tau_app[k] - damping[k] * v[k]
-        tauv[k] = tk
-        P += v[k] * tk
+        P += v[k] * tauv[k]
     transforms(mi, mf, q, W)
     aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
     dz[nq + nv] = P
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, tau_app, nq, method, z, dt, n_full, h_last):
+def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last):
     """Integrate ``z = [q, v, W]`` in place over ``n_full`` steps of dt and one of h_last (if > 0).
 
     method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
@@ -966,31 +1056,31 @@ def integrate_arm(mi, mf, damping, tau_app, nq, method, z, dt, n_full, h_last):
         h = dt if k < n_full else h_last
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
             for a in range(n):
                 z[a] += K[a] * h
         normalize_into(mi, z[:nq])

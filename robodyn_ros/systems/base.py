@@ -246,7 +246,7 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
     candidates are named in the error message. Returns ``(actuated, B (nv, m), port)`` with
     ``tau = B u``; raises ValueError naming unknown joints.
     """
-    from ..model import REVOLUTE
+    from ..model import PRISMATIC
     candidates = list(candidates)
     actuated = list(candidates if actuated is None else actuated)
     unknown = [j for j in actuated if j not in candidates]
@@ -254,6 +254,6 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
         raise ValueError(f'actuated joints {unknown} are not {what} of {model.name}; {what} are {candidates}')
     B = np.zeros((model.nv, len(actuated)))
     for k, n in enumerate(actuated):
-        B[model.v_idx[model.joint_names.index(n)], k] = 1.0
-    units = sorted({'N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated})
+        B[model.state_index(n)[1], k] = 1.0   # a spherical joint's '<joint>_x/_y/_z': its torque components
+    units = sorted({'N' if model.jtype[model.state_index(n)[0]] == PRISMATIC else 'N·m' for n in actuated})
     return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-')
