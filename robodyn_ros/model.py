@@ -67,8 +67,10 @@ class LinkSpec:
     (rad or m; a spherical joint: three ``(lower, upper)`` pairs, one per component of its
     rotation vector, ±inf allowed). limit_stiffness k, limit_damping c: the joint-limit moments of
     Huston eq. (20.2.1) (:func:`limit_table`; both 0 = limits reported only); limit_return: the
-    moment while the joint moves back toward its range, ``'none'`` (eq. 20.2.1 as printed: M = 0)
-    or ``'spring'`` (``-k (θ - θlim)`` without damping).
+    moment while the joint moves back toward its range, ``'spring'`` (default: ``-k (θ - θlim)``
+    without damping, the law as the issue states it) or ``'none'`` (eq. 20.2.1 as printed: M = 0;
+    a joint that stops beyond its range then stays there, and the right-hand side is
+    discontinuous in θ̇ at rest, which error-controlled integrators resolve only with tiny steps).
     """
 
     name: str
@@ -86,7 +88,7 @@ class LinkSpec:
     origin_R: np.ndarray | None = None  # exact rotation, overrides origin_rpy when given
     limit_stiffness: float = 0.0
     limit_damping: float = 0.0
-    limit_return: str = 'none'
+    limit_return: str = 'spring'
 
 
 @dataclass(frozen=True)
