@@ -246,7 +246,8 @@ class ArmSystem(System):
             odom = {'position': q[q0:q0 + 3].copy(), 'orientation': q[q0 + 3:q0 + 7].copy(),
                     'linear': v[v0 + 3:v0 + 6].copy(), 'angular': v[v0:v0 + 3].copy()}
         return SystemOutputs(joint_names=list(self.joint_names), position=np.array(pos), velocity=v[self._pub_v],
-                             effort=tau_cmd[self._pub_v], wrenches=w, odom=odom, energy=LazyValues(energy))
+                             effort=tau_cmd[self._pub_v], wrenches=w, odom=odom, energy=LazyValues(energy),
+                             odom_child=self.model.link_names[self.free_body] if odom is not None else 'base_link')
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""

@@ -170,7 +170,8 @@ class SystemOutputs:
     joint_names, position, velocity, effort: every joint in ``joint_states`` order;
     wrenches: joint or contact name -> (child frame, (6,) [torque; force] on the child at the
     joint origin in child coordinates); odom: optional dict with 'position' (3,),
-    'orientation' (x, y, z, w), 'linear' (3,) and 'angular' (3,) in base_link;
+    'orientation' (x, y, z, w), 'linear' (3,) and 'angular' (3,) in base_link (the link named by
+    ``odom_child``);
     energy: mapping of named energies (J; may be a :class:`LazyValues`, computed when read);
     extra: other diagnostics values.
     """
@@ -182,6 +183,7 @@ class SystemOutputs:
     wrenches: dict = field(default_factory=dict)
     odom: dict | None = None
     energy: dict = field(default_factory=dict)
+    odom_child: str = 'base_link'   # child_frame_id of odom (the free root's link for a floating tree)
     extra: dict = field(default_factory=dict)
 
 
