@@ -103,6 +103,7 @@ def test_momentum_and_com_velocity_constant_without_stops(scene):
     worst_L = max(np.linalg.norm(L - L0) for _, L, _ in got) / np.linalg.norm(L0)
     worst_c = max(np.linalg.norm(c - (c0 + v0 * t)) / (np.linalg.norm(c0) + np.linalg.norm(v0) * t)
                   for (_, _, c), t in zip(got, times))
+    print(f'momentum over 10 s: p {worst_p:.1e}, L {worst_L:.1e}, CoM {worst_c:.1e} (relative)')
     assert worst_p < 1e-9, worst_p
     assert worst_L < 1e-9, worst_L
     assert worst_c < 1e-9, worst_c
@@ -154,6 +155,8 @@ def test_energy_balance_with_stops(scene):
     assert Wd < 0.0
     assert hit['max_limit_power'] > 1.0
     err = abs(E1 - E0 - (Wt + Wl + Wd)) / scale
+    print(f'energy balance with stops: {err:.1e} of {scale:.3g} J; W_torques {Wt:.4g}, W_limits {Wl:.4g}, '
+          f'W_damping {Wd:.4g} J')
     assert err < 1e-8, err
     p0, L0, _ = sys_._km.momentum(scene.y0[:nq], scene.y0[nq:])
     p1, L1, _ = sys_._km.momentum(z[:nq], z[nq:ny])

@@ -94,6 +94,8 @@ def test_stop_follows_eq_20_2_1_piece_by_piece(ret):
     err_w = np.abs(ys[:, 1] - ref[:, 1])
     # RK4, h = 1e-4 s, ωn h = 1.6e-3; the kinks (entering the stop, turning back) cost O(h)
     assert pre.sum() > 100 and (~pre).sum() > 100
+    print(f'{ret}: before the turn θ {err_th[pre].max():.1e} rad, θ̇ {err_w[pre].max():.1e} rad/s; after θ '
+          f'{err_th[~pre].max():.1e}, θ̇ {err_w[~pre].max():.1e}')
     assert err_th[pre].max() < 2e-5, err_th[pre].max()
     assert err_w[pre].max() < 2e-3 * w0, err_w[pre].max()
     if ret == 'none':   # no restoring moment: the joint rests at its deepest point

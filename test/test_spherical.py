@@ -1,9 +1,10 @@
 """Spherical joints (issue 11): the compiled kernels against Pinocchio, and the joint's conventions.
 
 Pinocchio is the independent oracle: each seeded random tree is built directly in Pinocchio
-(``JointModelSpherical`` for ours, ``JointModelFreeFlyer`` for a free root, unaligned revolute /
-prismatic joints for the rest), body by body from the same placements and inertias — not through
-our URDF export, which writes a spherical joint as three revolute joints. Conventions bridged:
+(:func:`robodyn_ros.bench.pinbridge.pin_model`: ``JointModelSpherical`` for ours,
+``JointModelFreeFlyer`` for a free root, unaligned revolute / prismatic joints for the rest), body
+by body from the same placements and inertias — not through our URDF export, which writes a
+spherical joint as three revolute joints. Conventions bridged:
 
 * spherical joint: q = quaternion (x, y, z, w), v = angular velocity in the child frame — both the
   same in Pinocchio; its ``S = [1; 0]`` is Pinocchio's (linear; angular) ``[0; 1]``;
@@ -20,6 +21,7 @@ import pytest
 
 from robodyn_ros import dynamics as dyn
 from robodyn_ros import kernels
+from robodyn_ros.bench.pinbridge import pin_model
 from robodyn_ros.model import (FREE, PRISMATIC, REVOLUTE, SPHERICAL, SphericalJointError, bryan_angles,
                                random_tree, to_urdf)
 from robodyn_ros.spatial import R_to_quat, quat_to_R
@@ -28,51 +30,6 @@ pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='spherical joints 
 
 TOL = 1e-9
 N_SPH_TREES = 12
-
-
-def pin_model(m):
-    """The robodyn model ``m`` rebuilt joint by joint in Pinocchio; returns ``(pin model, qmap, vmap, jid)``."""
-    pm = pin.Model()
-    pm.gravity.linear = np.asarray(m.gravity, dtype=float)
-    jid = {}
-    qmap = np.empty(m.nq, dtype=int)
-    vmap = np.empty(m.nv, dtype=int)
-    order, stack = [], [i for i in range(m.nb - 1, -1, -1) if m.parent[i] < 0]
-    while stack:   # depth first: Pinocchio's algorithms assume each subtree's v indices are contiguous
-        i = stack.pop()
-        order.append(i)
-        stack += [c for c in range(m.nb - 1, i, -1) if m.parent[c] == i]
-    for i in order:
-        X = m.Xtree[i]
-        E = X[:3, :3]
-        rx = -(E.T @ X[3:, :3])
-        placement = pin.SE3(E.T.copy(), np.array([rx[2, 1], rx[0, 2], rx[1, 0]]))
-        parent = 0 if m.parent[i] < 0 else jid[int(m.parent[i])]
-        jt = int(m.jtype[i])
-        if jt == SPHERICAL:
-            jm = pin.JointModelSpherical()
-        elif jt == FREE:
-            jm = pin.JointModelFreeFlyer()
-        elif jt == REVOLUTE:
-            jm = pin.JointModelRevoluteUnaligned(*m.axis[i])
-        elif jt == PRISMATIC:
-            jm = pin.JointModelPrismaticUnaligned(*m.axis[i])
-        else:
-            raise AssertionError('the random trees here have no fixed joints')
-        j = pm.addJoint(parent, jm, placement, m.joint_names[i])
-        s = m.specs[i]
-        pm.appendBodyToJoint(j, pin.Inertia(float(s.mass), np.asarray(s.com, float), np.asarray(s.inertia, float)),
-                             pin.SE3.Identity())
-        jid[i] = j
-        jmod = pm.joints[j]
-        q0, v0 = m.q_idx[i], m.v_idx[i]
-        qmap[q0:q0 + jmod.nq] = jmod.idx_q + np.arange(jmod.nq)
-        if jt == FREE:
-            vmap[v0:v0 + 6] = jmod.idx_v + np.array([3, 4, 5, 0, 1, 2])
-        else:
-            vmap[v0:v0 + jmod.nv] = jmod.idx_v + np.arange(jmod.nv)
-    assert sorted(qmap) == list(range(m.nq)) and sorted(vmap) == list(range(m.nv))
-    return pm, qmap, vmap, jid
 
 
 def random_state(m, rng):
@@ -154,6 +111,7 @@ def test_spherical_trees_against_pinocchio():
             for i, j in jid.items():
                 errs['pose'].append((max(rel(R[i], pd.oMi[j].rotation), rel(p[i], pd.oMi[j].translation)), where))
     assert n_sph >= 20, n_sph      # the family really exercises the joint
+    print('worst vs Pinocchio:', {k: f'{max(x[0] for x in e):.1e}' for k, e in errs.items()})
     for k, e in errs.items():
         assert len(e) >= 3 * N_SPH_TREES, k
         worst = max(e, key=lambda x: x[0])
@@ -233,3 +191,31 @@ def test_urdf_writes_three_revolute_joints_with_massless_links():
         fid = pm.getFrameId(m.link_names[i])
         worst = max(worst, np.abs(pd.oMf[fid].rotation - R[i]).max(), np.abs(pd.oMf[fid].translation - p[i]).max())
     assert worst < 1e-12, worst
+
+
+def test_human17_scene_against_pinocchio():
+    """The bundled huston_human17 tree (free pelvis, 16 spherical joints) at its initial and at
+    random states: M, RNEA, ABA and joint wrenches equal Pinocchio's to 1e-9."""
+    from robodyn_ros.scene import load_scene
+    m = load_scene('huston_human17').system.model
+    km = kernels.CompiledModel(m)
+    pm, qmap, vmap, jid = pin_model(m)
+    pd = pm.createData()
+    rng = np.random.default_rng(17)
+    worst = {}
+    for s in range(3):
+        q, v, a, tau = random_state(m, rng)
+        qp, vp, ap, taup = np.empty(m.nq), np.empty(m.nv), np.empty(m.nv), np.empty(m.nv)
+        qp[qmap], vp[vmap], ap[vmap], taup[vmap] = q, v, a, tau
+        Mp = pin.crba(pm, pd, qp)
+        Mp = np.triu(Mp) + np.triu(Mp, 1).T
+        worst['M'] = max(worst.get('M', 0), rel(km.crba(q), Mp[np.ix_(vmap, vmap)]))
+        tau_k, f = km.rnea_wrenches(q, v, a)
+        worst['rnea'] = max(worst.get('rnea', 0), rel(tau_k, pin.rnea(pm, pd, qp, vp, ap)[vmap]))
+        fw = max(np.abs(f[i] - np.concatenate([pd.f[j].angular, pd.f[j].linear])).max() for i, j in jid.items())
+        worst['wrench'] = max(worst.get('wrench', 0), fw / max(1.0, max(np.abs(pd.f[j].vector).max()
+                                                                       for j in jid.values())))
+        worst['aba'] = max(worst.get('aba', 0), rel(km.aba(q, v, tau), pin.aba(pm, pd, qp, vp, taup)[vmap]))
+    assert set(worst) == {'M', 'rnea', 'wrench', 'aba'}
+    print('human17 vs Pinocchio:', {k: f'{x:.1e}' for k, x in worst.items()})
+    assert max(worst.values()) < TOL, worst
