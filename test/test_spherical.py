@@ -219,3 +219,58 @@ def test_human17_scene_against_pinocchio():
     assert set(worst) == {'M', 'rnea', 'wrench', 'aba'}
     print('human17 vs Pinocchio:', {k: f'{x:.1e}' for k, x in worst.items()})
     assert max(worst.values()) < TOL, worst
+
+
+_FREE_SCENE = """
+name: ball_on_free_body
+gravity: [0.0, 0.0, 0.0]
+parts:
+  - kind: arm
+    name: pair
+    mount: free
+    links:
+      - {name: body, joint: body_free, parent: odom, type: free, mass: 2.0, inertia: [0.02, 0.03, 0.04, 0, 0, 0]}
+      - {name: limb, joint: ball, parent: body, type: spherical, origin: {xyz: [0.1, 0.0, 0.0]},
+         mass: 0.5, com: [0.0, 0.0, -0.1], inertia: [0.002, 0.002, 0.001, 0, 0, 0],
+         limits: {lower: [-0.5, -0.5, -.inf], upper: [0.5, 0.5, .inf], stiffness: 10.0, damping: 0.1}}
+    actuated: [ball_x, ball_y]
+initial_state:
+  q: [0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+  v: [0.0, 0.0, 1.0, 0.2, 0.0, 0.0, 0.0, 3.0, 0.0]
+"""
+
+
+def test_scene_free_root_spherical_joint_and_limits():
+    """``mount: free`` floats a tree from ``odom``; a spherical joint is actuated by its ``_x/_y``
+    components; its limits mapping takes 3-vectors; odom names the free link; bad keys are refused
+    with the key path."""
+    from robodyn_ros.scene import SceneError, parse_scene
+    from robodyn_ros.simulation import Simulator
+    sc = parse_scene(_FREE_SCENE, 'free.yaml')
+    s = sc.system
+    assert s.model.root == 'odom' and s.model.jtype[0] == FREE and s.model.jtype[1] == SPHERICAL
+    assert s.joint_names == ['ball_x', 'ball_y', 'ball_z'] and s.inputs['effort'].labels == ('ball_x', 'ball_y')
+    assert s.model.specs[1].limits == ((-0.5, 0.5), (-0.5, 0.5), (-np.inf, np.inf))
+    sim = Simulator(s, sc.y0, integrator='rk4', dt=1e-3)
+    sim.set_command('effort', [0.0, 0.0])
+    swing = []
+    for k in range(1, 101):
+        sim.advance(0.01 * k)
+        swing.append(sim.outputs(wrenches=False).position[1])
+    out = sim.outputs()
+    assert 0.5 < max(np.abs(swing)) < 1.2, max(np.abs(swing))   # thrown at 3 rad/s into its ±0.5 stop, held
+    assert out.odom_child == 'body' and out.odom['position'][0] != 0.0
+    assert np.linalg.norm(out.odom['orientation']) == pytest.approx(1.0, abs=1e-12)
+    assert len(out.position) == 3
+    assert abs(sim.energy_report()['relative_drift']) < 1e-4   # RK4 1 ms through the stop's kinks: 6e-6
+    assert 'floating' not in s.urdf() and s.urdf().count('type="revolute"') == 3
+    for bad, where in ((_FREE_SCENE.replace('    mount: free\n', ''), 'parts[0].links[0].type'),
+                       (_FREE_SCENE.replace('type: spherical, origin', 'type: spherical, axis: [0, 0, 1], origin'),
+                        'parts[0].links[1].axis'),
+                       (_FREE_SCENE.replace('[-0.5, -0.5, -.inf]', '[-0.5, -0.5]'), 'parts[0].links[1].limits.lower'),
+                       (_FREE_SCENE.replace('damping: 0.1}', 'damping: 0.1, return: bounce}'),
+                        'parts[0].links[1].limits.return'),
+                       (_FREE_SCENE.replace('[ball_x, ball_y]', '[ball]'), 'parts[0].actuated[0]')):
+        with pytest.raises(SceneError) as e:
+            parse_scene(bad, 'free.yaml')
+        assert str(e.value).startswith(f'free.yaml: {where}:'), str(e.value)
