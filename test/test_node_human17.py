@@ -20,6 +20,7 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ros_helpers import Domain, RosClient, start_sim  # noqa: E402
+from test_node_freeflyer import _read  # noqa: E402  (mcap + mcap_ros2 decoder: topic -> [(t, msg)])
 
 PERIODS = 80                # 0.8 s at the scene's 100 Hz
 PUSH = [3.0, 0.0, 0.0, -3.0, 0.0, 0.0]   # both arms abducted (the scene's first command)
@@ -51,16 +52,6 @@ def run(tmp_path_factory):
         client.close()
         node.cleanup()
         dom.release()
-
-
-def _read(path):
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    out = {}
-    with open(path, 'rb') as f:
-        for _, channel, message, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-            out.setdefault(channel.topic, []).append((message.log_time, msg))
-    return out
 
 
 def test_recording_complete_and_read_by_rosbags(run):
