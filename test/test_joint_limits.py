@@ -191,3 +191,27 @@ def test_bad_limit_data_refused():
                               limit_stiffness=1.0)])
     with pytest.raises(ValueError, match='compiled kernels only'):
         ArmSystem(one_joint().model, backend='numpy')
+
+
+def test_dh_scene_limits_mapping_gives_limit_moments():
+    """A DH row's ``limits: {lower, upper, stiffness, damping}`` reaches the model's limit table; the
+    list form stays reported only."""
+    from robodyn_ros.model import limit_table
+    from robodyn_ros.scene import parse_scene
+    text = """
+name: dh_stop
+parts:
+  - kind: arm
+    name: arm
+    dh:
+      convention: standard
+      links:
+        - {type: revolute, a: 0.5, alpha: 0.0, d: 0.0, theta: 0.0, mass: 1.0, com: [-0.25, 0, 0],
+           limits: {lower: -1.0, upper: 1.0, stiffness: 40.0, damping: 0.5, return: none}}
+        - {type: revolute, a: 0.5, alpha: 0.0, d: 0.0, theta: 0.0, mass: 1.0, com: [-0.25, 0, 0], limits: [-2.0, 2.0]}
+"""
+    m = parse_scene(text, 'dh.yaml').system.model
+    lim = limit_table(m)
+    assert lim.shape == (1, 12)
+    assert tuple(lim[0, [3, 4, 5, 10, 11]]) == (1.0, -1.0, 1.0, 40.0, 0.5)   # mode 1 = 'none'
+    assert m.specs[1].limits == (-2.0, 2.0) and m.specs[1].limit_stiffness == 0.0
