@@ -511,6 +511,11 @@ def section_rtf(args, names) -> str:
                          'carry, so no Pinocchio/MuJoCo equivalent')
         else:
             q0, v0 = scene.y0[:model.nq], scene.y0[model.nq:]
+            if model.has_spherical:   # Pinocchio's joint order and free-joint (linear, angular) velocity
+                from .pinbridge import pin_model
+                _, qmap, vmap, _ = pin_model(model)
+                q0, v0 = np.empty_like(q0), np.empty_like(v0)
+                q0[qmap], v0[vmap] = scene.y0[:model.nq], scene.y0[model.nq:]
             pin_md, why = _pin_model(model)
             if pin_md is not None:
                 pm, pd = pin_md
