@@ -1,6 +1,8 @@
 """Rigid-body dynamics on ``(model, q, v)``: RNEA, CRBA, ABA, joint wrenches, energy, momentum.
 
-These are the reference kernels: plain numpy on the model's arrays, book notation
+These are the reference kernels (for revolute, prismatic, fixed and free joints; a model with a
+spherical joint is refused with ``model.SphericalJointError`` — the compiled kernels of
+:mod:`robodyn_ros.kernels` are its only implementation): plain numpy on the model's arrays, book notation
 (Featherstone 2008: ``Xup, S, vJ, c, IC, IA, pA, U, d, u``), one loop per pass and no per-body
 Python objects, so that they can be compiled without a rewrite. Shapes:
 
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import FREE, Model, jcalc
+from .model import FREE, Model, jcalc, refuse_spherical
 from .spatial import crf, crm, inertia_parts, quat_exp, quat_mul, quat_to_R, xinv
 
 __all__ = ['joint_transforms', 'rnea', 'rnea_wrenches', 'crba', 'bias_forces', 'aba', 'fd_crba',
@@ -30,6 +32,7 @@ def joint_transforms(model: Model, q):
     model: the tree; q: (nq,) configuration. Returns ``(Xup, S)`` where ``S`` (6, nv) holds
     every joint's subspace columns in its own body coordinates (column block ``v_idx[i]``).
     """
+    refuse_spherical(model, 'joint_transforms')
     nb = model.nb
     Xup = np.empty((nb, 6, 6))
     S = np.zeros((6, model.nv))
@@ -293,6 +296,7 @@ def qdot(model: Model, q, v):
     """
     if model.nq == model.nv:
         return np.array(v, dtype=float)
+    refuse_spherical(model, 'qdot')
     qd = np.empty(model.nq)
     for i in range(model.nb):
         q0, v0 = model.q_idx[i], model.v_idx[i]
@@ -313,6 +317,7 @@ def integrate_configuration(model: Model, q, v, dt):
     rotation at the start of the step, first order), quaternions are multiplied by
     ``exp(w dt)`` and renormalised; other joints add ``v dt``.
     """
+    refuse_spherical(model, 'integrate_configuration')
     qn = np.array(q, dtype=float)
     for i in range(model.nb):
         q0, v0 = model.q_idx[i], model.v_idx[i]
@@ -330,6 +335,7 @@ def normalize_configuration(model: Model, q):
     """Renormalise the quaternions of free joints in ``q`` (nq,); a projection onto the manifold."""
     if model.nq == model.nv:
         return q
+    refuse_spherical(model, 'normalize_configuration')
     q = np.array(q, dtype=float)
     for i in range(model.nb):
         if model.jtype[i] == FREE:

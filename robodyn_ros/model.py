@@ -12,10 +12,15 @@ names and frames agree between the simulator, ``joint_states`` and ``robot_descr
 
 Joint codes: ``FIXED`` (no DOF), ``REVOLUTE`` and ``PRISMATIC`` (1 DOF about/along ``axis`` in
 the joint frame), ``FREE`` (a 6-DOF floating joint: ``q = [p (3, parent coords), quat (x, y, z,
-w)]``, ``v = body twist [w; v] in body coordinates``).
+w)]``, ``v = body twist [w; v] in body coordinates``), ``SPHERICAL`` (a 3-DOF ball joint
+anywhere in the tree: ``q = quat (x, y, z, w)`` of the child frame in the joint frame, ``v =`` the
+child's angular velocity relative to the parent, in child coordinates; ``S = [1; 0]``). The
+spherical joint is computed by the compiled kernels only (:mod:`robodyn_ros.kernels`); the numpy
+reference (:mod:`robodyn_ros.dynamics`) refuses it with :class:`SphericalJointError`.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -23,11 +28,13 @@ import numpy as np
 
 from .spatial import (R_to_rpy, mcI, plux, quat_to_R, rot_axis, rotx, rotz, rpy_to_R, skew)
 
-FIXED, REVOLUTE, PRISMATIC, FREE = 0, 1, 2, 3
-JOINT_TYPES = {'fixed': FIXED, 'revolute': REVOLUTE, 'prismatic': PRISMATIC, 'free': FREE}
+FIXED, REVOLUTE, PRISMATIC, FREE, SPHERICAL = 0, 1, 2, 3, 4
+JOINT_TYPES = {'fixed': FIXED, 'revolute': REVOLUTE, 'prismatic': PRISMATIC, 'free': FREE, 'spherical': SPHERICAL}
 JOINT_NAMES = {v: k for k, v in JOINT_TYPES.items()}
-_NQ = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 7}
-_NV = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 6}
+_NQ = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 7, SPHERICAL: 4}
+_NV = {FIXED: 0, REVOLUTE: 1, PRISMATIC: 1, FREE: 6, SPHERICAL: 3}
+#: suffixes of the three published components of a spherical joint (joint_states, URDF export)
+SPHERICAL_AXES = ('_x', '_y', '_z')
 
 
 #: joint-name suffixes of the three joints of a planar composite, in q order
@@ -38,6 +45,20 @@ class ModelError(ValueError):
     """A kinematic tree that cannot be built; the message names the link/joint and the reason."""
 
 
+class SphericalJointError(NotImplementedError):
+    """The numpy reference was asked to compute a model with spherical joints (kernels only)."""
+
+
+def refuse_spherical(model, what: str):
+    """Raise :class:`SphericalJointError` when ``model`` has a spherical joint (numpy reference paths)."""
+    if np.any(model.jtype == SPHERICAL):
+        j = [model.joint_names[i] for i in range(model.nb) if model.jtype[i] == SPHERICAL]
+        raise SphericalJointError(
+            f'{model.name}: {what} of the numpy reference does not implement spherical joints ({j[:3]}...); '
+            "they are computed by the compiled kernels only: use backend 'numba' "
+            '(robodyn_ros.kernels.CompiledModel)')
+
+
 @dataclass
 class LinkSpec:
     """One body and the joint that connects it to its parent.
@@ -46,7 +67,14 @@ class LinkSpec:
     frame); joint_type: 'revolute' | 'prismatic' | 'fixed' | 'free'; origin_xyz, origin_rpy:
     joint frame in the parent link frame at q = 0 (URDF convention); axis: (3,) joint axis in
     the joint frame; mass (kg), com (3,) in the link frame, inertia (3, 3) about the com in link
-    axes; damping: viscous joint damping (N·m·s/rad or N·s/m); limits: optional (lower, upper).
+    axes; damping: viscous joint damping (N·m·s/rad or N·s/m); limits: optional (lower, upper)
+    (rad or m; a spherical joint: three ``(lower, upper)`` pairs, one per component of its
+    rotation vector, ±inf allowed). limit_stiffness k, limit_damping c: the joint-limit moments of
+    Huston eq. (20.2.1) (:func:`limit_table`; both 0 = limits reported only); limit_return: the
+    moment while the joint moves back toward its range, ``'spring'`` (default: ``-k (θ - θlim)``
+    without damping, the law as the issue states it) or ``'none'`` (eq. 20.2.1 as printed: M = 0;
+    a joint that stops beyond its range then stays there, and the right-hand side is
+    discontinuous in θ̇ at rest, which error-controlled integrators resolve only with tiny steps).
     friction: Coulomb joint friction (N·m or N; regularised, see :mod:`robodyn_ros.urdf`);
     effort_limit: optional largest |effort| (N·m or N) an actuator may apply (commands are
     clamped); visuals: URDF ``<visual>`` elements (XML text) exported as given (imported URDFs),
@@ -69,6 +97,9 @@ class LinkSpec:
     friction: float = 0.0
     effort_limit: float | None = None
     visuals: tuple = ()
+    limit_stiffness: float = 0.0
+    limit_damping: float = 0.0
+    limit_return: str = 'spring'
 
 
 @dataclass(frozen=True)
@@ -142,7 +173,40 @@ class Model:
         for i in range(self.nb):
             if self.jtype[i] == FREE:
                 q[self.q_idx[i] + 6] = 1.0
+            elif self.jtype[i] == SPHERICAL:
+                q[self.q_idx[i] + 3] = 1.0
         return q
+
+    def state_index(self, name: str) -> tuple:
+        """``(body, v index)`` of a ``joint_states`` entry (:attr:`state_joint_names`); ValueError if unknown."""
+        if name in self.joint_names:
+            i = self.joint_names.index(name)
+            if self.jtype[i] in (REVOLUTE, PRISMATIC):
+                return i, int(self.v_idx[i])
+        for k, suf in enumerate(SPHERICAL_AXES):
+            if name.endswith(suf) and name[:-2] in self.joint_names:
+                i = self.joint_names.index(name[:-2])
+                if self.jtype[i] == SPHERICAL:
+                    return i, int(self.v_idx[i]) + k
+        raise ValueError(f'{name!r} is not a joint_states entry of {self.name}; entries are {self.state_joint_names}')
+
+    @property
+    def has_spherical(self) -> bool:
+        """True when a joint is SPHERICAL (then only the compiled kernels compute the model)."""
+        return bool(np.any(self.jtype == SPHERICAL))
+
+    @property
+    def state_joint_names(self) -> list:
+        """Names of the ``joint_states`` entries, in v order: a 1-DOF joint's own name, and
+        ``<joint>_x``, ``<joint>_y``, ``<joint>_z`` for a spherical joint (its Bryan angles, the
+        three revolute joints of the URDF export). A FREE joint is not listed (odom publishes it)."""
+        out = []
+        for i in range(self.nb):
+            if self.jtype[i] in (REVOLUTE, PRISMATIC):
+                out.append(self.joint_names[i])
+            elif self.jtype[i] == SPHERICAL:
+                out += [self.joint_names[i] + a for a in SPHERICAL_AXES]
+        return out
 
     def with_gravity(self, gravity) -> 'Model':
         """A copy of the model with another gravity vector (3,) in the root frame."""
@@ -173,6 +237,9 @@ def jcalc(jtype, axis, qj):
     if jtype == FREE:
         R = quat_to_R(qj[3:7])
         return plux(R.T, qj[:3]), np.eye(6)
+    if jtype == SPHERICAL:
+        raise SphericalJointError('jcalc: the spherical joint is computed by the compiled kernels only '
+                                  "(robodyn_ros.kernels); use backend 'numba'")
     return np.eye(6), np.zeros((6, 0))
 
 
@@ -193,6 +260,52 @@ def _check_inertia(spec: LinkSpec, where: str):
     if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()):
         raise ModelError(f'{where}: principal moments {ev.tolist()} violate the triangle inequality '
                          '(no physical body has them)')
+
+
+#: ``limit_return`` values -> mode codes of :func:`limit_table` (kernels.core.limit_moment)
+LIMIT_RETURNS = {'none': 1, 'spring': 2}
+
+
+def _check_limits(s: LinkSpec, jt: int, where: str):
+    """Refuse limit data that do not fit the joint (shape, order, signs, unknown return mode)."""
+    if s.limit_return not in LIMIT_RETURNS:
+        raise ModelError(f'{where}: limit_return must be one of {sorted(LIMIT_RETURNS)}, got {s.limit_return!r}')
+    for name in ('limit_stiffness', 'limit_damping'):
+        x = getattr(s, name)
+        if not np.isfinite(x) or x < 0.0:
+            raise ModelError(f'{where}: {name} must be finite and >= 0, got {x!r}')
+    if s.limits is None:
+        if s.limit_stiffness or s.limit_damping:
+            raise ModelError(f'{where}: limit stiffness/damping given without limits')
+        return
+    if jt not in (REVOLUTE, PRISMATIC, SPHERICAL):
+        raise ModelError(f'{where}: only revolute, prismatic and spherical joints take limits')
+    pairs = np.asarray(s.limits, dtype=float).reshape(-1, 2) if np.size(s.limits) in (2, 6) else None
+    if pairs is None or len(pairs) != (3 if jt == SPHERICAL else 1):
+        raise ModelError(f'{where}: limits must be (lower, upper)' +
+                         (' per rotation-vector component, 3 pairs' if jt == SPHERICAL else '') + f', got {s.limits!r}')
+    for lo, hi in pairs:
+        if np.isnan(lo) or np.isnan(hi) or not lo < hi:
+            raise ModelError(f'{where}: limits need lower < upper, got {s.limits!r}')
+
+
+def limit_table(model) -> np.ndarray:
+    """The joints with limit moments as rows ``[jtype, q index, v index, mode, lo0, hi0, lo1, hi1, lo2, hi2,
+    k, c]`` (float (nl, 12)) for :func:`robodyn_ros.kernels.core.limit_forces_add`; a 1-DOF joint uses
+    pair 0, a spherical joint its three rotation-vector components. Joints whose limits have neither
+    stiffness nor damping are left out (reported only)."""
+    rows = []
+    for i, s in enumerate(model.specs):
+        if s.limits is None or not (s.limit_stiffness or s.limit_damping):
+            continue
+        pairs = np.full((3, 2), np.inf)
+        pairs[:, 0] = -np.inf
+        lim = np.asarray(s.limits, dtype=float).reshape(-1, 2)
+        pairs[:len(lim)] = lim
+        rows.append([float(model.jtype[i]), float(model.q_idx[i]), float(model.v_idx[i]),
+                     float(LIMIT_RETURNS[s.limit_return]), *pairs.reshape(-1), float(s.limit_stiffness),
+                     float(s.limit_damping)])
+    return np.ascontiguousarray(np.array(rows, dtype=float).reshape(-1, 12))
 
 
 def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robot',
@@ -277,6 +390,7 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
             raise ModelError(f'{where}: friction must be finite and >= 0, got {s.friction!r}')
         if s.effort_limit is not None and not (np.isfinite(s.effort_limit) and s.effort_limit > 0.0):
             raise ModelError(f'{where}: effort limit must be a finite number > 0, got {s.effort_limit!r}')
+        _check_limits(s, jt, where)
         specs.append(s)
     q_idx = np.concatenate([[0], np.cumsum(nq_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
     v_idx = np.concatenate([[0], np.cumsum(nv_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
@@ -456,19 +570,22 @@ def to_urdf(model: Model) -> str:
                 out.append(f'    {v}')
         out.append('  </link>')
         jt = int(model.jtype[i])
-        kind = {FIXED: 'fixed', REVOLUTE: 'revolute', PRISMATIC: 'prismatic', FREE: 'floating'}[jt]
         parent = model.root if model.parent[i] < 0 else model.link_names[model.parent[i]]
         E = model.Xtree[i][:3, :3]
         R = E.T
         p = -(E.T @ model.Xtree[i][3:, :3])  # skew(r) = -E^T X[3:, :3]
         r = np.array([p[2, 1], p[0, 2], p[1, 0]])
+        if jt == SPHERICAL:
+            out += _spherical_urdf(s, parent, f(r), f(R_to_rpy(R)))
+            continue
+        kind = {FIXED: 'fixed', REVOLUTE: 'revolute', PRISMATIC: 'prismatic', FREE: 'floating'}[jt]
         out.append(f'  <joint name="{s.joint}" type="{kind}">')
         out.append(f'    <parent link="{parent}"/>')
         out.append(f'    <child link="{s.name}"/>')
         out.append(f'    <origin xyz="{f(r)}" rpy="{f(R_to_rpy(R))}"/>')
         if jt in (REVOLUTE, PRISMATIC):
             out.append(f'    <axis xyz="{f(model.axis[i])}"/>')
-            lo, hi = s.limits if s.limits is not None else (-1e4, 1e4)
+            lo, hi = np.ravel(s.limits) if s.limits is not None else (-1e4, 1e4)
             eff = float(s.effort_limit) if s.effort_limit is not None else 1e6
             out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="{eff!r}" velocity="1e6"/>')
             if s.damping or s.friction:
@@ -478,11 +595,58 @@ def to_urdf(model: Model) -> str:
     return '\n'.join(out) + '\n'
 
 
-def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0, -9.81)):
-    """A random tree of ``nb`` 1-DOF bodies with physical inertias, for tests and benchmarks.
+def spherical_link_names(spec) -> tuple:
+    """The two massless intermediate links of a spherical joint's URDF export (after _x, after _y)."""
+    return (f'{spec.joint}_x_link', f'{spec.joint}_y_link')
+
+
+def _spherical_urdf(s, parent, xyz, rpy) -> list:
+    """URDF lines of a spherical joint: three revolute joints ``<joint>_x``, ``_y``, ``_z`` about the
+    joint frame's x, then the new y, then the new z axis, joined by two massless links
+    (:func:`spherical_link_names`). Their angles are the Bryan angles of Huston eq. (20.3.2),
+    ``R = Rx(α) Ry(β) Rz(γ)``, which ``joint_states`` publishes (:func:`bryan_angles`)."""
+    lx, ly = spherical_link_names(s)
+    out = [f'  <link name="{lx}"/>', f'  <link name="{ly}"/>']
+    chain = ((parent, lx, xyz, rpy, '1 0 0'), (lx, ly, '0 0 0', '0 0 0', '0 1 0'),
+             (ly, s.name, '0 0 0', '0 0 0', '0 0 1'))
+    for (pa, ch, o_xyz, o_rpy, ax), suf in zip(chain, SPHERICAL_AXES):
+        out += [f'  <joint name="{s.joint}{suf}" type="revolute">', f'    <parent link="{pa}"/>',
+                f'    <child link="{ch}"/>', f'    <origin xyz="{o_xyz}" rpy="{o_rpy}"/>', f'    <axis xyz="{ax}"/>',
+                '    <limit lower="-10000.0" upper="10000.0" effort="1e6" velocity="1e6"/>', '  </joint>']
+    return out
+
+
+def bryan_angles(quat) -> tuple:
+    """Bryan angles ``(α, β, γ)`` with ``R(quat) = Rx(α) Ry(β) Rz(γ)`` (Huston eq. 20.3.2), quat (x, y, z, w).
+
+    β in [-π/2, π/2] from the first row; α from the third column; γ from the rotation left after
+    ``Rx(α) Ry(β)``, so the three angles rebuild R to rounding even at the gimbal lock β = ±π/2
+    (where α and γ are not unique). Plain floats: runs at every publication.
+    """
+    x, y, z, w = (float(c) for c in quat)
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / n, y / n, z / n, w / n
+    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+    r10, r20 = 2 * (x * y + z * w), 2 * (x * z - y * w)
+    r12, r22 = 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)
+    b = math.atan2(r02, math.hypot(r00, r01))   # first row [cβ cγ, -cβ sγ, sβ]; asin(r02) loses digits at ±π/2
+    a = math.atan2(-r12, r22)
+    # residual Rz(γ) = (Rx(α) Ry(β))ᵀ R: γ from its first column
+    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+    # rows of (Rx(α) Ry(β))ᵀ: [cb, sa sb, -ca sb], [0, ca, sa]
+    c00 = cb * r00 + sa * sb * r10 - ca * sb * r20
+    c10 = ca * r10 + sa * r20
+    return a, b, math.atan2(c10, c00)
+
+
+def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0, -9.81), spherical_fraction=0.0,
+                free_root=False):
+    """A random tree of ``nb`` bodies with physical inertias, for tests and benchmarks.
 
     nb: number of bodies; rng: ``numpy.random.Generator`` (seeded by the caller);
-    prismatic_fraction: share of prismatic joints; chain: a serial chain instead of a tree.
+    prismatic_fraction: share of prismatic joints; chain: a serial chain instead of a tree;
+    spherical_fraction: share of spherical joints (drawn first; default none, so the random
+    stream of 1-DOF trees is unchanged); free_root: body 0 on a FREE joint.
     """
     specs = []
     for i in range(nb):
@@ -491,15 +655,21 @@ def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0,
         ev = np.sort(rng.uniform(0.01, 0.2, size=3))
         ev[2] = min(ev[2], ev[0] + ev[1] - 1e-3)  # triangle inequality of principal moments
         Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        if free_root and i == 0:
+            jt = 'free'
+        elif spherical_fraction and rng.random() < spherical_fraction:
+            jt = 'spherical'
+        else:
+            jt = 'prismatic' if rng.random() < prismatic_fraction else 'revolute'
         specs.append(LinkSpec(
-            name=f'l{i}', joint=f'j{i}', parent=p,
-            joint_type='prismatic' if rng.random() < prismatic_fraction else 'revolute',
+            name=f'l{i}', joint=f'j{i}', parent=p, joint_type=jt,
             origin_xyz=tuple(rng.uniform(-0.5, 0.5, size=3)), origin_rpy=tuple(rng.uniform(-np.pi, np.pi, size=3)),
             axis=tuple(ax / np.linalg.norm(ax)), mass=float(rng.uniform(0.5, 3.0)),
             com=tuple(rng.uniform(-0.2, 0.2, size=3)), inertia=Q @ np.diag(ev) @ Q.T))
     return build_model(specs, gravity=gravity, name=f'random{nb}')
 
 
-__all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
-           'jcalc', 'build_model', 'dh_links', 'to_urdf', 'inertia_visual', 'random_tree', 'skew',
-           'PLANAR_SUFFIXES', 'planar_links', 'planar_root']
+__all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'SPHERICAL', 'SPHERICAL_AXES', 'SphericalJointError',
+           'refuse_spherical', 'LIMIT_RETURNS', 'limit_table', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
+           'jcalc', 'build_model', 'bryan_angles', 'spherical_link_names', 'dh_links', 'to_urdf', 'inertia_visual',
+           'random_tree', 'skew', 'PLANAR_SUFFIXES', 'planar_links', 'planar_root']

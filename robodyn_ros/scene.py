@@ -29,7 +29,7 @@ A scene is one YAML mapping (unknown keys anywhere are errors, so typos never pa
     stop_when: {com_z_below: -10.0}       # optional: end the run at the first publication where
                                           # it holds (STOP_CONDITIONS; planar bases have a CoM)
 
-Link data: ``type`` revolute | prismatic (| fixed | planar for explicit links); ``mass`` kg (>= 0);
+Link data: ``type`` revolute | prismatic (| fixed | planar | spherical | free for explicit links); ``mass`` kg (>= 0);
 ``com`` (3,) m; ``inertia`` about the centre of mass, either ``[[ixx, ixy, ixz], [..], [..]]``
 or ``[ixx, iyy, izz, ixy, ixz, iyz]`` (kg·m²), symmetric positive semi-definite with principal
 moments obeying the triangle inequality (a slender bar's zero axial moment is allowed).
@@ -48,6 +48,27 @@ The part is then a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem`: ``odom
 link's pose, ``joint_states`` the inner joints, q/v the three base coordinates then the inner
 joints; ``actuated`` may name inner joints only. The ``pfl`` command profile (partial feedback
 linearisation to a posture and back, :mod:`robodyn_ros.pfl`) drives such a tree.
+
+Joint-limit moments: the mapping form ``limits: {lower, upper, stiffness, damping, return}``
+adds the joint-limit moments of
+Huston eq. (20.2.1) (:func:`robodyn_ros.kernels.core.limit_moment`): zero inside, beyond a limit
+``-k (θ - θlim) - c θ̇`` while moving outward; moving back ``return: spring`` (default: the spring
+without its damper) or ``none`` (the equation as printed: no moment at all — a joint that stops
+beyond its range stays there, and error-controlled integrators crawl through the switching). stiffness k (N·m/rad or
+N/m) and damping c (N·m·s/rad or N·s/m) default to 0; both 0 = reported only.
+
+Spherical joints (explicit links, ``type: spherical``, no axis): q is a unit quaternion
+``[x, y, z, w]`` of the child frame in the joint frame, v its angular velocity in the child frame
+(3); ``joint_states`` names ``<joint>_x/_y/_z`` (Bryan angles, see
+:mod:`robodyn_ros.systems.arm`), which are also the names to list in ``actuated`` (torque
+components about the child axes). Their ``limits`` mapping takes ``lower``/``upper`` as 3-vectors,
+one per component of the joint's rotation vector φ (rad, joint frame; ``.inf`` for none).
+
+Free root (``mount: free``): the tree floats; ``root`` defaults to ``odom`` and the one link whose
+parent is the root frame has ``type: free`` (no origin, axis or limits); q starts with that
+link's pose ``[x, y, z, qx, qy, qz, qw]`` in odom, v with its twist ``[ωx, ωy, ωz, vx, vy, vz]``
+in its own frame; ``odom`` publishes it. Trees with spherical joints or limit moments need the
+compiled kernels (backend numba; 'generated' falls back to them).
 
 Errors: every defect raises :class:`SceneError` (a ValueError) with the message
 ``<file>: <key path>: <reason>``, e.g. ``arm.yaml: parts[0].dh.links[2].mass: missing key``;
@@ -331,15 +352,51 @@ _DH_ROW_REQUIRED = ('type', 'a', 'alpha', 'd', 'theta', 'mass')
 _DH_ROW_OPTIONAL = ('com', 'inertia', 'damping', 'limits', 'effort_limit')
 _LINK_REQUIRED = ('name', 'joint', 'parent', 'type')
 _LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits', 'effort_limit')
+_LIMIT_KEYS = ('lower', 'upper', 'stiffness', 'damping', 'return')
 _ARM_REQUIRED = ('kind', 'name')
 _ARM_OPTIONAL = ('mount', 'origin', 'root', 'dh', 'tool', 'links', 'link_names', 'joint_names', 'actuated')
 #: ModelError wording -> the link key it is about (for mapping model errors to key paths)
-_MODEL_ERROR_KEYS = (('parent', 'parent'), ('mass', 'mass'), ('inertia', 'inertia'),
+_MODEL_ERROR_KEYS = (('limit', 'limits'), ('parent', 'parent'), ('mass', 'mass'), ('inertia', 'inertia'),
                      ('principal moments', 'inertia'), ('axis', 'axis'), ('damping', 'damping'),
                      ('origin', 'origin'), ('joint type', 'type'), ('duplicate link name', 'name'))
 
 
-def _inertial(ctx: SceneContext, row: dict, path: str) -> dict:
+def _joint_limits(ctx: SceneContext, v, path: str, spherical: bool = False) -> dict:
+    """LinkSpec limit fields from ``[lo, hi]`` (reported only) or ``{lower, upper, stiffness, damping,
+    return}`` (eq. 20.2.1 moments; a spherical joint's lower/upper are 3-vectors)."""
+    from .model import LIMIT_RETURNS
+    if not isinstance(v, dict):
+        if spherical:
+            ctx.fail(path, 'a spherical joint takes limits: {lower: [3], upper: [3], stiffness, damping, return}')
+        return {'limits': ctx.limits(v, path)}
+    ctx.mapping(v, path, required=('lower', 'upper'), optional=_LIMIT_KEYS[2:])
+    if spherical:
+        def vec(k):
+            if not isinstance(v[k], list) or len(v[k]) != 3:
+                ctx.fail(_key(path, k), f'expected 3 values (one per rotation-vector component), got {v[k]!r}')
+            out = []
+            for i, x in enumerate(v[k]):
+                if isinstance(x, float) and math.isinf(x):
+                    out.append(x)
+                else:
+                    out.append(ctx.number(x, _key(_key(path, k), i)))
+            return out
+        lo, hi = vec('lower'), vec('upper')
+        for i in range(3):
+            if not lo[i] < hi[i]:
+                ctx.fail(_key(_key(path, 'lower'), i), f'lower limit {lo[i]!r} must be below upper limit {hi[i]!r}')
+        lim = tuple(zip(lo, hi))
+    else:
+        lim = ctx.limits([v['lower'], v['upper']], path)
+    ret = ctx.string(v.get('return', 'spring'), _key(path, 'return'))
+    if ret not in LIMIT_RETURNS:
+        ctx.fail(_key(path, 'return'), f'unknown return mode {ret!r}; use {" or ".join(LIMIT_RETURNS)}')
+    return {'limits': lim, 'limit_return': ret,
+            'limit_stiffness': ctx.number(v.get('stiffness', 0.0), _key(path, 'stiffness'), minimum=0.0),
+            'limit_damping': ctx.number(v.get('damping', 0.0), _key(path, 'damping'), minimum=0.0)}
+
+
+def _inertial(ctx: SceneContext, row: dict, path: str, spherical: bool = False) -> dict:
     """Mass, com, inertia, damping, limits of a link mapping (shared by DH and explicit links)."""
     out = {}
     if 'mass' in row:
@@ -354,7 +411,7 @@ def _inertial(ctx: SceneContext, row: dict, path: str) -> dict:
     if 'damping' in row:
         out['damping'] = ctx.number(row['damping'], _key(path, 'damping'), minimum=0.0)
     if 'limits' in row:
-        out['limits'] = ctx.limits(row['limits'], _key(path, 'limits'))
+        out.update(_joint_limits(ctx, row['limits'], _key(path, 'limits'), spherical))
     if 'effort_limit' in row:  # actuator limit: commands are clamped to ±effort_limit (and counted)
         out['effort_limit'] = ctx.number(row['effort_limit'], _key(path, 'effort_limit'), positive=True)
     return out
@@ -398,6 +455,10 @@ def _dh_specs(ctx: SceneContext, spec: dict, path: str, root: str):
     if tool and convention != 'standard':
         ctx.fail(_key(path, 'tool'), 'the tool frame is only defined for standard DH (it is DH frame n)')
     specs = dh_links(rows, convention=convention, names=list(zip(lnames, jnames)), root=root, tool=tool)
+    for sp, row in zip(specs, rows):   # eq. 20.2.1 limit moments of a limits mapping
+        for k in ('limit_stiffness', 'limit_damping', 'limit_return'):
+            if k in row:
+                setattr(sp, k, row[k])
     if tool:
         if 'tool' in lnames or 'tool_joint' in jnames:
             ctx.fail(_key(path, 'link_names'), "'tool'/'tool_joint' are reserved for the standard-DH tool frame")
@@ -405,7 +466,7 @@ def _dh_specs(ctx: SceneContext, spec: dict, path: str, root: str):
     return specs, paths
 
 
-def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
+def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str, free: bool = False):
     """LinkSpecs and per-link key paths of an arm given by explicit (URDF-like) links."""
     for k in ('link_names', 'joint_names', 'tool'):
         if k in spec:
@@ -418,13 +479,21 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
     for i, r in enumerate(items):
         rp = _key(lpath, i)
         ctx.mapping(r, rp, required=_LINK_REQUIRED, optional=_LINK_OPTIONAL)
-        jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed', 'planar'))
+        jt = _joint_type(ctx, r['type'], _key(rp, 'type'), ('revolute', 'prismatic', 'fixed', 'planar', 'spherical',
+                                                             'free'))
         T = ctx.pose(r['origin'], _key(rp, 'origin')) if 'origin' in r else np.eye(4)
         axis = ctx.vector(r['axis'], _key(rp, 'axis'), 3) if 'axis' in r else np.array([0.0, 0.0, 1.0])
         if jt in ('fixed', 'planar') and any(k in r for k in ('axis', 'limits', 'damping', 'effort_limit')):
             ctx.fail(rp, f'a {jt} joint takes no axis, limits, damping or effort_limit')
+        if jt == 'spherical' and 'axis' in r:
+            ctx.fail(_key(rp, 'axis'), 'a spherical joint has no axis')
         parent = ctx.string(r['parent'], _key(rp, 'parent'))
-        inert = _inertial(ctx, r, rp)
+        if jt == 'free' and (not free or parent != root):
+            ctx.fail(_key(rp, 'type'), f"a free joint joins the tree's root link to the root frame {root!r} of an arm "
+                                       "with mount: free")
+        if jt == 'free' and any(k in r for k in ('origin', 'axis', 'limits', 'damping')):
+            ctx.fail(rp, 'a free joint takes no origin, axis, limits or damping (its pose is in q)')
+        inert = _inertial(ctx, r, rp, spherical=jt == 'spherical')
         specs.append(LinkSpec(name=ctx.string(r['name'], _key(rp, 'name')),
                               joint=ctx.string(r['joint'], _key(rp, 'joint')), parent=parent,
                               joint_type=jt, origin_xyz=tuple(T[:3, 3]), origin_R=T[:3, :3],
@@ -432,8 +501,12 @@ def _explicit_specs(ctx: SceneContext, spec: dict, path: str, root: str):
                               mass=inert.get('mass', 0.0), com=tuple(inert.get('com', np.zeros(3))),
                               inertia=inert.get('inertia', np.zeros((3, 3))),
                               damping=inert.get('damping', 0.0), limits=inert.get('limits'),
-                              effort_limit=inert.get('effort_limit')))
+                              effort_limit=inert.get('effort_limit'),
+                              **{k: inert[k] for k in ('limit_stiffness', 'limit_damping', 'limit_return')
+                                 if k in inert}))
         paths.append(rp)
+    if free and sum(s.joint_type == 'free' for s in specs) != 1:
+        ctx.fail(lpath, f"mount: free needs exactly one link with type: free and parent: {root}")
     return specs, paths
 
 
@@ -463,15 +536,18 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
     ctx.mapping(spec, path, required=_ARM_REQUIRED, optional=_ARM_OPTIONAL)
     name = ctx.string(spec['name'], _key(path, 'name'))
     mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
-    root = ctx.string(spec.get('root', 'base_link'), _key(path, 'root'))
+    free = mount == 'free'
+    root = ctx.string(spec.get('root', 'odom' if free else 'base_link'), _key(path, 'root'))
     if specs is not None:  # built elsewhere (an imported URDF): (LinkSpecs, key paths)
         specs, paths = specs
     elif ('dh' in spec) == ('links' in spec):
         ctx.fail(path, "give exactly one of 'dh' (a DH table) or 'links' (explicit links)")
     elif 'dh' in spec:
+        if free:
+            ctx.fail(_key(path, 'mount'), "mount: free needs explicit 'links' (one of them with type: free)")
         specs, paths = _dh_specs(ctx, spec, path, root)
     else:
-        specs, paths = _explicit_specs(ctx, spec, path, root)
+        specs, paths = _explicit_specs(ctx, spec, path, root, free)
     if 'origin' in spec:  # the mount pose: compose it into the joints that hang from the root
         T0 = ctx.pose(spec['origin'], _key(path, 'origin'))
         for s in specs:
@@ -487,29 +563,29 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
         ctx.fail(_model_error_path(e, specs, paths, path), str(e))
     planar = planar_root(model) is not None
     actuated = _actuated(ctx, spec, path, model, planar=planar)
-    if planar:  # a tree in free flight in the x-z plane (systems.planar)
-        from .systems.planar import PlanarBaseSystem
-        try:
+    try:
+        if planar:  # a tree in free flight in the x-z plane (systems.planar)
+            from .systems.planar import PlanarBaseSystem
             system = PlanarBaseSystem(model, actuated=actuated)
-        except ValueError as e:
-            ctx.fail(path, str(e))
-    else:
-        system = ArmSystem(model, actuated=actuated)
+        else:
+            system = ArmSystem(model, actuated=actuated)
+    except ValueError as e:   # e.g. spherical joints on the numpy backend
+        ctx.fail(path, str(e))
     return Part(name=name, kind='arm', mount=mount, system=system, path=path)
 
 
 def _actuated(ctx: SceneContext, spec: dict, path: str, model, planar: bool = False):
-    """The part's ``actuated`` joint names, each a 1-DOF joint of ``model`` (not a planar root
-    joint when ``planar``); None when not given."""
+    """The part's ``actuated`` joint names, each a 1-DOF joint or a spherical joint component of
+    ``model`` (not a planar root joint when ``planar``); None when not given."""
     if 'actuated' not in spec:
         return None
-    dof = model.dof_joint_names[3:] if planar else model.dof_joint_names
+    dof = list(model.state_joint_names)[3:] if planar else list(model.state_joint_names)
     apath = _key(path, 'actuated')
     actuated = ctx.names(spec['actuated'], apath)
     for i, j in enumerate(actuated):
         if j not in dof:
-            ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint of this arm; joints are {dof}'
-                     + (' (the planar root joints are never actuated)' if planar else ''))
+            ctx.fail(_key(apath, i), f'{j!r} is not a 1-DOF joint (or a spherical joint component) of this arm; '
+                                     f'joints are {dof}' + (' (the planar root joints are never actuated)' if planar else ''))
     return actuated
 
 
@@ -873,7 +949,7 @@ def _assemble(ctx: SceneContext, parts: list) -> object:
         ctx.fail('parts', f'a scene of {len(parts)} parts needs a composition of '
                           f'{[p.kind for p in parts]} that is not available yet; use one part')
     p = parts[0]
-    if p.mount != 'world':
+    if p.mount not in ('world', 'free'):
         ctx.fail(_key(p.path, 'mount'), f"mount {p.mount!r} is not available to part kind '{p.kind}' "
                                         "in a one-part scene; use 'world'")
     return p.system

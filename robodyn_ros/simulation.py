@@ -111,7 +111,9 @@ def check_step(system: System, integrator: str, dt, y):
     tau = float(system.fastest_time_constant(y))
     if dt > limit * tau:
         raise ValueError(f'{name} with dt={dt:g} s is unstable for this system: its fastest time constant is '
-                         f'{tau:.3g} s ({type(system).__name__}; e.g. motor electrics L/R), so a stable {name} step is '
+                         f'{tau:.3g} s ({type(system).__name__}'
+                         f'{getattr(system, "time_constant_words", "") or "; e.g. motor electrics L/R"}), '
+                         f'so a stable {name} step is '
                          f'at most {limit * tau:.3g} s; use a smaller dt or an implicit integrator (radau, bdf)')
     check_fixed_step(system, name, dt, y)
 

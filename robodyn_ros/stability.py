@@ -236,7 +236,7 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
     a = StepAnalysis(integrator=name, dt=h, eigenvalues=modes, lam_max=lam_max,
                      tau=1.0 / lam_max if lam_max > 0 else math.inf, spin=spin, system_tau=sys_tau, rho=rho,
                      growth=growth, doubling_time=doubling, dt_limit=dt_limit, worst=worst)
-    source = _mode_source(worst, sys_tau, spin)
+    source = _mode_source(worst, sys_tau, spin, getattr(system, 'time_constant_words', ''))
     mode = (f'its fastest mode at the initial state has |λ| = {abs(worst):.3g} 1/s '
             f'(λ = {worst.real:.3g}{worst.imag:+.3g}i, time constant {1.0 / abs(worst) if worst else math.inf:.3g} s'
             f'{source})')
@@ -258,13 +258,14 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
     return a
 
 
-def _mode_source(lam: complex, sys_tau: float, spin: float) -> str:
-    """Words saying where a mode comes from, when it can be told."""
+def _mode_source(lam: complex, sys_tau: float, spin: float, sys_words: str = '') -> str:
+    """Words saying where a mode comes from, when it can be told (sys_words: the system's own words
+    for its declared time constant, e.g. which joint limit it is)."""
     if spin > 0 and abs(lam.real) < 0.05 * abs(lam) and any(abs(abs(lam) - f * spin) <= 0.05 * spin
                                                            for f in (0.5, 1.0)):
         return f'; the free base spins at {spin:.3g} rad/s'
     if math.isfinite(sys_tau) and sys_tau > 0 and abs(abs(lam) * sys_tau - 1.0) < 0.05:
-        return '; the system\'s declared fastest time constant, e.g. motor electrics L/R or Baumgarte gains'
+        return sys_words or '; the system\'s declared fastest time constant, e.g. motor electrics L/R or Baumgarte gains'
     return ''
 
 

@@ -14,6 +14,9 @@ replaces by the ``odom`` pose — else ``system.model``). For every joint of tha
   ``/tf_static`` (:meth:`TfTree.static_message`);
 - revolute and prismatic joints give ``parent_link -> child_link`` at the joint's position in
   ``joint_states`` (looked up by joint name), published on ``/tf`` (:meth:`TfTree.message`);
+- a spherical joint is in the URDF as three revolute joints ``<joint>_x``, ``_y``, ``_z`` about x,
+  y', z'' joined by two massless links (:func:`robodyn_ros.model.to_urdf`); ``joint_states`` carries
+  their angles (the Bryan angles of the joint's quaternion), so it gives three transforms;
 - a free (floating) joint is not in the URDF: its child link (``base_link``) gets
   ``odom -> base_link`` from the ``odom`` output instead, as does the URDF root of a platform.
 
@@ -32,7 +35,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from .model import FIXED, FREE, PRISMATIC, REVOLUTE
+from .model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL, SPHERICAL_AXES, spherical_link_names
 
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 TF_TOPIC = '/tf'
@@ -112,6 +115,16 @@ class TfTree:
                 self.moving.append((parent, names[i]))
                 self._rows.append((jt == REVOLUTE, m.joint_names[i], tuple(p.tolist()), tuple(_quat(R).tolist()),
                                    tuple(float(a) for a in m.axis[i]), tuple(tuple(r) for r in R.tolist())))
+            elif jt == SPHERICAL:   # three revolute joints (x, y', z''), as in the URDF export
+                lx, ly = spherical_link_names(m.specs[i])
+                eye = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+                for k, (pa, ch) in enumerate(((parent, lx), (lx, ly), (ly, names[i]))):
+                    self.moving.append((pa, ch))
+                    first = k == 0
+                    self._rows.append((True, m.joint_names[i] + SPHERICAL_AXES[k],
+                                       tuple(p.tolist()) if first else (0.0, 0.0, 0.0),
+                                       tuple(_quat(R).tolist()) if first else (0.0, 0.0, 0.0, 1.0), eye[k],
+                                       tuple(tuple(r) for r in R.tolist()) if first else eye))
             else:
                 raise ValueError(f'{m.name}: joint {m.joint_names[i]!r} of type {jt} has no TF')
         self._joints = [r[1] for r in self._rows]

@@ -275,8 +275,8 @@ def test_bundled_scenes_against_pinocchio():
     for name in names:
         models = {id(mm): mm for mm in _models_in(load_scene(name))}.values()
         for mm in models:
-            if mm.nv == 0:
-                continue
+            if mm.nv == 0 or mm.has_spherical:   # spherical trees (huston_human17): kernels only, checked
+                continue                         # against Pinocchio in test_spherical.py
             n_models += 1
             n_moving += int((mm.jtype != FIXED).sum())  # bodies with a Pinocchio joint
             for k, e in compare(mm, rng, 2, f'scene {name} model {mm.name}').items():

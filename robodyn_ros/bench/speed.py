@@ -146,7 +146,11 @@ def _pin_model(model):
     except ImportError:
         return None, 'pinocchio not installed'
     from ..model import to_urdf
-    pm = pin.buildModelFromXML(to_urdf(model))
+    if model.has_spherical:   # URDF has no ball joint: JointModelSpherical, built directly
+        from .pinbridge import pin_model
+        pm = pin_model(model)[0]
+    else:
+        pm = pin.buildModelFromXML(to_urdf(model))
     return (pm, pm.createData()), ''
 
 
@@ -216,6 +220,7 @@ def section_kernels(args, names) -> str:
             if pm.nq == model.nq and pm.nq != pm.nv:
                 qp = pin.randomConfiguration(pm, -np.ones(pm.nq), np.ones(pm.nq))
             vp, ap = v.copy()[:pm.nv], a.copy()[:pm.nv]
+        no_np = model.has_spherical   # kernels only: no numpy reference to time or compare
         ops = {
             'ID': (lambda: dyn.rnea(model, q, v, a),
                    (lambda: km.rnea(q, v, a)) if km else None,
@@ -228,11 +233,13 @@ def section_kernels(args, names) -> str:
                    (lambda: pin.aba(pm, pd, qp, vp, ap)) if pin_md else None),
         }
         agree = {}
-        if km:
+        if no_np:
+            ops = {op: (None,) + fns[1:] for op, fns in ops.items()}
+        elif km:
             agree = {'ID': _rel(km.rnea(q, v, a), dyn.rnea(model, q, v, a)),
                      'M': _rel(km.crba(q), dyn.crba(model, q)),
                      'FD': _rel(km.aba(q, v, a), dyn.aba(model, q, v, a))}
-        if kg:
+        if kg and not no_np:
             agree['FD (generated)'] = _rel(kg.aba(q, v, a), dyn.aba(model, q, v, a))
         for op, (f_np, f_c, f_pin) in ops.items():
             f_g = (lambda: kg.aba(q, v, a)) if (op == 'FD' and kg) else None
@@ -251,7 +258,8 @@ def section_kernels(args, names) -> str:
             table(['scene', 'bodies/dof', 'op', 'numpy reference', 'compiled', 'generated (method of Zs)', 'Pinocchio',
                    'compiled / Pinocchio', 'generated / Pinocchio', 'numpy / compiled',
                    'max rel. diff vs numpy'], rows)]
-    text += ['', 'ID = RNEA, M = CRBA, FD = ABA; Pinocchio on `pin.buildModelFromXML(to_urdf(model))`, '
+    text += ['', 'ID = RNEA, M = CRBA, FD = ABA; Pinocchio on `pin.buildModelFromXML(to_urdf(model))` (trees with '
+             'spherical joints: JointModelSpherical, built joint by joint by robodyn_ros.bench.pinbridge), '
              'random state (seed 0). "generated": forward dynamics generated for that tree '
              '(`ArmSystem(backend="generated")`, robodyn_ros.kernels.codegen; not for FREE joints).',
              _call_floor(args)] + [f'- {n}' for n in notes]
@@ -424,15 +432,16 @@ def pin_rk4_loop(pm, pd, q0, v0, damping, duration, dt=RTF_DT):
     aba = pin.aba
     q, v = q0.copy(), v0.copy()
     h2, h6 = 0.5 * dt, dt / 6.0
+    add = (lambda q, dq: q + dq) if pm.nq == pm.nv else (lambda q, dq: pin.integrate(pm, q, dq))  # quaternions
     for _ in range(int(round(duration / dt))):
         a1 = aba(pm, pd, q, v, -damping * v)
-        q2, v2 = q + h2 * v, v + h2 * a1
+        q2, v2 = add(q, h2 * v), v + h2 * a1
         a2 = aba(pm, pd, q2, v2, -damping * v2)
-        q3, v3 = q + h2 * v2, v + h2 * a2
+        q3, v3 = add(q, h2 * v2), v + h2 * a2
         a3 = aba(pm, pd, q3, v3, -damping * v3)
-        q4, v4 = q + dt * v3, v + dt * a3
+        q4, v4 = add(q, dt * v3), v + dt * a3
         a4 = aba(pm, pd, q4, v4, -damping * v4)
-        q = q + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4)
+        q = add(q, h6 * (v + 2.0 * v2 + 2.0 * v3 + v4))
         v = v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
     return q, v
 
@@ -503,7 +512,8 @@ def section_rtf(args, names) -> str:
             t_norec = best_run(lambda: run_robodyn(name, d, record=False, backend=tools), n_rec)
             t_adv = best_run(lambda: run_robodyn(name, d, backend=tools, advance_only=True), n_rec)
             ref_h = min(REFERENCE_HORIZON, dur / 10.0)
-            t_ref = best_run(lambda: run_robodyn(name, ref_h, backend='numpy'), 1)
+            t_ref = None if getattr(scene.system.model, 'has_spherical', False) else \
+                best_run(lambda: run_robodyn(name, ref_h, backend='numpy'), 1)
         except Exception as e:
             why = ' '.join(str(e).split())[:300]
             notes.append(f'{name}: RK4 at {RTF_DT * 1e3:g} ms not run ({type(e).__name__}: {why})')
@@ -515,7 +525,7 @@ def section_rtf(args, names) -> str:
                f'{d / t_tools[0]:.0f} (CPU {d / t_tools[2]:.0f})',
                f'{d / t_numba[2]:.0f}' if t_numba else 'same',
                f'{d / t_tf[2]:.0f}', f'{d / t_norec[2]:.0f}', f'{d / t_adv[2]:.0f}',
-               f'{ref_h / t_ref[2]:.1f}']
+               f'{ref_h / t_ref[2]:.1f}' if t_ref else 'n/a (kernels only)']
         model = scene.system.model if arm else None
         if model is None:
             row += ['n/a', 'n/a', 'n/a']
@@ -523,6 +533,11 @@ def section_rtf(args, names) -> str:
                          'carry, so no Pinocchio/MuJoCo equivalent')
         else:
             q0, v0 = scene.y0[:model.nq], scene.y0[model.nq:]
+            if model.has_spherical:   # Pinocchio's joint order and free-joint (linear, angular) velocity
+                from .pinbridge import pin_model
+                _, qmap, vmap, _ = pin_model(model)
+                q0, v0 = np.empty_like(q0), np.empty_like(v0)
+                q0[qmap], v0[vmap] = scene.y0[:model.nq], scene.y0[model.nq:]
             pin_md, why = _pin_model(model)
             if pin_md is not None:
                 pm, pd = pin_md

@@ -35,7 +35,6 @@ import os
 
 import numpy as np
 
-from ..model import FREE as FREE_CODE
 from ..model import Model
 
 
@@ -121,7 +120,8 @@ def pack_model(model: Model, merge: bool = False):
     origin; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
     (:func:`merge_fixed`).
     """
-    from ..model import FIXED as _FIXED
+    from ..model import PRISMATIC as _PRISMATIC
+    from ..model import REVOLUTE as _REVOLUTE
     a = merge_fixed(model) if merge else {k: getattr(model, k) for k in
                                           ('parent', 'jtype', 'axis', 'Xtree', 'I', 'q_idx', 'v_idx', 'gravity')}
     nb = len(a['parent'])
@@ -130,7 +130,7 @@ def pack_model(model: Model, merge: bool = False):
     mi[:, 1] = a['jtype']
     mi[:, 2] = a['q_idx']
     mi[:, 3] = a['v_idx']
-    mi[:, 4] = [int(a['jtype'][i] != _FIXED and a['jtype'][i] != FREE_CODE and tuple(a['axis'][i]) == (0.0, 0.0, 1.0))
+    mi[:, 4] = [int(a['jtype'][i] in (_REVOLUTE, _PRISMATIC) and tuple(a['axis'][i]) == (0.0, 0.0, 1.0))
                 for i in range(nb)]
     mf = np.zeros((nb + 1, 28))
     for i in range(nb):
@@ -159,7 +159,7 @@ class CompiledModel:
     use the full tree (``mi, mf``). specialize: also generate (or load from the disk cache) the
     model's own forward dynamics by the method of Zs (:mod:`robodyn_ros.kernels.codegen`), used
     by :meth:`aba` without external forces and by :meth:`integrate_arm`; ignored (``gen`` is
-    None) for trees with FREE joints.
+    None) for trees with FREE or SPHERICAL joints, which the generic kernels compute.
     """
 
     def __init__(self, model: Model, specialize: bool = False):
@@ -170,6 +170,8 @@ class CompiledModel:
         self.mi_r, self.mf_r = pack_model(model, merge=True)
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
+        from ..model import limit_table
+        self.lim = limit_table(model)   # joint-limit moments (Huston eq. 20.2.1), 0 rows = none
         self._zf = np.zeros((self.nb, 6))
         self.gen = None
         if specialize:
@@ -234,12 +236,17 @@ class CompiledModel:
         return constrained.momentum(self.mi, self.mf, np.ascontiguousarray(q, dtype=float),
                                     np.ascontiguousarray(v, dtype=float))
 
+    def limit_forces(self, q, v):
+        """Joint-limit generalised forces (nv,) of Huston eq. (20.2.1) at (q, v) (``core.limit_forces_add``)."""
+        return core.limit_forces(self.lim, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+                                 self.nv)
+
     def qdot(self, q, v):
         """Configuration rate ``dq/dt`` (nq,) (quaternion-aware)."""
         return core.qdot(self.mi, q, v)
 
     def normalize(self, q):
-        """q with free-joint quaternions renormalised (a new array)."""
+        """q with free- and spherical-joint quaternions renormalised (a new array)."""
         q = np.array(q, dtype=float)
         core.normalize_into(self.mi, q)
         return q
@@ -252,7 +259,7 @@ class CompiledModel:
         index of the first non-finite step or -1.
         """
         run = core.integrate_arm if self.gen is None else self.gen.integrate_arm
-        return run(self.mi_r, self.mf_r, self.damping, tau_app, self.nq, FUSED_METHODS[method],
+        return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
                    z, float(dt), int(n_full), float(h_last))
 
 

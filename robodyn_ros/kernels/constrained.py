@@ -55,7 +55,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..model import FREE, PRISMATIC, REVOLUTE
+from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL
 from .core import (_JIT, E_, M_RK4, M_SEMI_IMPLICIT_EULER, R_, AX, HV, IB, JTYPE, MASS, PARENT, VIDX,
                    aba_fext_into, crba_into, crba_ws, energies, normalize_into, qdot_into, rnea_ws, transforms,
                    workspace)
@@ -566,6 +566,9 @@ def _joint_motion(mi, mf, x, i, out):
             out[3 + a] = mf[i, AX + a] * x[s]
     elif jt == FREE:
         for a in range(6):
+            out[a] = x[s + a]
+    elif jt == SPHERICAL:
+        for a in range(3):
             out[a] = x[s + a]
 
 

@@ -11,6 +11,9 @@ The algorithms are those of :mod:`robodyn_ros.dynamics` (Featherstone 2008, book
   own body frame, so ``U = IA S``, ``d = Sᵀ U`` and ``Sᵀ f`` are 3-term dot products, and a
   revolute ``XJ(q)`` is Rodrigues' formula folded into ``Xtree`` (book Table 4.1);
 * a FREE joint (6 DOF, ``S = 1``) solves its 6x6 articulated inertia by Cholesky;
+* a SPHERICAL joint (3 DOF, ``S = [1; 0]``, q a unit quaternion (x, y, z, w), v the child's
+  angular velocity relative to the parent in child coordinates) keeps ``U = IA S`` (6x3) and
+  ``D⁻¹`` (3x3, explicit inverse of the symmetric positive definite ``Sᵀ IA S``) per body;
 * all per-body work quantities live in one work array ``W`` (:func:`workspace`), addressed by
   (row = body, named column offset) — no per-body array views, which numba would have to
   reference-count — and the fused integrators (:func:`integrate_arm`) allocate once per call and
@@ -42,7 +45,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..model import FIXED, FREE, PRISMATIC, REVOLUTE
+from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
 
 # columns of mi
 PARENT, JTYPE, QIDX, VIDX, AXK = 0, 1, 2, 3, 4
@@ -52,7 +55,9 @@ AX, ET, RT, MASS, HV, IB, NF = 0, 3, 12, 15, 16, 19, 28
 E_, R_, V_, C_, P_, U_, UV_, A_, IA_, D_, E0_, R0_ = 0, 9, 12, 18, 24, 30, 36, 42, 48, 84, 85, 94
 # columns of the scratch row of W
 T_, TMP_, L_, S1_, S2_, S3_, S4_, FC_ = 0, 36, 45, 81, 87, 93, 99, 105
-NW = 141
+# spherical joints (body rows): U = IA S (6x3, row major) and D⁻¹ = (Sᵀ IA S)⁻¹ (3x3)
+U3_, DI3_ = 141, 159
+NW = 168
 
 # fused-integrator method codes (see integrate_arm; kernels.FUSED_METHODS maps names to them)
 M_EULER, M_SEMI_IMPLICIT_EULER, M_RK4 = 0, 1, 2
@@ -267,7 +272,7 @@ def joint_transform(mi, mf, q, i, W):
 
     Composition ``(E2, r2)(E1, r1) = (E2 E1, r1 + E1ᵀ r2)``; revolute ``XJ = (Rᵀ(k, q), 0)``
     with Rodrigues ``Rᵀ = c 1 - s k× + (1 - c) k kᵀ``; prismatic ``XJ = (1, k q)``; free
-    ``XJ = (Rᵀ(quat), p)`` (``spatial.quat_to_R``); fixed ``XJ = 1``.
+    ``XJ = (Rᵀ(quat), p)`` (``spatial.quat_to_R``); spherical ``XJ = (Rᵀ(quat), 0)``; fixed ``XJ = 1``.
     """
     jt = mi[i, JTYPE]
     qi = mi[i, QIDX]
@@ -289,7 +294,7 @@ def joint_transform(mi, mf, q, i, W):
                 W[i, E_ + 6 + b] = mf[i, ET + 6 + b]
                 W[i, R_ + b] = mf[i, RT + b] + mf[i, ET + 6 + b] * qq
         return
-    if jt == REVOLUTE or jt == FREE:
+    if jt == REVOLUTE or jt == FREE or jt == SPHERICAL:
         if jt == REVOLUTE:
             th = q[qi]
             c = math.cos(th)
@@ -302,13 +307,19 @@ def joint_transform(mi, mf, q, i, W):
             for a in range(3):
                 W[i, R_ + a] = mf[i, RT + a]
         else:
-            x, y, z, w = q[qi + 3], q[qi + 4], q[qi + 5], q[qi + 6]
+            o = 3 if jt == FREE else 0
+            x, y, z, w = q[qi + o], q[qi + o + 1], q[qi + o + 2], q[qi + o + 3]
             J00, J10, J20 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
             J01, J11, J21 = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
             J02, J12, J22 = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
-            p0, p1, p2 = q[qi], q[qi + 1], q[qi + 2]
-            for a in range(3):
-                W[i, R_ + a] = mf[i, RT + a] + mf[i, ET + a] * p0 + mf[i, ET + 3 + a] * p1 + mf[i, ET + 6 + a] * p2
+            if jt == FREE:
+                p0, p1, p2 = q[qi], q[qi + 1], q[qi + 2]
+                for a in range(3):
+                    W[i, R_ + a] = (mf[i, RT + a] + mf[i, ET + a] * p0 + mf[i, ET + 3 + a] * p1
+                                    + mf[i, ET + 6 + a] * p2)
+            else:
+                for a in range(3):
+                    W[i, R_ + a] = mf[i, RT + a]
         for b in range(3):
             e0, e1, e2 = mf[i, ET + b], mf[i, ET + 3 + b], mf[i, ET + 6 + b]
             W[i, E_ + b] = J00 * e0 + J01 * e1 + J02 * e2
@@ -352,6 +363,9 @@ def joint_motion(mi, mf, x, i, W, dr, dc):
     elif jt == FREE:
         for a in range(6):
             W[dr, dc + a] = x[s + a]
+    elif jt == SPHERICAL:
+        for a in range(3):
+            W[dr, dc + a] = x[s + a]
 
 
 @njit(**_JIT)
@@ -359,6 +373,8 @@ def joint_nv(jt):
     """Number of velocity coordinates of a joint type."""
     if jt == FREE:
         return 6
+    if jt == SPHERICAL:
+        return 3
     if jt == FIXED:
         return 0
     return 1
@@ -377,6 +393,9 @@ def project_force(mi, mf, W, sr, sc, j, out, off):
         out[t] = mf[j, AX] * W[sr, sc + 3] + mf[j, AX + 1] * W[sr, sc + 4] + mf[j, AX + 2] * W[sr, sc + 5]
     elif jt == FREE:
         for a in range(6):
+            out[t + a] = W[sr, sc + a]
+    elif jt == SPHERICAL:
+        for a in range(3):
             out[t + a] = W[sr, sc + a]
 
 
@@ -420,6 +439,54 @@ def chol6_solve(W, ar, ac, br, bc, xr, xc):
         for k in range(i + 1, 6):
             s -= W[s_, L_ + 6 * k + i] * W[xr, xc + k]
         W[xr, xc + i] = s / W[s_, L_ + 7 * i]
+
+
+@njit(**_JIT)
+def spherical_articulated(W, i, tau, s, propagate):
+    """ABA pass 2 at a spherical joint i (``S = [1; 0]``, book Table 7.1 with a 3-column S).
+
+    ``U = IA S`` = the first three columns of IA (into ``W[i, U3_]``, 6x3 row major),
+    ``D = Sᵀ IA S`` = IA's upper-left 3x3 block, inverted explicitly (cofactors; it is
+    symmetric positive definite for a body with mass) into ``W[i, DI3_]``, ``u = τ - Sᵀ pA``
+    into ``W[i, UV_:UV_+3]``. With propagate: ``Ia = IA - U D⁻¹ Uᵀ`` overwrites ``W[i, IA_]``
+    and ``pa = pA + Ia c + U D⁻¹ u`` goes to ``W[s_, S2_]``.
+    """
+    s_ = W.shape[0] - 1
+    for a in range(6):
+        for k in range(3):
+            W[i, U3_ + 3 * a + k] = W[i, IA_ + 6 * a + k]
+    d00, d01, d02 = W[i, IA_], W[i, IA_ + 1], W[i, IA_ + 2]
+    d11, d12, d22 = W[i, IA_ + 7], W[i, IA_ + 8], W[i, IA_ + 14]
+    c00 = d11 * d22 - d12 * d12
+    c01 = d02 * d12 - d01 * d22
+    c02 = d01 * d12 - d02 * d11
+    c11 = d00 * d22 - d02 * d02
+    c12 = d01 * d02 - d00 * d12
+    c22 = d00 * d11 - d01 * d01
+    det = d00 * c00 + d01 * c01 + d02 * c02
+    inv = 1.0 / det if det > 0.0 else math.nan
+    W[i, DI3_], W[i, DI3_ + 1], W[i, DI3_ + 2] = c00 * inv, c01 * inv, c02 * inv
+    W[i, DI3_ + 3], W[i, DI3_ + 4], W[i, DI3_ + 5] = c01 * inv, c11 * inv, c12 * inv
+    W[i, DI3_ + 6], W[i, DI3_ + 7], W[i, DI3_ + 8] = c02 * inv, c12 * inv, c22 * inv
+    for k in range(3):
+        W[i, UV_ + k] = tau[s + k] - W[i, P_ + k]
+    if not propagate:
+        return
+    # G = U D⁻¹ (6x3) into the scratch T_ block; then Ia = IA - G Uᵀ, pa = pA + Ia c + G u
+    for a in range(6):
+        for k in range(3):
+            W[s_, T_ + 3 * a + k] = (W[i, U3_ + 3 * a] * W[i, DI3_ + k] + W[i, U3_ + 3 * a + 1] * W[i, DI3_ + 3 + k]
+                                     + W[i, U3_ + 3 * a + 2] * W[i, DI3_ + 6 + k])
+    for a in range(6):
+        for b in range(6):
+            W[i, IA_ + 6 * a + b] -= (W[s_, T_ + 3 * a] * W[i, U3_ + 3 * b] + W[s_, T_ + 3 * a + 1] * W[i, U3_ + 3 * b + 1]
+                                      + W[s_, T_ + 3 * a + 2] * W[i, U3_ + 3 * b + 2])
+    for a in range(6):
+        acc = W[i, P_ + a] + (W[s_, T_ + 3 * a] * W[i, UV_] + W[s_, T_ + 3 * a + 1] * W[i, UV_ + 1]
+                              + W[s_, T_ + 3 * a + 2] * W[i, UV_ + 2])
+        for b in range(6):
+            acc += W[i, IA_ + 6 * a + b] * W[i, C_ + b]
+        W[s_, S2_ + a] = acc
 
 
 # ----------------------------------------------------------------------------------------------
@@ -493,6 +560,11 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
                 for a in range(6):
                     W[s_, S2_ + a] = W[i, P_ + a] + W[i, UV_ + a]
                 xforce_T_add(W, i, s_, S2_, p, P_)
+        elif jt == SPHERICAL:
+            spherical_articulated(W, i, tau, s, p >= 0)
+            if p >= 0:  # W[i, IA_] now holds Ia, W[s_, S2_] pa
+                xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 0.0)
+                xforce_T_add(W, i, s_, S2_, p, P_)
         elif p >= 0:  # FIXED (c = 0): the welded body's IA and pA pass on unchanged
             xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 0.0)
             xforce_T_add(W, i, i, P_, p, P_)
@@ -519,6 +591,16 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
             else:
                 for a in range(3):
                     W[i, A_ + o + a] += mf[i, AX + a] * qi
+        elif jt == SPHERICAL:   # qdd = D⁻¹ (u - Uᵀ a'), a = a' + S qdd
+            for k in range(3):
+                W[s_, S4_ + k] = W[i, UV_ + k]
+                for a in range(6):
+                    W[s_, S4_ + k] -= W[i, U3_ + 3 * a + k] * W[i, A_ + a]
+            for k in range(3):
+                qk = (W[i, DI3_ + 3 * k] * W[s_, S4_] + W[i, DI3_ + 3 * k + 1] * W[s_, S4_ + 1]
+                      + W[i, DI3_ + 3 * k + 2] * W[s_, S4_ + 2])
+                qdd[s + k] = qk
+                W[i, A_ + k] += qk
         elif jt == FREE:
             # qdd = IA⁻¹ (u - IA ap) = IA⁻¹ u - ap, and a = ap + qdd = IA⁻¹ u
             chol6_solve(W, i, IA_, i, UV_, s_, S4_)
@@ -630,7 +712,7 @@ def crba_ws(mi, mf, H, W):
         I00, I01, I02 = W[i, IA_ + 4], W[i, IA_ + 5], W[i, IA_ + 6]
         I11, I12, I22 = W[i, IA_ + 7], W[i, IA_ + 8], W[i, IA_ + 9]
         for k in range(ni):                 # F = IC S, column k at W[s_, FC_ + 6k]
-            if jt == FREE:
+            if jt == FREE or jt == SPHERICAL:
                 w0, w1, w2 = (1.0 if k == 0 else 0.0), (1.0 if k == 1 else 0.0), (1.0 if k == 2 else 0.0)
                 u0, u1, u2 = (1.0 if k == 3 else 0.0), (1.0 if k == 4 else 0.0), (1.0 if k == 5 else 0.0)
             elif mi[i, AXK] == 1:
@@ -715,7 +797,8 @@ def energies_ws(mi, mf, q, v, W):
 
 @njit(**_JIT)
 def qdot_into(mi, q, v, out):
-    """``dq/dt`` (nq,) into out: v for 1-DOF joints; ``[R v_lin, ½ quat ⊗ [w; 0]]`` for free ones."""
+    """``dq/dt`` (nq,) into out: v for 1-DOF joints; ``[R v_lin, ½ quat ⊗ [w; 0]]`` for free ones,
+    ``½ quat ⊗ [w; 0]`` for spherical ones."""
     for i in range(mi.shape[0]):
         jt = mi[i, JTYPE]
         q0 = mi[i, QIDX]
@@ -735,19 +818,114 @@ def qdot_into(mi, q, v, out):
             out[q0 + 4] = 0.5 * (w * by - x * bz + z * bx)
             out[q0 + 5] = 0.5 * (w * bz + x * by - y * bx)
             out[q0 + 6] = 0.5 * (-x * bx - y * by - z * bz)
+        elif jt == SPHERICAL:   # ½ quat ⊗ (ω, 0), ω in child coordinates
+            x, y, z, w = q[q0], q[q0 + 1], q[q0 + 2], q[q0 + 3]
+            bx, by, bz = v[v0], v[v0 + 1], v[v0 + 2]
+            out[q0] = 0.5 * (w * bx + y * bz - z * by)
+            out[q0 + 1] = 0.5 * (w * by - x * bz + z * bx)
+            out[q0 + 2] = 0.5 * (w * bz + x * by - y * bx)
+            out[q0 + 3] = 0.5 * (-x * bx - y * by - z * bz)
         elif jt != FIXED:
             out[q0] = v[v0]
 
 
 @njit(**_JIT)
 def normalize_into(mi, q):
-    """Renormalise free-joint quaternions of q in place (the projection onto the manifold)."""
+    """Renormalise free- and spherical-joint quaternions of q in place (the projection onto the manifold)."""
     for i in range(mi.shape[0]):
-        if mi[i, JTYPE] == FREE:
-            s = mi[i, QIDX] + 3
+        jt = mi[i, JTYPE]
+        if jt == FREE or jt == SPHERICAL:
+            s = mi[i, QIDX] + (3 if jt == FREE else 0)
             n = math.sqrt(q[s] * q[s] + q[s + 1] * q[s + 1] + q[s + 2] * q[s + 2] + q[s + 3] * q[s + 3])
             for a in range(4):
                 q[s + a] /= n
+
+
+# ----------------------------------------------------------------------------------------------
+# joint-limit moments (Huston eq. 20.2.1)
+# ----------------------------------------------------------------------------------------------
+@njit(**_JIT)
+def limit_moment(th, thd, lo, hi, k, c, mode):
+    """The joint-limit moment of Huston eq. (20.2.1) at angle th, rate thd (range [lo, hi]).
+
+    Inside the range M = 0. Beyond the upper limit, moving on outward (``θ̇ >= 0``),
+    ``M = -k (θ - θmax) - c θ̇``; moving back (``θ̇ < 0``) the "restoring aspect" is off:
+    mode 1 (``'none'``, the equation as printed) ``M = 0``; mode 2 (``'spring'``) ``M = -k (θ -
+    θmax)``, the spring without its damper. Mirror image below the lower limit. (The printed
+    cases leave ``θ̇ = 0`` open; it counts as moving outward, so a joint can rest on its stop.)
+    Its power ``M θ̇`` is never positive in mode 1: the stop only takes energy out.
+    """
+    if th > hi:
+        if thd >= 0.0:
+            return -k * (th - hi) - c * thd
+        return -k * (th - hi) if mode == 2 else 0.0
+    if th < lo:
+        if thd <= 0.0:
+            return -k * (th - lo) - c * thd
+        return -k * (th - lo) if mode == 2 else 0.0
+    return 0.0
+
+
+@njit(**_JIT)
+def rotation_vector(x, y, z, w, out):
+    """Rotation vector φ (3,) of the unit quaternion (x, y, z, w) into out, |φ| <= π; returns the
+    coefficient b of ``J_r⁻¹(φ) = 1 + ½ φ× + b φ×²`` (right Jacobian: ``φ̇ = J_r⁻¹(φ) ω``, ω in the
+    rotated frame), ``b = 1/θ² - (1 + cos θ)/(2 θ sin θ)``, series ``1/12 + θ²/720`` near 0."""
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    sn = math.sqrt(x * x + y * y + z * z)
+    th = 2.0 * math.atan2(sn, w)
+    f = th / sn if sn > 1e-12 else 2.0 / w
+    out[0], out[1], out[2] = f * x, f * y, f * z
+    if th < 1e-3:
+        return 1.0 / 12.0 + th * th / 720.0
+    return 1.0 / (th * th) - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))
+
+
+@njit(**_JIT)
+def limit_forces_add(lim, q, v, tau):
+    """``tau += `` the joint-limit moments of every row of ``lim`` (:func:`robodyn_ros.model.limit_table`).
+
+    A 1-DOF joint: :func:`limit_moment` of ``(q, v)``. A spherical joint: per component of its
+    rotation vector φ (joint frame) with ``φ̇ = J_r⁻¹(φ) ω``; the moments M (conjugate to φ) act
+    on ω as ``J_r⁻ᵀ M`` (same power ``M·φ̇``).
+    """
+    phi = np.empty(3)
+    for r in range(lim.shape[0]):
+        jt = int(lim[r, 0])
+        qi = int(lim[r, 1])
+        vi = int(lim[r, 2])
+        mode = int(lim[r, 3])
+        k = lim[r, 10]
+        c = lim[r, 11]
+        if jt != SPHERICAL:
+            tau[vi] += limit_moment(q[qi], v[vi], lim[r, 4], lim[r, 5], k, c, mode)
+            continue
+        b = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
+        p0, p1, p2 = phi[0], phi[1], phi[2]
+        w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
+        pp = p0 * p0 + p1 * p1 + p2 * p2
+        # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
+        J00, J01, J02 = 1.0 + b * (p0 * p0 - pp), -0.5 * p2 + b * p0 * p1, 0.5 * p1 + b * p0 * p2
+        J10, J11, J12 = 0.5 * p2 + b * p1 * p0, 1.0 + b * (p1 * p1 - pp), -0.5 * p0 + b * p1 * p2
+        J20, J21, J22 = -0.5 * p1 + b * p2 * p0, 0.5 * p0 + b * p2 * p1, 1.0 + b * (p2 * p2 - pp)
+        d0 = J00 * w0 + J01 * w1 + J02 * w2
+        d1 = J10 * w0 + J11 * w1 + J12 * w2
+        d2 = J20 * w0 + J21 * w1 + J22 * w2
+        m0 = limit_moment(p0, d0, lim[r, 4], lim[r, 5], k, c, mode)
+        m1 = limit_moment(p1, d1, lim[r, 6], lim[r, 7], k, c, mode)
+        m2 = limit_moment(p2, d2, lim[r, 8], lim[r, 9], k, c, mode)
+        tau[vi] += J00 * m0 + J10 * m1 + J20 * m2
+        tau[vi + 1] += J01 * m0 + J11 * m1 + J21 * m2
+        tau[vi + 2] += J02 * m0 + J12 * m1 + J22 * m2
+
+
+@njit(**_JIT)
+def limit_forces(lim, q, v, nv):
+    """The joint-limit generalised forces (nv,) alone (:func:`limit_forces_add` on zeros)."""
+    tau = np.zeros(nv)
+    limit_forces_add(lim, q, v, tau)
+    return tau
 
 
 # ----------------------------------------------------------------------------------------------
@@ -830,27 +1008,30 @@ def qdot(mi, q, v):
 # fused fixed-step integration of an arm with its work quadrature
 # ----------------------------------------------------------------------------------------------
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, tau_app, nq, nv, z, dz, tauv, W):
-    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v``.
+def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
+    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``.
 
-    tau_app (nv,) = B u held over the call; damping (nv,) = D; tauv (nv,) scratch.
+    tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
+    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch.
     (ArmSystem.rhs and .input_power of the reference path.)
     """
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
+    for k in range(nv):
+        tauv[k] = tau_app[k] - damping[k] * v[k]
+    if lim.shape[0]:
+        limit_forces_add(lim, q, v, tauv)
     P = 0.0
     for k in range(nv):
-        tk = tau_app[k] - damping[k] * v[k]
-        tauv[k] = tk
-        P += v[k] * tk
+        P += v[k] * tauv[k]
     transforms(mi, mf, q, W)
     aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
     dz[nq + nv] = P
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, tau_app, nq, method, z, dt, n_full, h_last):
+def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last):
     """Integrate ``z = [q, v, W]`` in place over ``n_full`` steps of dt and one of h_last (if > 0).
 
     method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
@@ -875,31 +1056,31 @@ def integrate_arm(mi, mf, damping, tau_app, nq, method, z, dt, n_full, h_last):
         h = dt if k < n_full else h_last
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
             for a in range(n):
                 z[a] += K[a] * h
         normalize_into(mi, z[:nq])

@@ -37,7 +37,7 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
                     if want is None or want(topic)]
         recs.append(('joint_states', M.TOPIC_TYPES['joint_states'], js))
     if out.odom is not None and (want is None or want('odom')):
-        recs.append(('odom', M.TOPIC_TYPES['odom'], cdr.odometry_bytes(sec, nsec, out.odom)))
+        recs.append(('odom', M.TOPIC_TYPES['odom'], cdr.odometry_bytes(sec, nsec, out.odom, child=out.odom_child)))
     if wrenches:
         for name, (frame, w) in out.wrenches.items():
             topic = M.wrench_topic(name)

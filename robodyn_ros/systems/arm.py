@@ -1,4 +1,18 @@
-"""A fixed-base articulated arm (any tree of revolute/prismatic/fixed joints), torque driven."""
+"""An articulated tree, torque driven: a fixed-base arm, or a tree on a free root (a floating body).
+
+Joints: revolute, prismatic, fixed, spherical (anywhere), and one FREE joint at the root (the
+tree floats; its pose is published on ``odom``). Optional joint-limit moments (Huston eq.
+20.2.1, :func:`robodyn_ros.kernels.core.limit_moment`) act on limited joints; their power is part
+of :meth:`ArmSystem.input_power`, so the Simulator's work quadrature counts it (in the seed's law
+the stop only dissipates: its power is never positive).
+
+``joint_states``: one entry per revolute/prismatic joint (q, v, commanded effort) and three per
+spherical joint, ``<joint>_x``, ``<joint>_y``, ``<joint>_z``: position = the Bryan angles
+(α, β, γ) of Huston eq. (20.3.2), ``R = Rx(α) Ry(β) Rz(γ)`` — the angles of the three revolute
+joints the URDF export writes for it, so TF and Foxglove agree — velocity = the components of the
+joint's angular velocity in the child frame (not the Bryan-angle rates, which are singular at
+β = ±90°), effort = the commanded torque components about the child axes.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +20,7 @@ import numpy as np
 from .. import dynamics as dyn
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
-from ..model import PRISMATIC, REVOLUTE, Model
+from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL, Model, bryan_angles, limit_table
 from .base import (BACKENDS, InputPort, LazyValues, System, SystemOutputs, default_backend,  # noqa: F401
                    effort_actuation)
 
@@ -33,6 +47,12 @@ class ArmSystem(System):
             raise ValueError(f'unknown backend {backend!r}; valid: {", ".join(BACKENDS)}')
         if backend != 'numpy' and not kernels.AVAILABLE:
             raise ValueError(f'backend {backend} unavailable (no numba): {kernels.UNAVAILABLE_REASON}')
+        lim = limit_table(model)
+        if backend == 'numpy' and (model.has_spherical or lim.shape[0]):
+            what = 'spherical joints are' if model.has_spherical else 'joint-limit moments are'
+            raise ValueError(f'{model.name}: {what} computed by the compiled kernels only; '
+                             "backend 'numpy' cannot simulate this model (use 'numba' or 'generated')")
+        self._lim = lim
         self.backend = backend
         self._km = kernels.CompiledModel(model, specialize=backend == 'generated') if backend != 'numpy' else None
         self._grids = {}
@@ -41,7 +61,7 @@ class ArmSystem(System):
         self.model = model
         self.nq, self.nv = model.nq, model.nv
         self.ny = self.nq + self.nv
-        self.joint_names = model.dof_joint_names
+        self.joint_names = model.state_joint_names
         self.actuated, self.B, port = effort_actuation(model, self.joint_names, actuated)  # tau = B u
         self.inputs = {'effort': port}
         # Coulomb joint friction (URDF <dynamics friction>): compiled kernel, reference path only
@@ -50,8 +70,16 @@ class ArmSystem(System):
         if self._has_friction and not kernels.AVAILABLE:
             raise ValueError(f'{model.name}: Coulomb joint friction needs the compiled kernels (numba): '
                              f'{kernels.UNAVAILABLE_REASON}')
-        # child link of each 1-DOF joint, for the wrench frames
-        self._dof_bodies = [i for i in range(model.nb) if model.jtype[i] in (REVOLUTE, PRISMATIC)]
+        free = [i for i in range(model.nb) if model.jtype[i] == FREE]
+        if len(free) > 1:
+            raise ValueError(f'{model.name}: at most one free joint (the root of the tree)')
+        self.free_body = free[0] if free else None   # its pose and twist go to odom
+        # joint_states layout: (kind, q index, v index) per 1-DOF / spherical joint, model order
+        self._pub = [(int(model.jtype[i]), int(model.q_idx[i]), int(model.v_idx[i])) for i in range(model.nb)
+                     if model.jtype[i] in (REVOLUTE, PRISMATIC, SPHERICAL)]
+        self._pub_v = np.array([v0 + k for jt, _, v0 in self._pub for k in range(3 if jt == SPHERICAL else 1)],
+                               dtype=int)
+        self._simple = self.free_body is None and not model.has_spherical   # joint_states = (q, v) as they are
 
     def split(self, y):
         """Views ``(q, v)`` of the state vector."""
@@ -67,23 +95,68 @@ class ArmSystem(System):
 
     def config_rate(self, q, w):
         """``dq/dt`` from the velocities at the start of ``w`` (quaternion-aware)."""
+        if self._km is not None:
+            return self._km.qdot(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(w[:self.nv], dtype=float))
         return dyn.qdot(self.model, q, w[:self.nv])
 
     def project(self, y):
-        """Renormalise free-joint quaternions (a no-op for a fixed-base arm)."""
+        """Renormalise free- and spherical-joint quaternions (a no-op for a 1-DOF fixed-base arm)."""
         if self.nq != self.nv:
-            y[:self.nq] = dyn.normalize_configuration(self.model, y[:self.nq])
+            y[:self.nq] = self._km.normalize(y[:self.nq]) if self._km is not None else \
+                dyn.normalize_configuration(self.model, y[:self.nq])
         return y
 
     def generalized_forces(self, y, u):
-        """Applied plus passive generalised forces ``B u - D v - F tanh(v / v_s)`` (nv,)."""
-        _, v = self.split(y)
+        """Applied plus passive generalised forces ``B u - D v - F tanh(v / v_s) + τ_lim(q, v)`` (nv,);
+        F: Coulomb joint friction, τ_lim: joint-limit moments."""
+        q, v = self.split(y)
         tau = self.B @ u['effort'] + dyn.passive_forces(self.model, v)
         if self._has_friction:
             from ..kernels.passive import add_coulomb_friction
             from ..urdf import COULOMB_VELOCITY
             add_coulomb_friction(self._friction, COULOMB_VELOCITY, np.ascontiguousarray(v, dtype=float), tau)
+        if self._lim.shape[0]:
+            tau += self._km.limit_forces(q, v)
         return tau
+
+    def limit_power(self, y) -> float:
+        """Power (W) of the joint-limit moments at state y (<= 0 for the seed's law: dissipation)."""
+        if not self._lim.shape[0]:
+            return 0.0
+        q, v = self.split(y)
+        return float(v @ self._km.limit_forces(q, v))
+
+    def fastest_time_constant(self, y):
+        """The fastest joint-limit mode (s): for each limited DOF, the faster root of ``I λ² + c λ + k``
+        with I the DOF's articulated inertia ``1/(M⁻¹)_jj`` at y (``sqrt(I/k)`` when underdamped);
+        ``inf`` without limit moments. :attr:`time_constant_words` names the joint."""
+        self.time_constant_words = ''
+        if not self._lim.shape[0]:
+            return float('inf')
+        q, _ = self.split(y)
+        Minv = np.linalg.inv(self._km.crba(np.ascontiguousarray(q, dtype=float)))
+        best = (float('inf'), '')
+        for row in self._lim:
+            jt, vi, k, c = int(row[0]), int(row[2]), float(row[10]), float(row[11])
+            for j in range(3 if jt == SPHERICAL else 1):
+                inertia = 1.0 / Minv[vi + j, vi + j]
+                lam = np.abs(np.roots([inertia, c, k])).max() if (k or c) else 0.0
+                if lam > 0 and 1.0 / lam < best[0]:
+                    name = [n for n in self.joint_names if self.model.state_index(n)[1] == vi + j][0]
+                    best = (1.0 / lam, f'; the joint limit of {name!r} (stiffness k = {k:.3g}, damping c = {c:.3g}, '
+                                       f'articulated inertia I = {inertia:.3g}): time constant 1/|λ| = {1.0 / lam:.3g} s, '
+                                       f'sqrt(I/k) = {np.sqrt(inertia / k) if k else float("inf"):.3g} s')
+        self.time_constant_words = best[1]
+        return best[0]
+
+    def urdf(self) -> str:
+        """URDF for ``robot_description``: a free root's floating joint and world link are left out
+        (``odom`` publishes that pose, REP 105), as for the free-flyer."""
+        from ..model import to_urdf
+        if self.free_body is None:
+            return to_urdf(self.model)
+        from .freeflyer import free_base_urdf
+        return free_base_urdf(self.model)
 
     def rhs(self, t, y, u):
         """``[q̇; v̇]`` with v̇ from the articulated-body algorithm."""
@@ -170,8 +243,23 @@ class ArmSystem(System):
         def energy():
             kin, pot = self._energies(q, v)
             return {'kinetic': kin, 'potential': pot}
-        return SystemOutputs(joint_names=list(self.joint_names), position=q, velocity=v, effort=tau_cmd, wrenches=w,
-                             energy=LazyValues(energy))
+        if self._simple:
+            return SystemOutputs(joint_names=list(self.joint_names), position=q, velocity=v, effort=tau_cmd,
+                                 wrenches=w, energy=LazyValues(energy))
+        pos = []
+        for jt, q0, _ in self._pub:
+            if jt == SPHERICAL:
+                pos += bryan_angles(q[q0:q0 + 4])
+            else:
+                pos.append(q[q0])
+        odom = None
+        if self.free_body is not None:
+            q0, v0 = int(self.model.q_idx[self.free_body]), int(self.model.v_idx[self.free_body])
+            odom = {'position': q[q0:q0 + 3].copy(), 'orientation': q[q0 + 3:q0 + 7].copy(),
+                    'linear': v[v0 + 3:v0 + 6].copy(), 'angular': v[v0:v0 + 3].copy()}
+        return SystemOutputs(joint_names=list(self.joint_names), position=np.array(pos), velocity=v[self._pub_v],
+                             effort=tau_cmd[self._pub_v], wrenches=w, odom=odom, energy=LazyValues(energy),
+                             odom_child=self.model.link_names[self.free_body] if odom is not None else 'base_link')
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""
@@ -180,6 +268,6 @@ class ArmSystem(System):
         return kin + pot
 
     def input_power(self, t, y, u):
-        """``vᵀ (B u - D v)``: actuator power minus damping dissipation (W)."""
+        """``vᵀ (B u - D v + τ_lim)``: actuator power minus damping and joint-limit dissipation (W)."""
         _, v = self.split(y)
         return float(v @ self.generalized_forces(y, u))

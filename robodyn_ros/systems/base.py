@@ -173,7 +173,8 @@ class SystemOutputs:
     joint_names, position, velocity, effort: every joint in ``joint_states`` order;
     wrenches: joint or contact name -> (child frame, (6,) [torque; force] on the child at the
     joint origin in child coordinates); odom: optional dict with 'position' (3,),
-    'orientation' (x, y, z, w), 'linear' (3,) and 'angular' (3,) in base_link;
+    'orientation' (x, y, z, w), 'linear' (3,) and 'angular' (3,) in base_link (the link named by
+    ``odom_child``);
     energy: mapping of named energies (J; may be a :class:`LazyValues`, computed when read);
     extra: other diagnostics values.
     """
@@ -185,6 +186,7 @@ class SystemOutputs:
     wrenches: dict = field(default_factory=dict)
     odom: dict | None = None
     energy: dict = field(default_factory=dict)
+    odom_child: str = 'base_link'   # child_frame_id of odom (the free root's link for a floating tree)
     extra: dict = field(default_factory=dict)
 
 
@@ -250,7 +252,7 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
     ``tau = B u``; raises ValueError naming unknown joints. The port's ``limit`` holds the
     joints' ``effort_limit`` (LinkSpec; URDF ``<limit effort>``), None when no joint has one.
     """
-    from ..model import REVOLUTE
+    from ..model import PRISMATIC
     candidates = list(candidates)
     actuated = list(candidates if actuated is None else actuated)
     unknown = [j for j in actuated if j not in candidates]
@@ -258,8 +260,8 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
         raise ValueError(f'actuated joints {unknown} are not {what} of {model.name}; {what} are {candidates}')
     B = np.zeros((model.nv, len(actuated)))
     for k, n in enumerate(actuated):
-        B[model.v_idx[model.joint_names.index(n)], k] = 1.0
-    lim = np.array([model.specs[model.joint_names.index(n)].effort_limit or np.inf for n in actuated], dtype=float)
-    units = sorted({'N·m' if model.jtype[model.joint_names.index(n)] == REVOLUTE else 'N' for n in actuated})
+        B[model.state_index(n)[1], k] = 1.0   # a spherical joint's '<joint>_x/_y/_z': its torque components
+    lim = np.array([model.specs[model.state_index(n)[0]].effort_limit or np.inf for n in actuated], dtype=float)
+    units = sorted({'N' if model.jtype[model.state_index(n)[0]] == PRISMATIC else 'N·m' for n in actuated})
     return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-',
                                   tuple(lim.tolist()) if np.isfinite(lim).any() else None)
