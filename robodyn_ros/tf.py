@@ -172,6 +172,57 @@ class TfTree:
             out.append((parent, child, p, q))
         return out
 
+    def frames(self, odom: bool) -> list:
+        """``[(parent, child)]`` of the transforms :meth:`transforms` gives (with or without odom)."""
+        return ([(ODOM_FRAME, self.odom_child)] if odom else []) + list(self.moving)
+
+    def transform_values(self, joint_names, positions, odom_pose=None) -> np.ndarray:
+        """:meth:`transforms` of many publications at once: ``(K, n_transforms, 7)`` array of
+        ``(x, y, z, qx, qy, qz, qw)``, the same numbers as K calls (the same float operations in
+        the same order, on arrays).
+
+        positions: (K, n) joint_states positions; odom_pose: (K, 7) odom position and
+        orientation, or None when there is no odom entry.
+        """
+        positions = np.asarray(positions, dtype=np.float64)
+        K = positions.shape[0]
+        first = 0 if odom_pose is None else 1
+        out = np.empty((K, first + len(self._rows), 7))
+        if first:
+            out[:, 0, :] = odom_pose
+        if not self._rows:
+            return out
+        src = np.asarray(self._source(joint_names))
+        # all revolute joints at once, then all prismatic ones: per element the operations of
+        # transforms() in its order (constants per joint as arrays instead of Python floats)
+        for rev in (True, False):
+            sel = [j for j, r in enumerate(self._rows) if r[0] == rev]
+            if not sel:
+                continue
+            th = positions[:, src[sel]]
+            a = np.array([self._rows[j][4] for j in sel]).T       # (3, n)
+            p = np.array([self._rows[j][2] for j in sel]).T
+            q = np.array([self._rows[j][3] for j in sel]).T       # (4, n)
+            o = np.empty((7,) + th.shape)
+            if rev:   # q_tree ⊗ (a sin θ/2, cos θ/2)
+                half = 0.5 * th
+                s, c = np.sin(half), np.cos(half)
+                bx, by, bz = a[0] * s, a[1] * s, a[2] * s
+                qx, qy, qz, qw = q
+                o[0:3] = p[:, None, :]
+                o[3] = qw * bx + c * qx + qy * bz - qz * by
+                o[4] = qw * by + c * qy + qz * bx - qx * bz
+                o[5] = qw * bz + c * qz + qx * by - qy * bx
+                o[6] = qw * c - qx * bx - qy * by - qz * bz
+            else:     # p_tree + R_tree a d
+                R = np.array([self._rows[j][5] for j in sel])       # (n, 3, 3)
+                dx, dy, dz = a[0] * th, a[1] * th, a[2] * th
+                for r in range(3):
+                    o[r] = p[r] + R[:, r, 0] * dx + R[:, r, 1] * dy + R[:, r, 2] * dz
+                o[3:7] = q[:, None, :]
+            out[:, first + np.array(sel), :] = np.moveaxis(o, 0, -1)
+        return out
+
     def message(self, t_ns: int, out) -> dict:
         """The ``/tf`` message of one publication from :class:`SystemOutputs` ``out`` (stamped t_ns)."""
         return {'transforms': [_transform(t_ns, *tr) for tr in

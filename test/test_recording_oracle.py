@@ -29,7 +29,7 @@ import pytest
 from robodyn_ros import messages as M
 from robodyn_ros.recording import cdr
 from robodyn_ros.recording.mcap_sink import McapSink
-from robodyn_ros.recording.run_sink import McapRunSink, resolve, run_metadata
+from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink, resolve, run_metadata
 from robodyn_ros.scene import list_scenes, load_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
@@ -98,7 +98,7 @@ class OracleSink:
         self.writer.close()
 
 
-def _record(path, name, sink_cls, duration, rate=None, chunk_size=None, integrator='rk4', dt=2e-3, **kw):
+def _record(path, name, sink_cls, duration, rate=None, chunk_size=None, integrator='rk4', dt=2e-3, batch=0, **kw):
     scene = load_scene(name)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
@@ -107,7 +107,7 @@ def _record(path, name, sink_cls, duration, rate=None, chunk_size=None, integrat
     if sink_cls is OracleSink:
         sink = OracleSink(path, scene, settings, chunk_size=chunk_size, **kw)
     else:
-        sink = McapRunSink(path, scene, settings, **kw)
+        sink = McapRunSink(path, scene, settings, batch=batch, **kw)
         if chunk_size is not None:
             sink.writer.chunk_size = chunk_size
     try:
@@ -117,8 +117,8 @@ def _record(path, name, sink_cls, duration, rate=None, chunk_size=None, integrat
     return path.read_bytes(), n
 
 
-def _compare(tmp_path, name, duration, **kw):
-    fast, n = _record(tmp_path / 'fast.mcap', name, McapRunSink, duration, **kw)
+def _compare(tmp_path, name, duration, batch=HEADLESS_BATCH, **kw):
+    fast, n = _record(tmp_path / 'fast.mcap', name, McapRunSink, duration, batch=batch, **kw)
     slow, n_slow = _record(tmp_path / 'oracle.mcap', name, OracleSink, duration, **kw)
     assert n == n_slow > 0
     if fast != slow:  # say where, not only that
@@ -128,10 +128,12 @@ def _compare(tmp_path, name, duration, **kw):
     return fast
 
 
+@pytest.mark.parametrize('batch', [0, HEADLESS_BATCH])
 @pytest.mark.parametrize('name', SCENES)
-def test_every_scene_records_the_oracle_bytes(tmp_path, name):
-    # many small chunks: boundaries fall inside publication periods and inside batches
-    data = _compare(tmp_path, name, 0.4, chunk_size=3000, diagnostics_period=0.05)
+def test_every_scene_records_the_oracle_bytes(tmp_path, name, batch):
+    # many small chunks: boundaries fall inside publication periods and inside batches; batch 0 is
+    # the message-by-message path of the node, HEADLESS_BATCH the vectorised one of robodyn run
+    data = _compare(tmp_path, name, 0.4, batch=batch, chunk_size=3000, diagnostics_period=0.05)
     assert len(data) > 5000
 
 
@@ -139,7 +141,7 @@ def test_every_scene_records_the_oracle_bytes(tmp_path, name):
                                    dict(record_tf=False, record_wrenches=False)])
 @pytest.mark.parametrize('name', ['stanford_arm', 'mobile_manipulator', 'unfried_free_flyer'])
 def test_topic_selections_record_the_oracle_bytes(tmp_path, name, flags):
-    _compare(tmp_path, name, 0.3, chunk_size=2000, diagnostics_period=0.1, **flags)
+    _compare(tmp_path, name, 0.3, batch=5, chunk_size=2000, diagnostics_period=0.1, **flags)
 
 
 def test_default_chunking_long_run_records_the_oracle_bytes(tmp_path):

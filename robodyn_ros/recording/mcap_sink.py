@@ -22,6 +22,8 @@ import os
 import struct
 from typing import Dict, Optional
 
+import numpy as np
+
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import LIBRARY_IDENTIFIER as MCAP_LIBRARY
 from mcap.writer import CompressionType, Writer
@@ -38,6 +40,11 @@ DEFAULT_CHUNK_SIZE = 64 * 1024
 #: Bytes a Message record adds to its payload: opcode 1 + length 8 + channel 2 + sequence 4
 #: + log_time 8 + publish_time 8.
 _MESSAGE_RECORD_OVERHEAD = 31
+_MESSAGE_INDEX_OPCODE = 7
+#: one message record header: opcode 5, record length, channel id, sequence, log time, publish time
+RECORD_HEADER = np.dtype([('opcode', 'u1'), ('length', '<u8'), ('channel', '<u2'), ('sequence', '<u4'),
+                          ('log_time', '<u8'), ('publish_time', '<u8')])
+assert RECORD_HEADER.itemsize == _MESSAGE_RECORD_OVERHEAD == 31
 _COMPRESSIONS = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
                  'none': CompressionType.NONE, None: CompressionType.NONE}
 
@@ -142,28 +149,123 @@ class _DirectMessages:
         if buf.tell() > self.chunk_size:  # Writer.__maybe_finalize_chunk
             self.writer._Writer__finalize_chunk()
 
+    def add_records(self, data, offsets, channels, log_times):
+        """Append complete message records (headers filled) to the open chunk in one write.
+
+        data: the records' bytes, back to back; offsets: (n,) start of each record in data;
+        channels, log_times: (n,) of each record, in order. The same bytes, message index
+        entries, chunk time range and file statistics as n calls of :meth:`add_message`.
+        """
+        n = len(offsets)
+        if n == 0:
+            return
+        lo, hi = int(log_times.min()), int(log_times.max())
+        st = self.stats
+        st.message_start_time = lo if st.message_count == 0 else min(lo, st.message_start_time)
+        st.message_end_time = max(hi, st.message_end_time)
+        st.message_count += n
+        cb = self.chunk
+        cb.message_start_time = lo if cb.num_messages == 0 else min(cb.message_start_time, lo)
+        cb.message_end_time = max(cb.message_end_time, hi)
+        cb.num_messages += n
+        buf = cb.record_writer._buffer
+        base = buf.tell()
+        buf.write(data)
+        counts = st.channel_message_counts
+        indices = cb.message_indices
+        # entries grouped by channel (stable: in time order within a channel), channels in order of
+        # first appearance (the dict insertion order add_message gives)
+        order = np.argsort(channels, kind='stable')
+        sc = channels[order]
+        cuts = np.flatnonzero(sc[1:] != sc[:-1]) + 1
+        starts = np.concatenate(([0], cuts))
+        ends = np.concatenate((cuts, [n]))
+        firsts = order[starts]
+        entries = np.empty((n, 2), dtype='<u8')
+        entries[:, 0] = log_times[order]
+        entries[:, 1] = offsets[order]
+        entries[:, 1] += base
+        for g in np.argsort(firsts).tolist():
+            c, a, b = int(sc[starts[g]]), int(starts[g]), int(ends[g])
+            counts[c] += b - a
+            index = indices.get(c)
+            if not isinstance(index, _BulkIndex):
+                index = indices[c] = _BulkIndex(c, index.records if index else [])
+            index.add(entries[a:b])
+
     @classmethod
     def _self_test(cls) -> bool:
-        """True when a small file written through this class equals the one ``add_message`` writes."""
-        def write(direct: bool) -> bytes:
+        """True when a small file written through this class (one message at a time, and in
+        bulk) equals the one ``add_message`` writes."""
+        msgs = [(1, 5), (2, 3), (1, 7), (2, 7), (1, 2), (2, 9), (2, 4), (1, 8)]
+
+        def write(how: str) -> bytes:
             f = io.BytesIO()
             w = Writer(f, chunk_size=2 ** 62, compression=CompressionType.ZSTD)
             w.start(profile='ros2', library='self-test')
             sid = w.register_schema(name='a/msg/B', encoding=SchemaEncoding.ROS2, data=b'float64 x')
             c1 = w.register_channel(topic='/a', message_encoding=MessageEncoding.CDR, schema_id=sid)
             c2 = w.register_channel(topic='/b', message_encoding=MessageEncoding.CDR, schema_id=sid)
-            add = cls(w).add_message if direct else \
-                (lambda c, t, d, p, q: w.add_message(channel_id=c, log_time=t, data=d, publish_time=p, sequence=q))
-            for k, (c, t) in enumerate([(c1, 5), (c2, 3), (c1, 7), (c2, 7), (c1, 2)]):
-                add(c, t, bytes(range(k + 3)), t + 1, k)
-                if k == 2:
+            ids = {1: c1, 2: c2}
+            d = cls(w) if how != 'writer' else None
+            pending = []
+
+            def bulk():
+                if pending:
+                    data = b''.join(cls.HEAD.pack(d.opcode, 22 + len(x), c, q, t, t) + x for c, t, x, q in pending)
+                    sizes = np.array([31 + len(x) for _, _, x, _ in pending])
+                    d.add_records(data, np.concatenate([[0], np.cumsum(sizes)[:-1]]),
+                                  np.array([c for c, _, _, _ in pending]), np.array([t for _, t, _, _ in pending]))
+                    pending.clear()
+            for k, (c, t) in enumerate(msgs):
+                data = bytes(range(k + 3))
+                if how == 'writer':
+                    w.add_message(channel_id=ids[c], log_time=t, data=data, publish_time=t, sequence=k)
+                elif how == 'direct' or k in (1, 5):   # bulk: mixed with single records
+                    bulk()
+                    d.add_message(ids[c], t, data, t, k)
+                else:
+                    pending.append((ids[c], t, data, k))
+                if k in (2, 6):
+                    bulk()
                     w.flush()
+            bulk()
             w.finish()
             return f.getvalue()
         try:
-            return write(True) == write(False)
+            ref = write('writer')
+            return write('direct') == ref and write('bulk') == ref
         except Exception:  # any change in mcap's internals: keep the public API
             return False
+
+
+class _BulkIndex:
+    """A chunk's message index of one channel, kept as arrays and written in one piece (what
+    ``mcap.records.MessageIndex.write`` writes entry by entry). ``records`` takes single
+    ``(log_time, offset)`` entries as ``MessageIndex.records`` does; :meth:`add` appends arrays."""
+
+    HEAD = struct.Struct('<BQHI')
+
+    def __init__(self, channel_id: int, records=()):
+        self.channel_id = channel_id
+        self.records = list(records)
+        self.parts = []
+
+    def _settle(self):
+        if self.records:
+            self.parts.append(np.array(self.records, dtype='<u8').reshape(-1, 2))
+            self.records = []
+
+    def add(self, entries):
+        """Append ``(n, 2)`` entries ``(log_time, offset)`` after those already held."""
+        self._settle()
+        self.parts.append(entries)
+
+    def write(self, stream):
+        """The MessageIndex record (opcode, length, channel, entries) on an mcap RecordBuilder."""
+        self._settle()
+        body = b''.join(p.astype('<u8', copy=False).tobytes() for p in self.parts)
+        stream.write(self.HEAD.pack(_MESSAGE_INDEX_OPCODE, 6 + len(body), self.channel_id, len(body)) + body)
 
 
 class McapSink:
@@ -324,6 +426,67 @@ class McapSink:
         self._open_chunk_bytes += _MESSAGE_RECORD_OVERHEAD + len(data)
         if self._open_chunk_bytes >= self.chunk_size:
             self.flush()
+
+    def write_records(self, records: np.ndarray, offsets: np.ndarray, channels: np.ndarray, log_times: np.ndarray):
+        """Record many messages at once: the vectorised form of :meth:`write_data` (same file).
+
+        records: writable uint8 array holding the messages back to back, each as a 31-byte gap
+        for its record header followed by its CDR payload; offsets: (n,) start of each message
+        in records (ascending, the first 0, each message ending where the next starts);
+        channels: (n,) channel ids of :meth:`channel`; log_times: (n,) integer ns (publish time =
+        log time). The headers (sequence numbers per channel included) are written here, and the
+        open chunk is closed after the message that fills it, exactly as message-by-message calls
+        of :meth:`write_data` would.
+        """
+        if self._closed:
+            self._check_open()
+        n = len(offsets)
+        if n == 0:
+            return
+        offsets = np.asarray(offsets, dtype=np.int64)
+        channels = np.asarray(channels, dtype=np.int64)
+        log_times = np.asarray(log_times, dtype=np.int64)
+        if int(log_times.min()) < 0:
+            raise ValueError(f'log_time_ns must be >= 0, got {int(log_times.min())}')
+        sizes = np.empty(n, dtype=np.int64)
+        sizes[:-1] = offsets[1:] - offsets[:-1]
+        sizes[-1] = len(records) - offsets[-1]
+        if self._direct is None:   # mcap.Writer.add_message, one message at a time
+            for k in range(n):
+                a = int(offsets[k])
+                self.write_data(int(channels[k]), bytes(records[a + 31:a + int(sizes[k])]), int(log_times[k]))
+            return
+        head = np.empty(n, dtype=RECORD_HEADER)
+        head['opcode'] = 5
+        head['length'] = sizes - 9   # the record's length field counts what follows opcode and length
+        head['channel'] = channels
+        head['log_time'] = log_times
+        head['publish_time'] = log_times
+        # sequence numbers count per channel: rank of each message within its channel
+        counts = np.bincount(channels)     # channel ids are small integers (uint16)
+        order = np.argsort(channels, kind='stable')
+        rank = np.empty(n, dtype=np.int64)
+        rank[order] = np.arange(n) - (np.cumsum(counts) - counts)[channels[order]]
+        first = np.zeros(len(counts), dtype=np.int64)
+        for c in np.flatnonzero(counts).tolist():
+            first[c] = self._sequence[c]
+            self._sequence[c] += int(counts[c])
+        head['sequence'] = first[channels] + rank + 1
+        records[(offsets[:, None] + np.arange(31)).ravel()] = head.view(np.uint8)
+        # close chunks where write_data would: after the message that brings the open bytes to chunk_size
+        i = 0
+        while i < n:
+            cum = np.cumsum(sizes[i:])
+            cum += self._open_chunk_bytes
+            j = int(np.searchsorted(cum, self.chunk_size, side='left'))   # first message reaching it
+            end = n if j >= n - i else i + j + 1
+            a, b = int(offsets[i]), int(offsets[end]) if end < n else len(records)
+            self._direct.add_records(records[a:b].data, offsets[i:end] - a, channels[i:end], log_times[i:end])
+            self.message_count += end - i
+            self._open_chunk_bytes = int(cum[end - i - 1])
+            if self._open_chunk_bytes >= self.chunk_size:
+                self.flush()
+            i = end
 
     def flush(self):
         """Close the open chunk (if it holds messages) and hand everything written to the OS."""
