@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from .. import messages as M
+from ..systems.base import LazyWrenches
 from ..version import __version__
 from . import cdr
 from .mcap_sink import McapSink
@@ -112,8 +113,14 @@ class _PeriodLayout:
             msgs.append(('odom', M.TOPIC_TYPES['odom'], tpl, False, vals, [cdr.STAMP_AT]))
             col += 13
         self.wrench_cols = []
+        self.lazy = wrenches and isinstance(out.wrenches, LazyWrenches)   # computed in one call per batch
+        self.wrench_block = slice(col, col + 6 * len(out.wrenches)) if wrenches else None
+        self.many = out.wrenches.many if self.lazy else None
+        self.wrench_args = []
         if wrenches:
-            for name, (frame, _) in out.wrenches.items():   # w = [torque; force], the message: force, torque
+            items = zip(out.wrenches.names, out.wrenches.frames) if self.lazy else \
+                ((name, frame) for name, (frame, _) in out.wrenches.items())
+            for name, frame in items:   # w = [torque; force], the message: force, torque
                 tpl, at = cdr.wrench_stamped_layout(frame)
                 msgs.append((M.WRENCH_PREFIX + name, M.WRENCH_TYPE, tpl, False,
                              [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
@@ -164,7 +171,9 @@ class _PeriodLayout:
             row[c + 3:c + 7] = o['orientation']
             row[c + 7:c + 10] = o['linear']
             row[c + 10:c + 13] = o['angular']
-        if self.wrench_cols:
+        if self.lazy:
+            self.wrench_args.append(out.wrenches.args)
+        elif self.wrench_cols:
             for sl, (_, w) in zip(self.wrench_cols, out.wrenches.values()):
                 row[sl] = w
 
@@ -174,6 +183,11 @@ class _PeriodLayout:
         values: (K, n_values) from :meth:`fill`; times: (K, 2) int64 ns, (commands, outputs).
         """
         K = values.shape[0]
+        if self.lazy:
+            args, self.wrench_args = self.wrench_args, []
+            if len(args) != K:
+                raise RuntimeError(f'{len(args)} wrench states held for {K} periods')
+            values[:, self.wrench_block] = self.many(args).reshape(K, -1)
         if self.tf is not None:
             odom = None if self.odom_cols is None else values[:, self.odom_cols:self.odom_cols + 7]
             tfv = self.tf.transform_values(self.joint_names, values[:, self.pos_cols], odom).reshape(K, -1)
@@ -188,6 +202,13 @@ class _PeriodLayout:
         st[:, :, 1] = nsec
         out[:, self.stamp_bytes] = st.view(np.uint8).reshape(K, 16)[:, self.stamp_src]
         return out
+
+
+def _wrench_kind(w):
+    """What a batch of periods must share about their wrenches (names, frames, how computed)."""
+    if isinstance(w, LazyWrenches):
+        return w.batch_key
+    return tuple((k, f) for k, (f, _) in w.items())
 
 
 def run_metadata(scene, settings: dict, extra: dict | None = None) -> dict:
@@ -317,7 +338,7 @@ class McapRunSink:
         cmds = self._cmds
         kind = (tuple((p, v.shape[0]) for _, p, v in cmds), tuple(out.joint_names), len(out.position),
                 len(out.velocity), len(out.effort), out.odom is None,
-                tuple((k, f) for k, (f, _) in out.wrenches.items()) if self.wants_wrenches else ())
+                _wrench_kind(out.wrenches) if self.wants_wrenches else ())
         layout = self._layouts.get(kind)
         diag = self._next_diag is not None and t >= self._next_diag - 1e-9
         if layout is None:
@@ -363,7 +384,7 @@ class McapRunSink:
             return False
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
         topics += [] if out.odom is None else ['odom']
-        topics += [M.WRENCH_PREFIX + k for k, _ in kind[6]]
+        topics += [M.WRENCH_PREFIX + k for k in out.wrenches] if self.wants_wrenches else []
         if self.tf is not None and self.tf.frames(out.odom is not None):
             topics.append('/tf')
         return all(t in self._channels for t in topics)

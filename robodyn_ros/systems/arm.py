@@ -7,8 +7,8 @@ from .. import dynamics as dyn
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
 from ..model import PRISMATIC, REVOLUTE, Model
-from .base import (BACKENDS, InputPort, LazyValues, System, SystemOutputs, default_backend,  # noqa: F401
-                   effort_actuation)
+from .base import (BACKENDS, InputPort, LazyValues, LazyWrenches, System, SystemOutputs,  # noqa: F401
+                   default_backend, effort_actuation)
 
 
 #: the methods whose ArmSystem versions the fused loop reproduces
@@ -46,6 +46,11 @@ class ArmSystem(System):
         self.inputs = {'effort': port}
         # child link of each 1-DOF joint, for the wrench frames
         self._dof_bodies = [i for i in range(model.nb) if model.jtype[i] in (REVOLUTE, PRISMATIC)]
+        # outputs.wrenches: every joint (fixed ones too), at its child link
+        self._wrench_names = tuple(model.joint_names)
+        self._wrench_frames = tuple(model.link_names[:model.nb])
+        self._wrench_index = {n: i for i, n in enumerate(self._wrench_names)}
+        self._wrenches_many = self._wrenches_many   # one bound method: a stable batch key
 
     def split(self, y):
         """Views ``(q, v)`` of the state vector."""
@@ -147,19 +152,30 @@ class ArmSystem(System):
         tau_cmd = self.B @ u['effort']
         w = {}
         if wrenches:
-            if self._km is not None:
-                _, f = self._km.joint_wrenches(q, v, self.generalized_forces(y, u))
+            if self._km is not None:   # computed when read, or for many publications at once by a recorder
+                q1, v1 = q.copy(), v.copy()
+                return self._outputs(q1, v1, tau_cmd, LazyWrenches(
+                    self._wrench_names, self._wrench_frames, self._wrenches_one, self._wrenches_many,
+                    (q1, v1, self.generalized_forces(y, u)), self._wrench_index))
             else:
                 _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u))
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
-        q, v = q.copy(), v.copy()
+        return self._outputs(q.copy(), v.copy(), tau_cmd, w)
 
+    def _outputs(self, q, v, tau_cmd, w):
         def energy():
             kin, pot = self._energies(q, v)
             return {'kinetic': kin, 'potential': pot}
         return SystemOutputs(joint_names=list(self.joint_names), position=q, velocity=v, effort=tau_cmd, wrenches=w,
                              energy=LazyValues(energy))
+
+    def _wrenches_one(self, q, v, tau):
+        return self._km.joint_wrenches(q, v, tau)[1]
+
+    def _wrenches_many(self, args):
+        from ..kernels.outputs import joint_wrenches_many
+        return joint_wrenches_many(self._km, *(np.array(a) for a in zip(*args)))
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""
