@@ -117,6 +117,7 @@ class TfTree:
         self._joints = [r[1] for r in self._rows]
         self._names_key = None
         self._src = None
+        self._groups = None   # transform_values' constants
         if check_urdf:
             self._check(system.urdf())
 
@@ -192,35 +193,37 @@ class TfTree:
             out[:, 0, :] = odom_pose
         if not self._rows:
             return out
-        src = np.asarray(self._source(joint_names))
+        src = self._source(joint_names)
+        if self._groups is None:   # per kind of joint: the model columns and constants as arrays
+            self._groups = []
+            for rev in (True, False):
+                sel = [j for j, r in enumerate(self._rows) if r[0] == rev]
+                if sel:
+                    rows = [self._rows[j] for j in sel]
+                    self._groups.append((rev, np.array(sel), np.array([r[4] for r in rows]).T,
+                                         np.array([r[2] for r in rows]).T, np.array([r[3] for r in rows]).T,
+                                         np.array([r[5] for r in rows])))
         # all revolute joints at once, then all prismatic ones: per element the operations of
         # transforms() in its order (constants per joint as arrays instead of Python floats)
-        for rev in (True, False):
-            sel = [j for j, r in enumerate(self._rows) if r[0] == rev]
-            if not sel:
-                continue
-            th = positions[:, src[sel]]
-            a = np.array([self._rows[j][4] for j in sel]).T       # (3, n)
-            p = np.array([self._rows[j][2] for j in sel]).T
-            q = np.array([self._rows[j][3] for j in sel]).T       # (4, n)
-            o = np.empty((7,) + th.shape)
+        for rev, sel, a, p, q, R in self._groups:
+            th = positions[:, np.asarray(src)[sel]]
+            o = np.empty(th.shape + (7,))
             if rev:   # q_tree ⊗ (a sin θ/2, cos θ/2)
                 half = 0.5 * th
                 s, c = np.sin(half), np.cos(half)
                 bx, by, bz = a[0] * s, a[1] * s, a[2] * s
                 qx, qy, qz, qw = q
-                o[0:3] = p[:, None, :]
-                o[3] = qw * bx + c * qx + qy * bz - qz * by
-                o[4] = qw * by + c * qy + qz * bx - qx * bz
-                o[5] = qw * bz + c * qz + qx * by - qy * bx
-                o[6] = qw * c - qx * bx - qy * by - qz * bz
+                o[:, :, 0:3] = p.T
+                o[:, :, 3] = qw * bx + c * qx + qy * bz - qz * by
+                o[:, :, 4] = qw * by + c * qy + qz * bx - qx * bz
+                o[:, :, 5] = qw * bz + c * qz + qx * by - qy * bx
+                o[:, :, 6] = qw * c - qx * bx - qy * by - qz * bz
             else:     # p_tree + R_tree a d
-                R = np.array([self._rows[j][5] for j in sel])       # (n, 3, 3)
                 dx, dy, dz = a[0] * th, a[1] * th, a[2] * th
                 for r in range(3):
-                    o[r] = p[r] + R[:, r, 0] * dx + R[:, r, 1] * dy + R[:, r, 2] * dz
-                o[3:7] = q[:, None, :]
-            out[:, first + np.array(sel), :] = np.moveaxis(o, 0, -1)
+                    o[:, :, r] = p[r] + R[:, r, 0] * dx + R[:, r, 1] * dy + R[:, r, 2] * dz
+                o[:, :, 3:7] = q.T
+            out[:, first + sel, :] = o
         return out
 
     def message(self, t_ns: int, out) -> dict:
