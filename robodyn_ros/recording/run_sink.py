@@ -206,8 +206,8 @@ class _PeriodLayout:
 
 def _wrench_kind(w):
     """What a batch of periods must share about their wrenches (names, frames, how computed)."""
-    if isinstance(w, LazyWrenches):
-        return w.batch_key
+    if type(w) is LazyWrenches:
+        return (w.names, w.frames, w.many)
     return tuple((k, f) for k, (f, _) in w.items())
 
 
@@ -253,6 +253,7 @@ class McapRunSink:
         self._cmds = []       # commands applied since the last publication: (t, port, values)
         self._layouts = {}    # kind of period -> _PeriodLayout
         self._layout = None   # the layout of the periods held
+        self._kind = None     # the kind of period of _layout
         self._values = None   # (batch, n_values) numbers of the periods held
         self._times = None    # (batch, 2) int64 ns: commands, outputs
         self._diags = {}      # period index -> diagnostics CDR written after it
@@ -336,10 +337,11 @@ class McapRunSink:
         by message now (a new topic is registered on its first message, so that channel records
         land where the per-message path puts them; odd arrays take the generic encoder)."""
         cmds = self._cmds
-        kind = (tuple((p, v.shape[0]) for _, p, v in cmds), tuple(out.joint_names), len(out.position),
+        kind = (tuple([(p, v.shape[0]) for _, p, v in cmds]), tuple(out.joint_names), len(out.position),
                 len(out.velocity), len(out.effort), out.odom is None,
                 _wrench_kind(out.wrenches) if self.wants_wrenches else ())
-        layout = self._layouts.get(kind)
+        # the kind of the previous period (tuple equality, no hashing), else one seen before
+        layout = self._layout if kind == self._kind else self._layouts.get(kind)
         diag = self._next_diag is not None and t >= self._next_diag - 1e-9
         if layout is None:
             self._write_held()
@@ -359,7 +361,7 @@ class McapRunSink:
             return False
         if layout is not self._layout:
             self._write_held()
-            self._layout = layout
+            self._layout, self._kind = layout, kind
             self._values = np.empty((self.batch, layout.n_values))
             self._times = np.empty((self.batch, 2), dtype=np.int64)
         k = self._held
