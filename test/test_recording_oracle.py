@@ -158,3 +158,34 @@ def test_odd_rate_and_euler_record_the_oracle_bytes(tmp_path):
 
 def test_adaptive_integrator_records_the_oracle_bytes(tmp_path):
     _compare(tmp_path, 'huston_p19_2_3', 0.2, chunk_size=2500, integrator='dop853', dt=None, diagnostics_period=0.1)
+
+
+@pytest.mark.parametrize('batch', [0, HEADLESS_BATCH])
+def test_chunks_close_every_half_second_of_simulation(tmp_path, batch):
+    # crash safety in time: a small recording (about 500 B per period, far below 64 KiB per
+    # 0.5 s) still closes a chunk once it spans 0.5 s of simulation, as the node records
+    from mcap.reader import make_reader
+    kw = dict(record_tf=False, record_wrenches=False, diagnostics_period=1.0)
+    scene = load_scene('betancur_pendulum')
+    paths = []
+    for cls in (McapRunSink, OracleSink):
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
+        path = tmp_path / f'{cls.__name__}.mcap'
+        if cls is McapRunSink:
+            sink = McapRunSink(path, scene, {}, batch=batch, chunk_span=0.5, **kw)
+        else:
+            sink = OracleSink(path, scene, {}, **kw)
+            sink.writer.chunk_span_ns = 500_000_000
+        run_headless(sim, 3.0, 100.0, scene.script, [sink])
+        sink.close()
+        paths.append(path)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    with open(paths[0], 'rb') as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert len(chunks) >= 6   # 3 s of simulation
+    for c in chunks:
+        assert c.message_end_time - c.message_start_time <= 500_000_000 + 10_000_000  # 0.5 s + one period
+    starts = [c.message_start_time for c in chunks]
+    assert max(np.diff(starts)) <= 510_000_000

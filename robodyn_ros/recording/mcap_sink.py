@@ -278,7 +278,7 @@ class McapSink:
 
     def __init__(self, path, metadata: Optional[Dict[str, str]] = None,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, compression: Optional[str] = 'zstd',
-                 fsync: bool = False):
+                 fsync: bool = False, chunk_span: Optional[float] = None):
         """Create (truncate) the file and write the header and the ``robodyn`` metadata record.
 
         Args:
@@ -290,6 +290,9 @@ class McapSink:
             compression: ``'zstd'`` (default), ``'lz4'``, or ``'none'``/None, per chunk.
             fsync: also ``os.fsync`` after each chunk (survives power loss, not only a killed
                 process; slower).
+            chunk_span: also close the open chunk after the first message logged at least this
+                many seconds (of log time, i.e. simulation time) after the chunk's first message
+                (None: by size only). Bounds what a crash loses in time as well as in bytes.
         """
         if compression not in _COMPRESSIONS:
             raise ValueError(f'compression must be one of zstd, lz4, none; got {compression!r}')
@@ -301,6 +304,10 @@ class McapSink:
                 raise TypeError(f'metadata keys and values must be str, got {key!r}: {value!r}')
         self.path = os.fspath(path)
         self.chunk_size = int(chunk_size)
+        if chunk_span is not None and not chunk_span > 0:
+            raise ValueError(f'chunk_span must be a positive number of seconds or None, got {chunk_span!r}')
+        self.chunk_span_ns = None if chunk_span is None else int(round(chunk_span * 1e9))
+        self._chunk_start = None   # log time of the open chunk's first message
         self.fsync = fsync
         self._file = open(self.path, 'wb')
         # chunk_size for mcap.Writer is effectively infinite: this class closes chunks itself
@@ -424,7 +431,10 @@ class McapSink:
                                      sequence=seq)
         self.message_count += 1
         self._open_chunk_bytes += _MESSAGE_RECORD_OVERHEAD + len(data)
-        if self._open_chunk_bytes >= self.chunk_size:
+        if self._chunk_start is None:
+            self._chunk_start = log_time_ns
+        if self._open_chunk_bytes >= self.chunk_size or \
+                (self.chunk_span_ns is not None and log_time_ns - self._chunk_start >= self.chunk_span_ns):
             self.flush()
 
     def write_records(self, records: np.ndarray, offsets: np.ndarray, channels: np.ndarray, log_times: np.ndarray):
@@ -473,18 +483,27 @@ class McapSink:
             self._sequence[c] += int(counts[c])
         head['sequence'] = first[channels] + rank + 1
         records[(offsets[:, None] + np.arange(31)).ravel()] = head.view(np.uint8)
-        # close chunks where write_data would: after the message that brings the open bytes to chunk_size
+        # close chunks where write_data would: after the message that brings the open bytes to
+        # chunk_size or (with chunk_span) that is logged chunk_span after the chunk's first message
+        span = self.chunk_span_ns
         i = 0
         while i < n:
             cum = np.cumsum(sizes[i:])
             cum += self._open_chunk_bytes
             j = int(np.searchsorted(cum, self.chunk_size, side='left'))   # first message reaching it
+            start = int(log_times[i]) if self._chunk_start is None else self._chunk_start
+            if span is not None:
+                late = np.flatnonzero(log_times[i:] - start >= span)
+                if late.size:
+                    j = min(j, int(late[0]))
             end = n if j >= n - i else i + j + 1
             a, b = int(offsets[i]), int(offsets[end]) if end < n else len(records)
             self._direct.add_records(records[a:b].data, offsets[i:end] - a, channels[i:end], log_times[i:end])
             self.message_count += end - i
             self._open_chunk_bytes = int(cum[end - i - 1])
-            if self._open_chunk_bytes >= self.chunk_size:
+            self._chunk_start = start
+            if self._open_chunk_bytes >= self.chunk_size or \
+                    (span is not None and int(log_times[end - 1]) - start >= span):
                 self.flush()
             i = end
 
@@ -496,6 +515,7 @@ class McapSink:
         if self._open_chunk_bytes:
             self.chunk_count += 1
         self._open_chunk_bytes = 0
+        self._chunk_start = None
         self.flushed_message_count = self.message_count
         if self.fsync:
             os.fsync(self._file.fileno())

@@ -18,6 +18,10 @@ BATCH_SPAN = 0.25
 BATCH_SPAN_NS = int(BATCH_SPAN * 1e9)
 #: periods per vectorised pass in headless runs (``robodyn run``)
 HEADLESS_BATCH = 32
+#: seconds of simulation after which the node's recorder closes a chunk (a killed node loses at
+#: most this much, plus one publication); headless runs chunk by size only (0.5 s of simulation
+#: is a few milliseconds of their wall time, and their files stay as they were)
+NODE_CHUNK_SPAN = 0.5
 
 
 def resolve(topic: str, namespace: str = '') -> str:
@@ -233,10 +237,12 @@ class McapRunSink:
     spans :data:`BATCH_SPAN` s of simulation, when the kind of period changes, and on
     :meth:`close`; the file is the same byte for byte. Only for a sink that is the sole writer of
     its file (headless runs): the node, which also writes messages of its own, uses 0.
+    chunk_span: close a chunk once it spans this many seconds of simulation (see
+    :class:`McapSink`; the node, paced by the wall clock, uses :data:`NODE_CHUNK_SPAN`).
     """
 
     def __init__(self, path, scene, settings: dict, record_wrenches=True, diagnostics_period=1.0,
-                 namespace='', extra_metadata=None, record_tf=True, batch: int = 0):
+                 namespace='', extra_metadata=None, record_tf=True, batch: int = 0, chunk_span=None):
         self.path = str(path)
         self.scene = scene
         self.wants_wrenches = record_wrenches
@@ -244,7 +250,7 @@ class McapRunSink:
         self.tf = None   # the TfTree, built in on_start when record_tf
         self.diagnostics_period = diagnostics_period
         self.namespace = namespace
-        self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata))
+        self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata), chunk_span=chunk_span)
         self._next_diag = None
         self.count = 0
         self._channels = {}   # relative topic -> channel id (resolved and registered on first use)
