@@ -128,11 +128,12 @@ def _compare(tmp_path, name, duration, batch=HEADLESS_BATCH, **kw):
     return fast
 
 
-@pytest.mark.parametrize('batch', [0, HEADLESS_BATCH])
+@pytest.mark.parametrize('batch', [0, 7, HEADLESS_BATCH])
 @pytest.mark.parametrize('name', SCENES)
 def test_every_scene_records_the_oracle_bytes(tmp_path, name, batch):
     # many small chunks: boundaries fall inside publication periods and inside batches; batch 0 is
     # the message-by-message path of the node, HEADLESS_BATCH the vectorised one of robodyn run
+    # (one batch here), 7 many batches per run
     data = _compare(tmp_path, name, 0.4, batch=batch, chunk_size=3000, diagnostics_period=0.05)
     assert len(data) > 5000
 

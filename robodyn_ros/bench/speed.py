@@ -643,7 +643,7 @@ _RECORDING_NOTE = (
     '"integration only": `Simulator.advance` per period and nothing else. "full recorded": the loop and the '
     "sink of `robodyn run`: the scene's scripted commands, outputs, and every default topic (joint_states, odom, "
     'constraint wrenches, /tf, /clock, commands, diagnostics every 0.1 s) written in batches of {batch} periods '
-    '(or 0.25 s). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
+    '(or {span:g} s). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
     "stored publications (outputs computed beforehand; the arms' joint wrenches are computed by the recorder, in "
     'one compiled call per batch), CPU time including chunking, zstd and the file writes; "message by message" is '
     "the path the node uses (it writes its own messages between the recorder's). \"zstd of those bytes\": "
@@ -656,7 +656,7 @@ def section_recording(args, names) -> str:
     """Integration-only vs fully recorded real-time factor per scene, recorder cost per period and
     per message, and MuJoCo RK4 from Python with its state copied out every period."""
     from ..model import to_urdf
-    from ..recording.run_sink import HEADLESS_BATCH
+    from ..recording.run_sink import BATCH_SPAN, HEADLESS_BATCH
     from ..systems.arm import ArmSystem
     from ..systems.base import TOOLS_BACKEND
     rows, notes = [], []
@@ -714,7 +714,7 @@ def section_recording(args, names) -> str:
                    'no recording (CPU RTF)', 'messages / bytes per period', 'recorder per period, batched',
                    'recorder per period, message by message', 'zstd of those bytes', 'batched / zstd',
                    'MuJoCo RK4 from Python + state copied out (CPU RTF)', 'full recorded / MuJoCo'], rows),
-            '', _RECORDING_NOTE.format(batch=HEADLESS_BATCH)] + [f'- {n}' for n in notes]
+            '', _RECORDING_NOTE.format(batch=HEADLESS_BATCH, span=BATCH_SPAN)] + [f'- {n}' for n in notes]
     return '\n'.join(text)
 
 

@@ -14,10 +14,10 @@ from .mcap_sink import McapSink
 
 #: simulated time a batch of periods may span before it is written (crash safety: with the
 #: writer's chunks, what a killed run loses)
-BATCH_SPAN = 0.25
+BATCH_SPAN = 0.5
 BATCH_SPAN_NS = int(BATCH_SPAN * 1e9)
 #: periods per vectorised pass in headless runs (``robodyn run``)
-HEADLESS_BATCH = 32
+HEADLESS_BATCH = 64
 #: seconds of simulation after which the node's recorder closes a chunk (a killed node loses at
 #: most this much, plus one publication); headless runs chunk by size only (0.5 s of simulation
 #: is a few milliseconds of their wall time, and their files stay as they were)
