@@ -633,6 +633,7 @@ def _replay_cost(scene, backend, periods, batch, repeat):
                 from mcap.stream_reader import StreamReader
                 with open(path, 'rb') as f:
                     raw = [zstandard.decompress(r.data, max_output_size=r.uncompressed_size)
+                           if r.compression == 'zstd' else r.data
                            for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
                 t_z = min(best_of(lambda: [zstandard.compress(x) for x in raw], 3)[2], 1e9)
                 info = {'messages': sink.count, 'bytes': sum(len(x) for x in raw), 'zstd': t_z / len(stored)}
@@ -967,6 +968,22 @@ def section_targets(args, names) -> str:
         if r.get('mode') == 'max' and r.get('publish_rate_hz') == 100.0:
             add('sim node, max mode, 100 Hz, stanford_arm', f'{r["value"]:.0f}', '>= 200', r['value'] >= 200,
                 r.get('notes', ''))
+    rec = f.get('recording', {})
+    if rec:
+        worst = min(rec, key=lambda n: rec[n]['ratio'])
+        add('full recorded / integration-only RTF, every scene (issue 15)',
+            ', '.join(f'{n} {r["ratio"]:.2f}' for n, r in rec.items()), '>= 0.5 on every scene',
+            all(r['ratio'] >= 0.5 for r in rec.values()), f'lowest: {worst}; CPU time, every default topic')
+        r = rec.get('stanford_arm')
+        if r and r.get('mujoco'):
+            add('stanford_arm full recorded RTF / MuJoCo RK4 from Python with state copied out (issue 15)',
+                f'{r["full"] / r["mujoco"]:.2f} ({r["full"]:.0f} / {r["mujoco"]:.0f})', '>= 3',
+                r['full'] / r['mujoco'] >= 3, 'CPU time, same run')
+        if r:
+            add('stanford_arm recorder cost per period / zstd of its bytes (issue 15)',
+                f'{r["batched_period"] / r["zstd_period"]:.1f} ({r["batched_period"] * 1e6:.1f} µs / '
+                f'{r["zstd_period"] * 1e6:.1f} µs)', 'a small multiple', None,
+                f'{r["messages"]:.0f} messages per period; message by message {r["message_period"] * 1e6:.1f} µs')
     m = f.get('memory')
     if m:
         add(f'memory growth after warm-up ({m["duration"]:g} s recorded run)', f'{m["growth"]:+.2f} %', '< 10 %',
@@ -980,5 +997,5 @@ def section_targets(args, names) -> str:
             'numba kernels and the first stanford_arm run; see the first-run table')
     if not rows:
         return '### Targets\n\n(no figures: run the other sections)'
-    return '\n'.join(['### Targets (issue 7) against this run\n',
+    return '\n'.join(['### Targets (issues 7 and 15) against this run\n',
                       table(['target', 'measured', 'target value', 'status', 'note'], rows)])
