@@ -866,7 +866,7 @@ def section_memory(args, names) -> str:
              f'{m["rss_end"] / mb:.1f} MiB', f'{growth:+.2f} %', f'{m["peak_rss"] / mb:.1f} MiB',
              f'{m["messages"]} msgs, {m["mcap_bytes"] / mb:.1f} MiB']]
     return '\n'.join([
-        '### Memory: recorded RK4 run at 1 kHz, joint states at 100 Hz (child process)\n',
+        '### Memory: recorded RK4 run at 1 kHz, every default topic of robodyn run at 100 Hz (child process)\n',
         table(['scene', 'simulated', 'wall', 'RSS after warm-up (10 %)', 'RSS at end',
                'growth after warm-up (max)', 'peak RSS', 'recording'], rows),
         '', 'Target: growth < 10 % over one simulated hour (`--long`).'])
