@@ -263,6 +263,12 @@ def _fast_string(buf: bytearray, value: str):
     buf += b'\x00'
 
 
+def _fast_count(buf: bytearray, n: int):
+    """Append a sequence's element count (uint32, 4-aligned)."""
+    buf += bytes(-(len(buf) - 4) % 4)
+    buf += _U32.pack(n)
+
+
 def _fast_float_seq(buf: bytearray, packed):
     """Append a float64 sequence: aligned count, then (if any) 8-aligned elements."""
     data, count = packed
@@ -573,8 +579,7 @@ def _fast_diagnostic_array(msg):
     buf = bytearray(ENCAPSULATION_HEADER)
     buf += _TIME.pack(*stamp)
     _fast_string(buf, frame)
-    buf += bytes(-(len(buf) - 4) % 4)
-    buf += _U32.pack(len(status))
+    _fast_count(buf, len(status))
     for st in status:
         if type(st) is not dict or len(st) != 5:
             return None
@@ -586,8 +591,7 @@ def _fast_diagnostic_array(msg):
         buf += level
         for x in strings:
             _fast_string(buf, x)
-        buf += bytes(-(len(buf) - 4) % 4)
-        buf += _U32.pack(len(values))
+        _fast_count(buf, len(values))
         for kv in values:
             if type(kv) is not dict or len(kv) != 2:
                 return None
