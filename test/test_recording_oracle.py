@@ -190,3 +190,55 @@ def test_chunks_close_every_half_second_of_simulation(tmp_path, batch):
         assert c.message_end_time - c.message_start_time <= 500_000_000 + 10_000_000  # 0.5 s + one period
     starts = [c.message_start_time for c in chunks]
     assert max(np.diff(starts)) <= 510_000_000
+
+
+def _drive(sink, scene, calls):
+    """Feed a sink a scripted sequence of on_command/on_output calls taken from a real run."""
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
+    sink.on_start(sim)
+    for kind, *args in calls:
+        if kind == 'cmd':
+            sink.on_command(*args)
+        else:
+            t, advance_to, mutate = args
+            if advance_to is not None:
+                sim.advance(advance_to)
+            out = sim.outputs(wrenches=True)
+            if mutate:
+                mutate(out)
+            sink.on_output(t, out, sim)
+    sink.close()
+
+
+@pytest.mark.parametrize('batch', [0, 3, HEADLESS_BATCH])
+def test_irregular_calls_record_the_oracle_bytes(tmp_path, batch):
+    # commands at two times in one period, periods without commands, a port that appears late,
+    # integer arrays (the generic encoder), a wrench set that changes, and commands applied after
+    # the last publication (a run that stopped): each kind change falls back or starts a new layout
+    scene = load_scene('stanford_arm')
+    e = np.linspace(0.1, 0.6, 6)
+
+    def ints(out):
+        out.position = np.round(out.position * 100).astype(np.int64)
+
+    def fewer(out):
+        out.wrenches = {k: out.wrenches[k] for k in list(out.wrenches)[:3]}
+    calls = [('out', 0.0, None, None)]
+    for k in range(1, 30):
+        t = k * 0.01
+        if k % 5:
+            calls.append(('cmd', t - 0.01, 'effort', e * k))
+        if k == 12:
+            calls.append(('cmd', t - 0.005, 'effort', -e))   # a second command, later in the same period
+        calls.append(('out', t, t, ints if k == 17 else fewer if 20 <= k < 24 else None))
+    calls.append(('cmd', 0.29, 'effort', e))
+    paths = []
+    for cls in (McapRunSink, OracleSink):
+        path = tmp_path / f'{cls.__name__}.mcap'
+        sink = McapRunSink(path, scene, {}, batch=batch, diagnostics_period=0.07) if cls is McapRunSink else \
+            OracleSink(path, scene, {}, diagnostics_period=0.07)
+        _drive(sink, scene, calls)
+        paths.append(path.read_bytes())
+    assert len(paths[0]) > 10000 and paths[0] == paths[1]
