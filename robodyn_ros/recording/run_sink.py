@@ -162,8 +162,8 @@ class _PeriodLayout:
         self.n_msgs = len(msgs)
 
     def fill(self, row, cmds, out):
-        """Write one period's numbers into ``row`` (n_values,)."""
-        for sl, values in zip(self.cmd_cols, cmds):
+        """Write one period's numbers into ``row`` (n_values,); cmds: ``[(t, port, values)]``."""
+        for sl, (_, _, values) in zip(self.cmd_cols, cmds):
             row[sl] = values
         js = self.js_cols
         row[js[0]] = out.position
@@ -359,7 +359,7 @@ class McapRunSink:
             layout = self._layouts[kind] = _PeriodLayout([(p, v.shape[0]) for _, p, v in cmds], out,
                                                          self.wants_wrenches, self.tf, self._channel)
         if (diag and resolve('diagnostics', self.namespace) not in self.writer._channels) or \
-                any(c[0] != cmds[0][0] for c in cmds):   # a new topic, or commands at several times
+                (len(cmds) > 1 and any(c[0] != cmds[0][0] for c in cmds)):   # a new topic, commands at several times
             self._write_held()
             for tc, port, values in cmds:
                 self._write_command(tc, port, values)
@@ -371,10 +371,9 @@ class McapRunSink:
             self._values = np.empty((self.batch, layout.n_values))
             self._times = np.empty((self.batch, 2), dtype=np.int64)
         k = self._held
-        t_ns = M.to_ns(t)
-        layout.fill(self._values[k], [v for _, _, v in cmds], out)
-        self._times[k, 0] = M.to_ns(cmds[0][0]) if cmds else t_ns
-        self._times[k, 1] = t_ns
+        t_ns = int(round(t * 1e9))   # M.to_ns
+        layout.fill(self._values[k], cmds, out)
+        self._times[k] = (int(round(cmds[0][0] * 1e9)) if cmds else t_ns, t_ns)
         self._cmds = []
         self._held = k + 1
         if diag:
