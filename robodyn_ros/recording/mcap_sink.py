@@ -15,7 +15,13 @@ Crash safety: chunks are closed by this class (not by ``mcap.Writer``'s own size
 open chunk holds ``chunk_size`` bytes of message records, and every closed chunk, with its message
 indexes, is handed to the operating system at once (optionally fsync'ed). A process killed with
 SIGKILL therefore leaves a file whose every closed chunk is readable by
-:func:`robodyn_ros.recording.reader.read_messages`; only the open chunk is lost.
+:func:`robodyn_ros.recording.reader.read_messages`; only the open chunk is lost. With
+``chunk_span`` a chunk is also closed once it spans that much log (simulation) time, which bounds
+the loss in time as well (the node uses 0.5 s).
+
+Speed: :meth:`McapSink.write_records` takes many complete message records at once (the batched
+recorder of headless runs); headers, sequence numbers, chunk boundaries and message indexes are
+those of message-by-message writing, byte for byte.
 """
 import io
 import os
