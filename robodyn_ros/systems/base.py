@@ -186,9 +186,11 @@ class LazyWrenches(Mapping):
         return (self.names, self.frames, self.many)
 
     def array(self) -> np.ndarray:
-        """``(n, 6)`` wrenches in name order."""
+        """``(n, 6)`` wrenches in name order (read-only: the mapping's values are views of it)."""
         if self._f is None:
-            self._f = self._one(*self.args)
+            f = np.asarray(self._one(*self.args))
+            f.flags.writeable = False
+            self._f = f
         return self._f
 
     def __getitem__(self, key):
