@@ -26,6 +26,7 @@ those of message-by-message writing, byte for byte.
 import io
 import os
 import struct
+import zlib
 from typing import Dict, Optional
 
 import numpy as np
@@ -103,15 +104,33 @@ class _DirectMessages:
     HEAD = struct.Struct('<BQHIQQ')
     _verified: Optional[bool] = None
 
+    #: chunk record up to the compression string: opcode, length, start, end, uncompressed size,
+    #: uncompressed crc, compression string length
+    CHUNK_HEAD = struct.Struct('<BQQQQII')
+
     def __init__(self, writer: Writer):
         self.writer = writer
         self.stats = writer._Writer__statistics
         self.chunk = writer._Writer__chunk_builder
         self.chunk_size = writer._Writer__chunk_size
+        self.stream = writer._Writer__stream
+        self.crcs = writer._Writer__enable_crcs
         from mcap.opcode import Opcode
-        from mcap.records import MessageIndex
+        from mcap.records import ChunkIndex, MessageIndex
+        from mcap.writer import IndexType
         self.opcode = int(Opcode.MESSAGE)
+        self.chunk_opcode = int(Opcode.CHUNK)
         self.MessageIndex = MessageIndex
+        self.ChunkIndex = ChunkIndex
+        self.index_message = bool(writer._Writer__index_types & IndexType.MESSAGE)
+        kind = writer._Writer__compression
+        self.compression = {CompressionType.ZSTD: 'zstd', CompressionType.LZ4: 'lz4', CompressionType.NONE: ''}[kind]
+        if self.compression == 'zstd':
+            import zstandard
+            self._zstd = zstandard.ZstdCompressor(level=3)   # what zstandard.compress(data) uses
+        elif self.compression == 'lz4':
+            import lz4.frame
+            self._lz4 = lz4.frame.compress
         if not (isinstance(self.chunk.record_writer._buffer, io.BytesIO)
                 and hasattr(self.stats, 'channel_message_counts') and isinstance(self.chunk.message_indices, dict)):
             raise AttributeError('unexpected mcap.Writer internals')
@@ -154,6 +173,49 @@ class _DirectMessages:
         buf.write(data)
         if buf.tell() > self.chunk_size:  # Writer.__maybe_finalize_chunk
             self.writer._Writer__finalize_chunk()
+
+    def flush(self):
+        """``Writer.flush()``: close the open chunk (if it holds messages), write it with its
+        message indexes, hand everything to the stream. The same records as mcap's
+        ``__finalize_chunk``, but zstd through one reused compressor (``zstandard.compress``
+        builds a new one per chunk, about a fifth of the compression time of a 64 KiB chunk;
+        the bytes are the same) and the chunk record written in one piece."""
+        w, cb = self.writer, self.chunk
+        if cb.num_messages:
+            self.stats.chunk_count += 1
+            raw = cb.end()
+            if self.compression == 'zstd':
+                data = self._zstd.compress(raw)
+            elif self.compression == 'lz4':
+                data = self._lz4(raw)
+            else:
+                data = raw
+            crc = zlib.crc32(raw) if self.crcs else 0
+            flush = w._Writer__flush
+            rb = w._Writer__record_builder
+            flush()
+            start = self.stream.tell()
+            comp = self.compression.encode()
+            head = self.CHUNK_HEAD.pack(self.chunk_opcode, 8 * 3 + 4 + 4 + len(comp) + 8 + len(data),
+                                        cb.message_start_time, cb.message_end_time, len(raw), crc, len(comp))
+            rb.write(head + comp + struct.pack('<Q', len(data)))
+            rb.write(data)
+            index = self.ChunkIndex(message_start_time=cb.message_start_time, message_end_time=cb.message_end_time,
+                                    chunk_start_offset=start, chunk_length=rb.count, message_index_offsets={},
+                                    message_index_length=0, compression=self.compression,
+                                    compressed_size=len(data), uncompressed_size=len(raw))
+            flush()
+            index_start = self.stream.tell()
+            if self.index_message:
+                for cid, idx in cb.message_indices.items():
+                    index.message_index_offsets[cid] = index_start + rb.count
+                    idx.write(rb)
+            index.message_index_length = rb.count
+            flush()
+            w._Writer__chunk_indices.append(index)
+            cb.reset()
+        w._Writer__flush()
+        self.stream.flush()
 
     def add_records(self, data, offsets, channels, log_times):
         """Append complete message records (headers filled) to the open chunk in one write.
@@ -234,7 +296,7 @@ class _DirectMessages:
                     pending.append((ids[c], t, data, k))
                 if k in (2, 6):
                     bulk()
-                    w.flush()
+                    d.flush() if d is not None else w.flush()
             bulk()
             w.finish()
             return f.getvalue()
@@ -517,7 +579,10 @@ class McapSink:
         """Close the open chunk (if it holds messages) and hand everything written to the OS."""
         self._check_open()
         # mcap.Writer.flush: finalize the chunk and its message indexes, then flush the stream.
-        self._writer.flush()
+        if self._direct is not None:
+            self._direct.flush()
+        else:
+            self._writer.flush()
         if self._open_chunk_bytes:
             self.chunk_count += 1
         self._open_chunk_bytes = 0
