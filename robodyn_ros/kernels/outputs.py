@@ -14,12 +14,15 @@ from . import core
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _joint_wrenches_many(mi, mf, Q, V, TAU, fext):
+def _joint_wrenches_many(mi, mf, Q, V, TAU, fext, has_fext):
+    # has_fext is an argument (a plain bool), not the constant False: numba then calls the
+    # joint_wrenches it already compiled (and cached) for CompiledModel.joint_wrenches instead of
+    # compiling the whole ABA/RNEA chain again for a literal flag (5 s on a cold cache)
     K = Q.shape[0]
     nb = mi.shape[0]
     out = np.empty((K, nb, 6))
     for k in range(K):
-        _, f = core.joint_wrenches(mi, mf, Q[k], V[k], TAU[k], fext, False)
+        _, f = core.joint_wrenches(mi, mf, Q[k], V[k], TAU[k], fext, has_fext)
         out[k] = f
     return out
 
@@ -31,4 +34,4 @@ def joint_wrenches_many(km, Q, V, TAU) -> np.ndarray:
     """
     return _joint_wrenches_many(km.mi, km.mf, np.ascontiguousarray(Q, dtype=np.float64),
                                 np.ascontiguousarray(V, dtype=np.float64),
-                                np.ascontiguousarray(TAU, dtype=np.float64), km._zf)
+                                np.ascontiguousarray(TAU, dtype=np.float64), km._zf, False)
