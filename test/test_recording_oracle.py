@@ -244,8 +244,17 @@ def test_irregular_calls_record_the_oracle_bytes(tmp_path, batch):
     assert len(paths[0]) > 10000 and paths[0] == paths[1]
 
 
-def test_arm_wrenches_are_computed_when_read_and_batched_bit_for_bit():
+@pytest.mark.parametrize('name', ['stanford_arm', 'betancur_pendulum', 'huston_prescribed_planar3'])
+def test_batched_wrench_kernel_records_the_oracle_bytes(tmp_path, name, monkeypatch):
+    # long runs switch to one compiled call per batch for the arms' joint wrenches: from the start here
+    from robodyn_ros.systems import arm
+    monkeypatch.setattr(arm, 'BATCH_KERNEL_AFTER', 0)
+    _compare(tmp_path, name, 0.5, batch=9, chunk_size=3000, diagnostics_period=0.1)
+
+
+def test_arm_wrenches_are_computed_when_read_and_batched_bit_for_bit(monkeypatch):
     from robodyn_ros import dynamics as dyn
+    from robodyn_ros.systems import arm
     from robodyn_ros.systems.base import LazyWrenches
     scene = load_scene('stanford_arm')
     s = scene.system
@@ -265,5 +274,7 @@ def test_arm_wrenches_are_computed_when_read_and_batched_bit_for_bit():
     q, v, tau = w.args
     ref = dyn.joint_wrenches(s.model, q, v, tau)[1]
     assert np.allclose(w.array(), ref, rtol=1e-10, atol=1e-10 * np.abs(ref).max())
-    many = w.many([o.wrenches.args for o in outs])
-    assert many.tobytes() == np.array([o.wrenches.array() for o in outs]).tobytes()
+    one_by_one = np.array([o.wrenches.array() for o in outs]).tobytes()
+    assert w.many([o.wrenches.args for o in outs]).tobytes() == one_by_one   # short run: per state
+    monkeypatch.setattr(arm, 'BATCH_KERNEL_AFTER', 0)
+    assert w.many([o.wrenches.args for o in outs]).tobytes() == one_by_one   # the batch kernel

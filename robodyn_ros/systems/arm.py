@@ -11,6 +11,8 @@ from .base import (BACKENDS, InputPort, LazyValues, LazyWrenches, System, System
                    default_backend, effort_actuation)
 
 
+#: recorded states after which joint wrenches are batched in one compiled call (kernels.outputs)
+BATCH_KERNEL_AFTER = 10_000
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
 
@@ -174,6 +176,12 @@ class ArmSystem(System):
         return self._km.joint_wrenches(q, v, tau)[1]
 
     def _wrenches_many(self, args):
+        # the batch kernel takes ~15 ms to load from numba's cache in a new process and saves
+        # ~1.5 us per state: it is loaded once this system has asked for BATCH_KERNEL_AFTER states
+        # (about 100 s of simulation at 100 Hz); before, the per-state kernel (the same numbers)
+        self._many_states = getattr(self, '_many_states', 0) + len(args)
+        if self._many_states <= BATCH_KERNEL_AFTER:
+            return np.array([self._wrenches_one(*a) for a in args])
         from ..kernels.outputs import joint_wrenches_many
         return joint_wrenches_many(self._km, *(np.array(a) for a in zip(*args)))
 
