@@ -646,8 +646,9 @@ _RECORDING_NOTE = (
     "sink of `robodyn run`: the scene's scripted commands, outputs, and every default topic (joint_states, odom, "
     'constraint wrenches, /tf, /clock, commands, diagnostics every 0.1 s) written in batches of {batch} periods '
     '(or {span:g} s). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
-    "stored publications (outputs computed beforehand; the arms' joint wrenches are computed by the recorder, in "
-    'one compiled call per batch), CPU time including chunking, zstd and the file writes; "message by message" is '
+    "stored publications (outputs computed beforehand; the recorder computes the arms' joint wrenches, one "
+    'compiled call per state in runs this short, per batch after 10 000 states), CPU time including chunking, '
+    'zstd and the file writes; "message by message" is '
     "the path the node uses (it writes its own messages between the recorder's). \"zstd of those bytes\": "
     '`zstandard.compress` (level 3, as mcap writes) of the same uncompressed chunks. MuJoCo: the same arm (URDF '
     'export), unforced, RK4 at 1 ms, `mj_step(m, d, 10)` per 10 ms with time, qpos, qvel, qacc and actuator '
