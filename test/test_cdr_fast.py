@@ -111,3 +111,88 @@ def test_unusual_tf_messages_decline_the_fast_path_and_still_encode_generically(
     for m in (msg, no_child, {'transforms': tuple(_tf_message(rng, 1)['transforms'])}):
         assert cdr._fast_tf_message(m) is None
         assert cdr.encode('tf2_msgs/msg/TFMessage', m) == generic('tf2_msgs/msg/TFMessage', m)
+
+
+def _diagnostics(rng, k):
+    values = {f'k{i}' + 'é' * (i % 2): [1.5, -2, True, 'rk4', float('nan'), np.float64(3e-300)][i % 6]
+              for i in range(int(rng.integers(0, 12)))}
+    msg = M.diagnostic_array(int(rng.integers(0, 2 ** 60)), 'robodyn_ros: simulation' * (k % 2),
+                             int(rng.integers(0, 3)), 'running' + 'x' * (k % 5), values, hardware_id='h' * (k % 3))
+    if k % 4 == 3:
+        msg['status'] = msg['status'] * 2 if k % 8 == 3 else []
+    return msg
+
+
+def test_diagnostic_array_fast_path_is_byte_identical():
+    rng = np.random.default_rng(11)
+    for k in range(40):
+        msg = _diagnostics(rng, k)
+        fast = cdr._fast_diagnostic_array(msg)
+        assert fast is not None and fast == generic('diagnostic_msgs/msg/DiagnosticArray', msg)
+    odd = _diagnostics(rng, 0)
+    odd['status'][0]['level'] = 1        # an int, not one byte: declined, still encoded
+    assert cdr._fast_diagnostic_array(odd) is None
+    odd['status'][0]['level'] = b'\x01'
+    del odd['status'][0]['hardware_id']  # missing field: the generic encoder fills it in
+    assert cdr._fast_diagnostic_array(odd) is None
+    assert cdr.encode('diagnostic_msgs/msg/DiagnosticArray', odd) == generic('diagnostic_msgs/msg/DiagnosticArray', odd)
+
+
+def test_layouts_put_the_numbers_where_the_generic_encoder_does():
+    rng = np.random.default_rng(12)
+    for k in range(20):
+        n = [int(x) for x in rng.integers(0, 7, size=3)]
+        names = tuple(f'j{i}' + 'é' * (k % 3) for i in range(n[0]))
+        arrays = [rng.normal(size=m) for m in n]
+        t_ns = int(rng.integers(0, 2 ** 60))
+        sec, nsec = divmod(t_ns, 10 ** 9)
+        tpl, offsets = cdr.joint_state_layout(cdr.joint_state_names('', names), n)
+        buf = bytearray(tpl)
+        buf[cdr.STAMP_AT:cdr.STAMP_AT + 8] = cdr._TIME.pack(sec, nsec)
+        for at, a in zip(offsets, arrays):
+            buf[at:at + 8 * len(a)] = a.astype('<f8').tobytes()
+        assert bytes(buf) == generic('sensor_msgs/msg/JointState', M.joint_state(t_ns, names, *arrays))
+        tpl, at = cdr.float64_array_layout(n[1])
+        assert tpl[:at] + arrays[1].tobytes() == generic('std_msgs/msg/Float64MultiArray', M.float64_array(arrays[1]))
+        w = rng.normal(size=6)
+        tpl, at = cdr.wrench_stamped_layout('link' * (k % 3))
+        buf = bytearray(tpl)
+        buf[cdr.STAMP_AT:cdr.STAMP_AT + 8] = cdr._TIME.pack(sec, nsec)
+        buf[at:at + 48] = np.r_[w[3:], w[:3]].tobytes()
+        assert bytes(buf) == generic('geometry_msgs/msg/WrenchStamped', M.wrench_stamped(t_ns, 'link' * (k % 3), w))
+        odom = {'position': rng.normal(size=3), 'orientation': rng.normal(size=4), 'linear': rng.normal(size=3),
+                'angular': rng.normal(size=3)}
+        tpl, at = cdr.odometry_layout()
+        buf = bytearray(tpl)
+        buf[cdr.STAMP_AT:cdr.STAMP_AT + 8] = cdr._TIME.pack(sec, nsec)
+        buf[at:at + 56] = np.r_[odom['position'], odom['orientation']].tobytes()
+        buf[at + 8 * 43:at + 8 * 49] = np.r_[odom['linear'], odom['angular']].tobytes()
+        assert bytes(buf) == generic('nav_msgs/msg/Odometry', M.odometry(t_ns, odom))
+
+
+@pytest.mark.parametrize('name', ['stanford_arm', 'mobile_manipulator', 'unfried_free_flyer', 'huston_prescribed_planar3'])
+def test_tf_transform_values_equal_the_per_publication_transforms(name):
+    import warnings
+
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.simulation import Simulator
+    from robodyn_ros.tf import TfTree
+    sc = load_scene(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)
+    tree = TfTree(sc.system)
+    outs = []
+    for k in range(12):
+        sim.advance(0.01 * (k + 1))
+        outs.append(sim.outputs(wrenches=False))
+    rng = np.random.default_rng(13)
+    pos = np.array([o.position for o in outs]) + rng.normal(size=(12, len(outs[0].position))) * 3.0  # any angle
+    odom = None if outs[0].odom is None else np.array([np.r_[o.odom['position'], o.odom['orientation']] for o in outs])
+    got = tree.transform_values(outs[0].joint_names, pos, odom)
+    for k, o in enumerate(outs):
+        trs = tree.transforms(o.joint_names, pos[k], o.odom)
+        assert len(trs) == got.shape[1] > 0
+        want = np.array([(*p, *q) for _, _, p, q in trs])
+        assert want.tobytes() == got[k].tobytes()   # bit for bit
+    assert [f for f in tree.frames(odom is not None)] == [(p, c) for p, c, _, _ in trs]

@@ -101,3 +101,24 @@ def test_sink_falls_back_to_add_message_when_mcap_internals_differ(tmp_path, mon
         assert s._direct is not None
         s.write('/clock', 'rosgraph_msgs/msg/Clock', M.clock(5), 5)
     assert (tmp_path / 'a.mcap').read_bytes() == (tmp_path / 'b.mcap').read_bytes()
+
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
+def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, compression):
+    # McapSink closes chunks itself (one reused zstd compressor, the chunk record in one piece);
+    # the file must be the one mcap.Writer.flush writes, for each compression
+    rng = np.random.default_rng(7)
+    msgs = [(f'/t{int(rng.integers(0, 3))}', int(t), rng.normal(size=int(rng.integers(1, 40))))
+            for t in np.cumsum(rng.integers(0, 5_000_000, size=600))]
+    files = []
+    for direct in (True, False):
+        path = tmp_path / f'{direct}.mcap'
+        with mcap_sink.McapSink(path, {'k': 'v'}, chunk_size=2500, compression=compression) as s:
+            if not direct:
+                s._direct = None
+            assert (s._direct is not None) == direct
+            for topic, t, data in msgs:
+                s.write(topic, 'std_msgs/msg/Float64MultiArray', M.float64_array(data), t)
+            assert s.chunk_count > 10
+        files.append(path.read_bytes())
+    assert files[0] == files[1]

@@ -29,9 +29,19 @@ _SUMMARY_TIME = re.compile(r'simulated ([0-9.]+) s in ([0-9.]+) s wall')
 _SUMMARY_CPU = re.compile(r'([0-9.]+) s CPU\)')
 
 
-def _max_mode_rtf(publish_rate: float, duration: float) -> dict:
-    """One max-mode run with a joint_states subscriber; returns the row."""
-    from ..nodes.probe import Domain, Probe, start_sim
+def _max_mode_rtf(publish_rate: float, duration: float, profile: str | None = None) -> dict:
+    """One max-mode run with a joint_states subscriber; returns the row (profile: run the node
+    under cProfile, writing its statistics to this file)."""
+    from ..nodes import probe as probe_mod
+    from ..nodes.probe import Domain, Probe
+    if profile:
+        def start_sim(dom, params, stdout):
+            cmd = probe_mod.sim_command(params)
+            i = cmd.index('-m')
+            return subprocess.Popen(cmd[:i] + ['-m', 'cProfile', '-o', profile] + cmd[i:], env=dom.env(),
+                                    stdout=stdout, stderr=subprocess.STDOUT, start_new_session=True)
+    else:
+        start_sim = probe_mod.start_sim
     dom = Domain()
     probe = Probe(dom, 'robodyn_bench')
     from std_srvs.srv import SetBool
@@ -72,6 +82,35 @@ def _max_mode_rtf(publish_rate: float, duration: float) -> dict:
                      f'{len(received)} joint_states received by one subscriber'}
 
 
+def _dds_account(publish_rate: float, duration: float, unprofiled: dict) -> dict:
+    """What DDS delivery takes of a max-mode period: the node under cProfile, the time of the
+    ``publish_raw`` calls (Fast DDS sending the serialized message to the subscriber, a C call the
+    profiler hardly inflates) against the node's CPU per period in the unprofiled run."""
+    import os
+    import pstats
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, 'node.prof')
+        _max_mode_rtf(publish_rate, duration, profile=path)
+        st = pstats.Stats(path).stats
+    pub = [(v[1], v[2]) for k, v in st.items() if k[2] == "<built-in method rclpy._rclpy_pybind11.publish_raw>"]
+    periods = [(v[1], v[3]) for k, v in st.items() if k[2] == '_run_period']
+    if not pub or not periods:
+        raise RuntimeError('no publish_raw/_run_period in the node profile')
+    n_pub, t_pub = pub[0]
+    n_per, t_per = periods[0]
+    m = re.search(r'node CPU ([0-9.]+) s', unprofiled['notes'])
+    sim_t = duration
+    cpu_period = float(m.group(1)) / (sim_t * publish_rate) if m else float('nan')
+    per_pub = t_pub / n_pub
+    own = cpu_period - per_pub * n_pub / n_per
+    return {'figure': 'DDS publish per message (profiled)', 'mode': 'max', 'publish_rate_hz': publish_rate,
+            'value': round(per_pub * 1e6, 1), 'unit': 'us per publish',
+            'notes': f'cProfile of the node: {n_pub} publish_raw calls take {per_pub * 1e6:.0f} us each of '
+                     f'{t_per / n_per * 1e6:.0f} us per (profiled) period; unprofiled the node needs '
+                     f'{cpu_period * 1e6:.0f} us CPU per period, so without the publish its own work is about '
+                     f'{own * 1e6:.0f} us (RTF about {1.0 / publish_rate / own:.0f})' if own > 0 else ''}
+
+
 def _lockstep_latency(publish_rate: float, n: int) -> dict:
     """Round trips command -> joint_states against a lockstep node; returns the row."""
     from ..nodes.probe import Domain, Probe, start_sim
@@ -102,5 +141,6 @@ def bench_node(duration: float = 20.0, round_trips: int = 300) -> list:
     duration: simulated seconds of each max-mode run; round_trips: lockstep commands per
     latency figure. Takes about ``2 x duration / rtf + round_trips x latency + 4 x startup``.
     """
-    return [_max_mode_rtf(1000.0, duration), _max_mode_rtf(100.0, duration),
+    rtf100 = _max_mode_rtf(100.0, duration)
+    return [_max_mode_rtf(1000.0, duration), rtf100, _dds_account(100.0, duration, rtf100),
             _lockstep_latency(100.0, round_trips), _lockstep_latency(1000.0, round_trips)]

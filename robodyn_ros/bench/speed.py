@@ -13,6 +13,10 @@ Sections (each can be skipped with ``--skip``):
   + run_headless, scripted commands, joint states recorded at 100 Hz to a temporary MCAP),
   next to a Python loop of RK4 over ``pin.aba`` and MuJoCo's RK4 (same URDF, timestep 1 ms)
   stepped from Python (one ``mj_step`` per step, and ``mj_step(nstep=10)`` per 10 ms);
+* ``recording`` issue 15: per scene, the integration-only and the fully recorded real-time factor
+  (every default topic of ``robodyn run``) and their ratio, the recorder's cost per period and per
+  message (batched, and message by message as the node writes) next to zstd's cost for the same
+  bytes, and MuJoCo's RK4 stepped from Python with its state copied out every period;
 * ``scaling``  forward dynamics of 8/16/32/64-link random chains (O(n): 64 links should cost
   at most 10x 8 links);
 * ``memory``   peak RSS and RSS growth after warm-up of a long recorded run (``--long``: one
@@ -41,7 +45,7 @@ import numpy as np
 from .timing import best_of, fmt_ratio, fmt_time, machine_line, peak_rss_bytes, per_call, rss_bytes, table
 
 HELP = 'per-call ID/M/FD, real-time factors, O(n) scaling, memory and compile cost vs Pinocchio/MuJoCo'
-SECTIONS = ('kernels', 'systems', 'rtf', 'scaling', 'memory', 'compile', 'node', 'targets')
+SECTIONS = ('kernels', 'systems', 'rtf', 'recording', 'scaling', 'memory', 'compile', 'node', 'targets')
 #: step and publication rate of the real-time-factor runs (issue 7: 1 kHz RK4, 100 Hz joint states)
 RTF_DT, RTF_RATE = 1e-3, 100.0
 #: simulated seconds of the numpy-reference RTF run (it is ~100x slower than the compiled one)
@@ -369,17 +373,19 @@ def section_systems(args, names) -> str:
 # real-time factor
 # ----------------------------------------------------------------------------------------------
 def run_robodyn(name, duration, record=True, backend='numba', rate=RTF_RATE, dt=RTF_DT, tf=False,
-                advance_only=False):
+                advance_only=False, full=False):
     """Wall seconds of a headless RK4 run (dt, rate) of a bundled scene, recording joint states.
 
     record: McapRunSink with joint_states, /clock, the scripted commands and 1 Hz diagnostics
-    (no wrenches; ``/tf`` too when tf); advance_only: only ``Simulator.advance`` per period (no
+    (no wrenches; ``/tf`` too when tf), in batches as ``robodyn run`` writes; full: every default
+    topic of ``robodyn run`` (wrenches, /tf, diagnostics every 0.1 s); advance_only: only
+    ``Simulator.advance`` per period (no
     script, outputs or sinks: the floor of this loop). Returns ``(wall, simulator, cpu)``: the
     Simulator and sink are built before the clocks start (scene loading is not timed), the sink's
     ``close()`` is inside the timing.
     """
     import warnings
-    from ..recording.run_sink import McapRunSink
+    from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
     from ..simulation import Simulator, run_headless
     scene = _load(name, backend)
     with warnings.catch_warnings():
@@ -394,7 +400,8 @@ def run_robodyn(name, duration, record=True, backend='numba', rate=RTF_RATE, dt=
     with tempfile.TemporaryDirectory() as d:
         sinks = [McapRunSink(os.path.join(d, 'bench.mcap'), scene,
                              {'integrator': 'rk4', 'dt': dt, 'rate': rate, 'mode': 'bench'},
-                             record_wrenches=False, record_tf=tf)] if record else []
+                             record_wrenches=full, record_tf=tf or full, batch=HEADLESS_BATCH,
+                             diagnostics_period=0.1 if full else 1.0)] if record else []
         c0, t0 = time.process_time(), time.perf_counter()
         try:
             run_headless(sim, duration, rate, scene.script, sinks)
@@ -596,6 +603,192 @@ def _kernel_floor(args) -> str:
 
 
 # ----------------------------------------------------------------------------------------------
+# recording at the speed of the dynamics (issue 15)
+# ----------------------------------------------------------------------------------------------
+def mujoco_recorded_loop(m, q0, v0, duration, rate=RTF_RATE):
+    """MuJoCo RK4 from Python, ``mj_step(nstep)`` per publication period, its state (time, qpos,
+    qvel, qacc, actuator forces) copied into preallocated arrays every period: a peer that also
+    produces the data a recording needs (without encoding it)."""
+    import mujoco
+    d = mujoco.MjData(m)
+    d.qpos[:] = q0
+    d.qvel[:] = v0
+    nstep = max(1, int(round(1.0 / (rate * m.opt.timestep))))
+    n = int(round(duration * rate))
+    T = np.empty(n)
+    Q, V, A, F = (np.empty((n, m.nq)), np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, m.nv)))
+    step = mujoco.mj_step
+    for k in range(n):
+        step(m, d, nstep)
+        T[k] = d.time
+        Q[k] = d.qpos
+        V[k] = d.qvel
+        A[k] = d.qacc
+        F[k] = d.qfrc_actuator
+    return Q
+
+
+def _replay_cost(scene, backend, periods, batch, repeat):
+    """CPU seconds per period of recording ``periods`` stored publications of a scene (outputs
+    computed beforehand, as run_headless hands them over) with McapRunSink(batch), every default
+    topic; also the messages and bytes it wrote and the zstd time of those bytes per period."""
+    import warnings
+    import zstandard
+    from ..recording.run_sink import McapRunSink
+    from ..simulation import Simulator
+    from ..systems.base import LazyWrenches
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=RTF_DT)
+    stored = [(None, {}, sim.t, sim.outputs(wrenches=True))]
+    for k in range(periods):
+        t_cmd = sim.t
+        cmds = scene.script(sim.t, sim.y) if scene.script is not None else {}
+        for port, values in cmds.items():
+            sim.set_command(port, values)
+        sim.advance((k + 1) / RTF_RATE)
+        stored.append((t_cmd, {p: sim.ports[p].value for p in cmds}, sim.t, sim.outputs(wrenches=True)))
+    best, info = None, None
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, 'replay.mcap')
+        for _ in range(repeat):
+            for *_, out in stored:
+                if isinstance(out.wrenches, LazyWrenches):
+                    out.wrenches._f = None   # computed again, as in a run
+            sink = McapRunSink(path, scene, {'mode': 'bench'}, diagnostics_period=0.1, batch=batch)
+            sink.on_start(sim)
+            c0 = time.process_time()
+            for t_cmd, cmds, t, out in stored:
+                for port, values in cmds.items():
+                    sink.on_command(t_cmd, port, values)
+                sink.on_output(t, out, sim)
+            sink.close()
+            c = (time.process_time() - c0) / len(stored)
+            best = c if best is None else min(best, c)
+            if info is None:
+                from mcap.records import Chunk
+                from mcap.stream_reader import StreamReader
+                with open(path, 'rb') as f:
+                    raw = [zstandard.decompress(r.data, max_output_size=r.uncompressed_size)
+                           if r.compression == 'zstd' else r.data
+                           for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+                t_z = min(best_of(lambda: [zstandard.compress(x) for x in raw], 3)[2], 1e9)
+                info = {'messages': sink.count, 'bytes': sum(len(x) for x in raw), 'zstd': t_z / len(stored),
+                        'raw': b''.join(raw)}
+    return best, info
+
+
+_RECORDING_NOTE = (
+    '"integration only": `Simulator.advance` per period and nothing else. "full recorded": the loop and the '
+    "sink of `robodyn run`: the scene's scripted commands, outputs, and every default topic (joint_states, odom, "
+    'constraint wrenches, /tf, /clock, commands, diagnostics every 0.1 s) written in batches of {batch} periods '
+    '(or {span:g} s). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
+    "stored publications (outputs computed beforehand; the recorder computes the arms' joint wrenches, one "
+    'compiled call per state in runs this short, per batch after 10 000 states), CPU time including chunking, '
+    'zstd and the file writes; "message by message" is '
+    "the path the node uses (it writes its own messages between the recorder's). \"zstd of those bytes\": "
+    '`zstandard.compress` (level 3, as mcap writes) of the same uncompressed chunks. MuJoCo: the same arm (URDF '
+    'export), unforced, RK4 at 1 ms, `mj_step(m, d, 10)` per 10 ms with time, qpos, qvel, qacc and actuator '
+    'forces copied into arrays every period.')
+
+
+def _compression_trade(raw: bytes, period_bytes: float) -> list:
+    """Rows: chunk size x compression (zstd levels, lz4, none) -> size ratio and CPU time."""
+    import zstandard
+    rows = []
+    for size in (16 * 1024, 64 * 1024, 256 * 1024):
+        pieces = [raw[i:i + size] for i in range(0, len(raw), size)]
+        codecs = [(f'zstd {lv}' + (' (written)' if lv == 3 and size == 64 * 1024 else ''),
+                   zstandard.ZstdCompressor(level=lv).compress) for lv in (-5, -1, 1, 3, 6)]
+        try:
+            import lz4.frame
+            codecs.append(('lz4', lz4.frame.compress))
+        except ImportError:
+            pass
+        for label, fn in codecs:
+            t = best_of(lambda: [fn(p) for p in pieces], 3)[2]
+            out = sum(len(fn(p)) for p in pieces)
+            rows.append([f'{size // 1024} KiB', label, f'{out / len(raw) * 100:.1f} %', f'{t / len(raw) * 1e6 * 1e3:.2f} ms',
+                         f'{t / len(raw) * period_bytes * 1e6:.2f} µs'])
+    return rows
+
+
+def section_recording(args, names) -> str:
+    """Integration-only vs fully recorded real-time factor per scene, recorder cost per period and
+    per message, and MuJoCo RK4 from Python with its state copied out every period."""
+    from ..model import to_urdf
+    from ..recording.run_sink import BATCH_SPAN, HEADLESS_BATCH
+    from ..systems.arm import ArmSystem
+    from ..systems.base import TOOLS_BACKEND
+    rows, notes, zrows = [], [], []
+    dur = args.duration
+    figures = getattr(args, 'figures', {})
+    periods = 100 if args.quick else 300
+    for name in names:
+        try:
+            scene = _load(name)
+        except Exception as e:
+            notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
+            continue
+        arm = type(scene.system) is ArmSystem
+        backend = TOOLS_BACKEND if arm else 'numba'   # what robodyn run uses
+        fused = has_fused_path(scene.system)
+        d = dur if fused else min(dur, NUMPY_SYSTEM_HORIZON)
+        n_rec = (args.repeat if args.quick else 3) if fused else 1
+        try:
+            run_robodyn(name, 0.05, backend=backend, full=True)   # warm-up
+            t_adv = best_run(lambda: run_robodyn(name, d, backend=backend, advance_only=True), n_rec)
+            t_full = best_run(lambda: run_robodyn(name, d, backend=backend, full=True), n_rec)
+            t_none = best_run(lambda: run_robodyn(name, d, backend=backend, record=False), n_rec)
+            sc = _load(name, backend)
+            c_batch, info = _replay_cost(sc, backend, periods, HEADLESS_BATCH, 3)
+            c_msg, _ = _replay_cost(sc, backend, periods, 0, 3)
+        except Exception as e:
+            why = ' '.join(str(e).split())[:300]
+            notes.append(f'{name}: not run ({type(e).__name__}: {why})')
+            continue
+        adv, full, none = d / t_adv[2], d / t_full[2], d / t_none[2]
+        per_msg = info['messages'] / (periods + 1)
+        row = [name, backend, f'{adv:.0f}', f'{full:.0f} (wall {d / t_full[0]:.0f})', f'{full / adv:.2f}',
+               f'{none:.0f}', f'{per_msg:.1f} / {info["bytes"] / (periods + 1):.0f} B',
+               f'{c_batch * 1e6:.1f} µs ({c_batch * 1e6 / per_msg:.2f} µs/msg)',
+               f'{c_msg * 1e6:.1f} µs ({c_msg * 1e6 / per_msg:.2f} µs/msg)',
+               f'{info["zstd"] * 1e6:.1f} µs', f'{c_batch / info["zstd"]:.1f}']
+        fig = {'advance': adv, 'full': full, 'ratio': full / adv, 'batched_period': c_batch,
+               'message_period': c_msg, 'zstd_period': info['zstd'], 'messages': per_msg}
+        model = scene.system.model if arm else None
+        m, why = mujoco_model(to_urdf(model)) if model is not None else (None, 'no URDF equivalent')
+        if m is not None and m.nq == model.nq:
+            q0, v0 = scene.y0[:model.nq], scene.y0[model.nq:]
+            t = best_of(lambda: mujoco_recorded_loop(m, q0, v0, dur), 1 if args.quick else 3)
+            fig['mujoco'] = dur / t[2]
+            row += [f'{dur / t[2]:.0f}', f'{full / fig["mujoco"]:.1f}']
+        else:
+            row += ['n/a', 'n/a']
+            if model is not None:
+                notes.append(f'{name}: no MuJoCo peer ({why or f"MuJoCo model has nq={m.nq}"})')
+        figures.setdefault('recording', {})[name] = fig
+        rows.append(row)
+        if name == 'stanford_arm':
+            zrows = _compression_trade(info['raw'], info['bytes'] / (periods + 1))
+    text = [f'### Recording at the speed of the dynamics: {dur:g} s simulated, RK4 at {RTF_DT * 1e3:g} ms, '
+            f'published at {RTF_RATE:g} Hz\n',
+            table(['scene', 'kernels', 'integration only (CPU RTF)', 'full recorded (CPU RTF)', 'full / integration',
+                   'no recording (CPU RTF)', 'messages / bytes per period', 'recorder per period, batched',
+                   'recorder per period, message by message', 'zstd of those bytes', 'batched / zstd',
+                   'MuJoCo RK4 from Python + state copied out (CPU RTF)', 'full recorded / MuJoCo'], rows),
+            '', _RECORDING_NOTE.format(batch=HEADLESS_BATCH, span=BATCH_SPAN)] + [f'- {n}' for n in notes]
+    if zrows:
+        text += ['', '#### Compression of a chunk: size against time (stanford_arm, every default topic)\n',
+                 table(['chunk size', 'compression', 'file size (of raw)', 'CPU per MB', 'per publication period'],
+                       zrows),
+                 '', 'The raw message records of the recording above cut into chunks of each size and compressed '
+                     'alone (CPU time, best of 3). The recorder writes zstd level 3 (what mcap.Writer calls; '
+                     'recordings stay byte-identical) in 64 KiB chunks.']
+    return '\n'.join(text)
+
+
+# ----------------------------------------------------------------------------------------------
 # O(n) scaling
 # ----------------------------------------------------------------------------------------------
 def section_scaling(args, names) -> str:
@@ -645,16 +838,17 @@ def section_scaling(args, names) -> str:
 def memory_child(duration: float, scene_name='stanford_arm') -> dict:
     """Run a recorded headless run in this process and report RSS figures (bytes)."""
     import warnings
-    from ..recording.run_sink import McapRunSink
+    from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
     from ..simulation import Simulator, run_headless
-    scene = _load(scene_name)
+    from ..systems.base import TOOLS_BACKEND
+    scene = _load(scene_name, TOOLS_BACKEND)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=RTF_DT)
     with tempfile.TemporaryDirectory() as d:
         path = os.path.join(d, 'memory.mcap')
         sink = McapRunSink(path, scene, {'integrator': 'rk4', 'dt': RTF_DT, 'rate': RTF_RATE, 'mode': 'bench'},
-                           record_wrenches=False)
+                           diagnostics_period=0.1, batch=HEADLESS_BATCH)   # every default topic of robodyn run
         probe = _RssProbe(every=max(1, int(duration * RTF_RATE) // 20))
         t0 = time.perf_counter()
         try:
@@ -710,7 +904,7 @@ def section_memory(args, names) -> str:
              f'{m["rss_end"] / mb:.1f} MiB', f'{growth:+.2f} %', f'{m["peak_rss"] / mb:.1f} MiB',
              f'{m["messages"]} msgs, {m["mcap_bytes"] / mb:.1f} MiB']]
     return '\n'.join([
-        '### Memory: recorded RK4 run at 1 kHz, joint states at 100 Hz (child process)\n',
+        '### Memory: recorded RK4 run at 1 kHz, every default topic of robodyn run at 100 Hz (child process)\n',
         table(['scene', 'simulated', 'wall', 'RSS after warm-up (10 %)', 'RSS at end',
                'growth after warm-up (max)', 'peak RSS', 'recording'], rows),
         '', 'Target: growth < 10 % over one simulated hour (`--long`).'])
@@ -840,9 +1034,25 @@ def section_targets(args, names) -> str:
         add('unfried_free_flyer augmented / minimal formulation', f'{f["augmented_ratio"]:.1f}x', '<= 5x',
             f['augmented_ratio'] <= 5, 'one right-hand-side evaluation inside the fused loop')
     for r in f.get('node', []):
-        if r.get('mode') == 'max' and r.get('publish_rate_hz') == 100.0:
+        if r.get('figure') == 'real-time factor' and r.get('mode') == 'max' and r.get('publish_rate_hz') == 100.0:
             add('sim node, max mode, 100 Hz, stanford_arm', f'{r["value"]:.0f}', '>= 200', r['value'] >= 200,
                 r.get('notes', ''))
+    rec = f.get('recording', {})
+    if rec:
+        worst = min(rec, key=lambda n: rec[n]['ratio'])
+        add('full recorded / integration-only RTF, every scene (issue 15)',
+            ', '.join(f'{n} {r["ratio"]:.2f}' for n, r in rec.items()), '>= 0.5 on every scene',
+            all(r['ratio'] >= 0.5 for r in rec.values()), f'lowest: {worst}; CPU time, every default topic')
+        r = rec.get('stanford_arm')
+        if r and r.get('mujoco'):
+            add('stanford_arm full recorded RTF / MuJoCo RK4 from Python with state copied out (issue 15)',
+                f'{r["full"] / r["mujoco"]:.2f} ({r["full"]:.0f} / {r["mujoco"]:.0f})', '>= 3',
+                r['full'] / r['mujoco'] >= 3, 'CPU time, same run')
+        if r:
+            add('stanford_arm recorder cost per period / zstd of its bytes (issue 15)',
+                f'{r["batched_period"] / r["zstd_period"]:.1f} ({r["batched_period"] * 1e6:.1f} µs / '
+                f'{r["zstd_period"] * 1e6:.1f} µs)', 'a small multiple', None,
+                f'{r["messages"]:.0f} messages per period; message by message {r["message_period"] * 1e6:.1f} µs')
     m = f.get('memory')
     if m:
         add(f'memory growth after warm-up ({m["duration"]:g} s recorded run)', f'{m["growth"]:+.2f} %', '< 10 %',
@@ -856,5 +1066,5 @@ def section_targets(args, names) -> str:
             'numba kernels and the first stanford_arm run; see the first-run table')
     if not rows:
         return '### Targets\n\n(no figures: run the other sections)'
-    return '\n'.join(['### Targets (issue 7) against this run\n',
+    return '\n'.join(['### Targets (issues 7 and 15) against this run\n',
                       table(['target', 'measured', 'target value', 'status', 'note'], rows)])

@@ -132,7 +132,7 @@ class Resim:
         from .. import messages as M
         from ..nodes.ports import command_values
         from ..recording import decode, read_raw_messages
-        from ..recording.run_sink import McapRunSink
+        from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
         from ..simulation import CommandError
         sim = self.simulator()
         ports = {M.PORT_TOPICS[p]: p for p in sim.system.inputs if p in M.PORT_TOPICS}
@@ -140,7 +140,7 @@ class Resim:
         settings = dict(self.settings, resim_of=os.path.basename(self.path))
         os.makedirs(os.path.dirname(os.path.abspath(out_path)), exist_ok=True)
         sink = McapRunSink(out_path, self.scene, settings, record_wrenches=self.wrenches,
-                           namespace=self.namespace, record_tf=self.tf)
+                           namespace=self.namespace, record_tf=self.tf, batch=HEADLESS_BATCH)
         n_pub = n_cmd = n_rej = 0
         t_start = sim.t
         try:

@@ -49,7 +49,7 @@ def resolve_settings(scene, args) -> dict:
 
 def main(args) -> int:
     """Run, record, print a summary; exit 1 with the cause if the simulation fails."""
-    from ..recording.run_sink import McapRunSink
+    from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
     from ..scene import SceneError, load_scene
     from ..simulation import SimulationError, Simulator, run_headless
     from ..systems.base import backend_scope, tools_backend
@@ -79,7 +79,7 @@ def main(args) -> int:
     if args.record:
         sinks.append(McapRunSink(args.record, scene, {**st, 'mode': 'headless'},
                                  record_wrenches=not args.no_wrenches, record_tf=not args.no_tf,
-                                 diagnostics_period=args.diagnostics_period))
+                                 diagnostics_period=args.diagnostics_period, batch=HEADLESS_BATCH))
     w0, c0 = time.perf_counter(), time.process_time()
     status = 0
     try:

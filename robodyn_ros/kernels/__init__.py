@@ -337,6 +337,8 @@ def warmup(model: Model | None = None) -> float:
     km.rnea(q, v, v, np.zeros((model.nb, 6)))
     km.crba(q)
     km.joint_wrenches(q, v, v)
+    from .outputs import joint_wrenches_many   # the recorder's batches
+    joint_wrenches_many(km, q[None], v[None], v[None])
     km.energies(q, v)
     km.qdot(q, v)
     km.normalize(q)

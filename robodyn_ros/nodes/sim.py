@@ -428,12 +428,13 @@ def make_node_class():
         def _open_recording(self):
             if not self.cfg.record:
                 return
-            from ..recording.run_sink import McapRunSink
+            from ..recording.run_sink import NODE_CHUNK_SPAN, McapRunSink
             path = _episode_path(self.cfg.record, self.episode)
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             self.recorder = McapRunSink(path, self.scene, self.cfg.settings(self.namespace),
                                         record_wrenches=True, diagnostics_period=self.cfg.diagnostics_period,
-                                        namespace=self.namespace.strip('/'), record_tf=self.cfg.publish_tf)
+                                        namespace=self.namespace.strip('/'), record_tf=self.cfg.publish_tf,
+                                        chunk_span=NODE_CHUNK_SPAN)
             self.recorders.append(self.recorder)
             self.recorder.on_start(self.sim)
 

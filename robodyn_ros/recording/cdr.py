@@ -263,6 +263,12 @@ def _fast_string(buf: bytearray, value: str):
     buf += b'\x00'
 
 
+def _fast_count(buf: bytearray, n: int):
+    """Append a sequence's element count (uint32, 4-aligned)."""
+    buf += bytes(-(len(buf) - 4) % 4)
+    buf += _U32.pack(n)
+
+
 def _fast_float_seq(buf: bytearray, packed):
     """Append a float64 sequence: aligned count, then (if any) 8-aligned elements."""
     data, count = packed
@@ -460,9 +466,10 @@ def _template(type_name: str, msg, n_tail: int):
     return data, len(data) - 8 * n_tail
 
 
-def wrench_stamped_bytes(sec: int, nanosec: int, frame: str, w) -> bytes:
-    """CDR of ``geometry_msgs/WrenchStamped`` from a spatial force ``w = [torque; force]`` (6,),
-    as :func:`encode` writes :func:`robodyn_ros.messages.wrench_stamped` (frame_id ``frame``)."""
+def wrench_stamped_layout(frame: str):
+    """``(template, offset)`` of a ``geometry_msgs/WrenchStamped`` with this frame_id: its CDR
+    with zero stamp and numbers, and where its six float64 (force x y z, torque x y z) start;
+    the stamp is at :data:`STAMP_AT`. Cached."""
     key = ('WrenchStamped', frame)
     t = _TEMPLATES.get(key)
     if t is None:
@@ -472,15 +479,13 @@ def wrench_stamped_bytes(sec: int, nanosec: int, frame: str, w) -> bytes:
         t = _TEMPLATES[key] = _template('geometry_msgs/msg/WrenchStamped',
                                         {'header': {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': frame},
                                          'wrench': {'force': zero, 'torque': zero}}, 6)
-    buf = bytearray(t[0])
-    _TIME.pack_into(buf, _STAMP_AT, sec, nanosec)
-    _D6.pack_into(buf, t[1], float(w[3]), float(w[4]), float(w[5]), float(w[0]), float(w[1]), float(w[2]))
-    return bytes(buf)
+    return t
 
 
-def odometry_bytes(sec: int, nanosec: int, odom: dict, frame: str = 'odom', child: str = 'base_link') -> bytes:
-    """CDR of ``nav_msgs/Odometry`` as :func:`encode` writes :func:`robodyn_ros.messages.odometry`
-    (zero covariances): position, orientation (x, y, z, w), linear and angular twist of ``odom``."""
+def odometry_layout(frame: str = 'odom', child: str = 'base_link'):
+    """``(template, offset)`` of a ``nav_msgs/Odometry`` (zero covariances): position and
+    orientation (x, y, z, w) are the 7 float64 from offset, linear and angular twist the 6 from
+    ``offset + 8 * 43``; the stamp is at :data:`STAMP_AT`. Cached."""
     key = ('Odometry', frame, child)
     t = _TEMPLATES.get(key)
     if t is None:
@@ -491,6 +496,53 @@ def odometry_bytes(sec: int, nanosec: int, odom: dict, frame: str = 'odom', chil
             'header': {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': frame}, 'child_frame_id': child,
             'pose': {'pose': {'position': zero, 'orientation': dict(zero, w=0.0)}, 'covariance': np.zeros(36)},
             'twist': {'twist': {'linear': zero, 'angular': zero}, 'covariance': np.zeros(36)}}, 85)
+    return t
+
+
+def joint_state_layout(middle: bytes, counts) -> tuple:
+    """``(template, offsets)`` of a JointState with the names of ``middle``
+    (:func:`joint_state_names`) and position, velocity, effort of ``counts`` elements: the CDR
+    :func:`joint_state_bytes` writes with zero stamp and numbers, and where each array's float64
+    start (the stamp is at :data:`STAMP_AT`)."""
+    buf = bytearray(ENCAPSULATION_HEADER)
+    buf += bytes(8)
+    buf += middle
+    offsets = []
+    for n in counts:
+        buf += bytes(-(len(buf) - 4) % 4)
+        buf += _U32.pack(n)
+        if n:
+            buf += bytes(-(len(buf) - 4) % 8)
+        offsets.append(len(buf))
+        buf += bytes(8 * n)
+    return bytes(buf), offsets
+
+
+def float64_array_layout(n: int) -> tuple:
+    """``(template, offset)`` of a Float64MultiArray with an empty layout and n values
+    (:func:`float64_array_bytes`): its CDR with zero values, and where they start."""
+    data = float64_array_bytes(np.zeros(n))
+    return data, len(data) - 8 * n
+
+
+#: offset of ``header.stamp`` (int32 sec, uint32 nanosec) in a stamped message's CDR
+STAMP_AT = _STAMP_AT
+
+
+def wrench_stamped_bytes(sec: int, nanosec: int, frame: str, w) -> bytes:
+    """CDR of ``geometry_msgs/WrenchStamped`` from a spatial force ``w = [torque; force]`` (6,),
+    as :func:`encode` writes :func:`robodyn_ros.messages.wrench_stamped` (frame_id ``frame``)."""
+    t = wrench_stamped_layout(frame)
+    buf = bytearray(t[0])
+    _TIME.pack_into(buf, _STAMP_AT, sec, nanosec)
+    _D6.pack_into(buf, t[1], float(w[3]), float(w[4]), float(w[5]), float(w[0]), float(w[1]), float(w[2]))
+    return bytes(buf)
+
+
+def odometry_bytes(sec: int, nanosec: int, odom: dict, frame: str = 'odom', child: str = 'base_link') -> bytes:
+    """CDR of ``nav_msgs/Odometry`` as :func:`encode` writes :func:`robodyn_ros.messages.odometry`
+    (zero covariances): position, orientation (x, y, z, w), linear and angular twist of ``odom``."""
+    t = odometry_layout(frame, child)
     buf = bytearray(t[0])
     _TIME.pack_into(buf, _STAMP_AT, sec, nanosec)
     p, q, lin, ang = odom['position'], odom['orientation'], odom['linear'], odom['angular']
@@ -513,12 +565,51 @@ def float64_array_bytes(values):
     return bytes(buf)
 
 
+def _fast_diagnostic_array(msg):
+    """DiagnosticArray of plain dicts (header, statuses with 1-byte level, strings, key/value
+    strings), as :meth:`_Encoder.message` writes it; None for anything else."""
+    if type(msg) is not dict or len(msg) != 2:
+        return None
+    header, status = msg.get('header'), msg.get('status')
+    if type(header) is not dict or len(header) != 2 or type(status) is not list:
+        return None
+    stamp, frame = _fast_time(header.get('stamp')), header.get('frame_id')
+    if stamp is None or type(frame) is not str:
+        return None
+    buf = bytearray(ENCAPSULATION_HEADER)
+    buf += _TIME.pack(*stamp)
+    _fast_string(buf, frame)
+    _fast_count(buf, len(status))
+    for st in status:
+        if type(st) is not dict or len(st) != 5:
+            return None
+        level, values = st.get('level'), st.get('values')
+        strings = (st.get('name'), st.get('message'), st.get('hardware_id'))
+        if type(level) is not bytes or len(level) != 1 or type(values) is not list or \
+                not all(type(x) is str for x in strings):
+            return None
+        buf += level
+        for x in strings:
+            _fast_string(buf, x)
+        _fast_count(buf, len(values))
+        for kv in values:
+            if type(kv) is not dict or len(kv) != 2:
+                return None
+            k, v = kv.get('key'), kv.get('value')
+            if type(k) is not str or type(v) is not str:
+                return None
+            _fast_string(buf, k)
+            _fast_string(buf, v)
+    return bytes(buf)
+
+
 #: canonical type name -> fast encoder returning bytes, or None to decline
 _FAST_ENCODERS = {
     'sensor_msgs/msg/JointState': _fast_joint_state,
     'rosgraph_msgs/msg/Clock': _fast_clock,
     'std_msgs/msg/Float64MultiArray': _fast_float64_multi_array,
     'tf2_msgs/msg/TFMessage': _fast_tf_message,
+    'diagnostic_msgs/msg/DiagnosticArray': _fast_diagnostic_array,
 }
 
 

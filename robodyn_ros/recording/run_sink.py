@@ -3,10 +3,25 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from .. import messages as M
+from ..systems.base import LazyWrenches
 from ..version import __version__
 from . import cdr
 from .mcap_sink import McapSink
+
+
+#: simulated time a batch of periods may span before it is written (crash safety: with the
+#: writer's chunks, what a killed run loses)
+BATCH_SPAN = 0.5
+BATCH_SPAN_NS = int(BATCH_SPAN * 1e9)
+#: periods per vectorised pass in headless runs (``robodyn run``)
+HEADLESS_BATCH = 64
+#: seconds of simulation after which the node's recorder closes a chunk (a killed node loses at
+#: most this much, plus one publication); headless runs chunk by size only (0.5 s of simulation
+#: is a few milliseconds of their wall time, and their files stay as they were)
+NODE_CHUNK_SPAN = 0.5
 
 
 def resolve(topic: str, namespace: str = '') -> str:
@@ -56,6 +71,150 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
     return recs
 
 
+class _PeriodLayout:
+    """The records of one publication period laid out once: commands applied at its start, then
+    joint_states, odom, constraint wrenches, /tf and /clock, each a 31-byte record-header gap
+    and its CDR, back to back in a row of fixed length whose numbers sit at fixed offsets.
+
+    K periods are K copies of the row (a ``(K, R)`` uint8 array); their numbers are written with
+    one gather and one scatter per kind (float64 values, stamps), see :meth:`rows`. Built from
+    the first period of a kind (the templates are those of the per-message fast encoders).
+
+    cmds: ``[(port, n values)]``; out: the period's SystemOutputs; wrenches, tf: the sink's
+    choices; channel: ``topic, type -> channel id`` (all already registered).
+    """
+
+    def __init__(self, cmds, out, wrenches: bool, tf, channel):
+        msgs = []          # (topic, type, template, is_cmd, [(payload offset, value column)], [stamp offsets])
+        col = 0
+        self.cmd_cols = []
+        for port, n in cmds:
+            topic = M.PORT_TOPICS[port]
+            if port == 'base_wrench':   # values [fx, fy, fz, tx, ty, tz] = the message's order
+                tpl, at = cdr.wrench_stamped_layout('base_link')
+                stamps = [cdr.STAMP_AT]
+            else:
+                tpl, at = cdr.float64_array_layout(n)
+                stamps = []
+            msgs.append((topic, M.TOPIC_TYPES[topic], tpl, True, [(at + 8 * i, col + i) for i in range(n)], stamps))
+            self.cmd_cols.append(slice(col, col + n))
+            col += n
+        names = tuple(out.joint_names)
+        counts = (len(out.position), len(out.velocity), len(out.effort))
+        tpl, ats = cdr.joint_state_layout(cdr.joint_state_names('', names), counts)
+        vals, self.js_cols = [], []
+        for at, n in zip(ats, counts):
+            vals += [(at + 8 * i, col + i) for i in range(n)]
+            self.js_cols.append(slice(col, col + n))
+            col += n
+        self.pos_cols = self.js_cols[0]
+        msgs.append(('joint_states', M.TOPIC_TYPES['joint_states'], tpl, False, vals, [cdr.STAMP_AT]))
+        self.odom_cols = None
+        if out.odom is not None:    # position 3, orientation 4, linear 3, angular 3
+            tpl, at = cdr.odometry_layout()
+            self.odom_cols = col
+            vals = [(at + 8 * i, col + i) for i in range(7)] + [(at + 8 * (43 + i), col + 7 + i) for i in range(6)]
+            msgs.append(('odom', M.TOPIC_TYPES['odom'], tpl, False, vals, [cdr.STAMP_AT]))
+            col += 13
+        self.wrench_cols = []
+        self.lazy = wrenches and isinstance(out.wrenches, LazyWrenches)   # computed in one call per batch
+        self.wrench_block = slice(col, col + 6 * len(out.wrenches)) if wrenches else None
+        self.many = out.wrenches.many if self.lazy else None
+        self.wrench_args = []
+        if wrenches:
+            items = zip(out.wrenches.names, out.wrenches.frames) if self.lazy else \
+                ((name, frame) for name, (frame, _) in out.wrenches.items())
+            for name, frame in items:   # w = [torque; force], the message: force, torque
+                tpl, at = cdr.wrench_stamped_layout(frame)
+                msgs.append((M.WRENCH_PREFIX + name, M.WRENCH_TYPE, tpl, False,
+                             [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
+                self.wrench_cols.append(slice(col, col + 6))
+                col += 6
+        self.n_values = col
+        self.tf = None
+        if tf is not None:
+            frames = tf.frames(out.odom is not None)
+            if frames:
+                self.tf, self.joint_names = tf, names
+                tpl, stamp_at, values_at = cdr.tf_layout(tuple(frames))
+                vals = [(at + 8 * i, col + 7 * j + i) for j, at in enumerate(values_at) for i in range(7)]
+                msgs.append(('/tf', M.TOPIC_TYPES['/tf'], tpl, False, vals, list(stamp_at)))
+                col += 7 * len(frames)
+        msgs.append(('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(0, 0), False, [], [cdr.STAMP_AT]))
+        row, rec_off, value_at, value_col, stamp_at, stamp_src = bytearray(), [], [], [], [], []
+        for topic, type_name, tpl, is_cmd, vals, stamps in msgs:
+            rec_off.append(len(row))
+            row += bytes(31)
+            base = len(row)
+            row += tpl
+            value_at += [base + a for a, _ in vals]
+            value_col += [c for _, c in vals]
+            stamp_at += [base + a for a in stamps]
+            stamp_src += [0 if is_cmd else 8] * len(stamps)
+        self.template = np.frombuffer(bytes(row), dtype=np.uint8)
+        self.rec_off = np.array(rec_off, dtype=np.int64)
+        self.channels = np.array([channel(m[0], m[1]) for m in msgs], dtype=np.int64)
+        self.is_cmd = np.array([m[3] for m in msgs], dtype=bool)
+        self.value_col = np.array(value_col, dtype=np.int64)
+        self.value_bytes = (np.array(value_at, dtype=np.int64)[:, None] + np.arange(8)).ravel()
+        self.stamp_bytes = (np.array(stamp_at, dtype=np.int64)[:, None] + np.arange(8)).ravel()
+        self.stamp_src = (np.array(stamp_src, dtype=np.int64)[:, None] + np.arange(8)).ravel()
+        self.n_msgs = len(msgs)
+
+    def fill(self, row, cmds, out):
+        """Write one period's numbers into ``row`` (n_values,); cmds: ``[(t, port, values)]``."""
+        for sl, (_, _, values) in zip(self.cmd_cols, cmds):
+            row[sl] = values
+        js = self.js_cols
+        row[js[0]] = out.position
+        row[js[1]] = out.velocity
+        row[js[2]] = out.effort
+        if self.odom_cols is not None:
+            o, c = out.odom, self.odom_cols
+            row[c:c + 3] = o['position']
+            row[c + 3:c + 7] = o['orientation']
+            row[c + 7:c + 10] = o['linear']
+            row[c + 10:c + 13] = o['angular']
+        if self.lazy:
+            self.wrench_args.append(out.wrenches.args)
+        elif self.wrench_cols:
+            for sl, (_, w) in zip(self.wrench_cols, out.wrenches.values()):
+                row[sl] = w
+
+    def rows(self, values, times):
+        """The records of K periods: ``(K, R)`` uint8 (record headers left for the writer).
+
+        values: (K, n_values) from :meth:`fill`; times: (K, 2) int64 ns, (commands, outputs).
+        """
+        K = values.shape[0]
+        if self.lazy:
+            args, self.wrench_args = self.wrench_args, []
+            if len(args) != K:
+                raise RuntimeError(f'{len(args)} wrench states held for {K} periods')
+            values[:, self.wrench_block] = self.many(args).reshape(K, -1)
+        if self.tf is not None:
+            odom = None if self.odom_cols is None else values[:, self.odom_cols:self.odom_cols + 7]
+            tfv = self.tf.transform_values(self.joint_names, values[:, self.pos_cols], odom).reshape(K, -1)
+            values = np.concatenate([values, tfv], axis=1)
+        out = np.empty((K, self.template.size), dtype=np.uint8)
+        out[:] = self.template
+        if self.value_col.size:
+            out[:, self.value_bytes] = np.ascontiguousarray(values[:, self.value_col]).view(np.uint8)
+        sec, nsec = np.divmod(times, 1_000_000_000)
+        st = np.empty((K, 2, 2), dtype='<u4')
+        st[:, :, 0] = sec.astype('<i4').view('<u4')
+        st[:, :, 1] = nsec
+        out[:, self.stamp_bytes] = st.view(np.uint8).reshape(K, 16)[:, self.stamp_src]
+        return out
+
+
+def _wrench_kind(w):
+    """What a batch of periods must share about their wrenches (names, frames, how computed)."""
+    if type(w) is LazyWrenches:
+        return (w.names, w.frames, w.many)
+    return tuple((k, f) for k, (f, _) in w.items())
+
+
 def run_metadata(scene, settings: dict, extra: dict | None = None) -> dict:
     """The ``robodyn`` metadata record: scene text and name, integrator settings, package version."""
     md = {'scene_name': scene.name, 'scene': scene.text, 'settings': json.dumps(settings, sort_keys=True),
@@ -73,11 +232,17 @@ class McapRunSink:
     ``constraint_wrenches/*``; diagnostics_period: seconds of simulation time between
     ``diagnostics`` messages; namespace: ROS namespace for relative topic names; record_tf: also
     record ``/tf`` at every publication and ``/tf_static`` once at the start (transient local),
-    see :mod:`robodyn_ros.tf`.
+    see :mod:`robodyn_ros.tf`; batch: publication periods encoded together in one vectorised
+    pass (0: every message as it comes). A batch is written when it holds ``batch`` periods or
+    spans :data:`BATCH_SPAN` s of simulation, when the kind of period changes, and on
+    :meth:`close`; the file is the same byte for byte. Only for a sink that is the sole writer of
+    its file (headless runs): the node, which also writes messages of its own, uses 0.
+    chunk_span: close a chunk once it spans this many seconds of simulation (see
+    :class:`McapSink`; the node, paced by the wall clock, uses :data:`NODE_CHUNK_SPAN`).
     """
 
     def __init__(self, path, scene, settings: dict, record_wrenches=True, diagnostics_period=1.0,
-                 namespace='', extra_metadata=None, record_tf=True):
+                 namespace='', extra_metadata=None, record_tf=True, batch: int = 0, chunk_span=None):
         self.path = str(path)
         self.scene = scene
         self.wants_wrenches = record_wrenches
@@ -85,11 +250,20 @@ class McapRunSink:
         self.tf = None   # the TfTree, built in on_start when record_tf
         self.diagnostics_period = diagnostics_period
         self.namespace = namespace
-        self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata))
+        self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata), chunk_span=chunk_span)
         self._next_diag = None
         self.count = 0
         self._channels = {}   # relative topic -> channel id (resolved and registered on first use)
         self._tf_layouts = {}
+        self.batch = max(0, int(batch))
+        self._cmds = []       # commands applied since the last publication: (t, port, values)
+        self._layouts = {}    # kind of period -> _PeriodLayout
+        self._layout = None   # the layout of the periods held
+        self._kind = None     # the kind of period of _layout
+        self._values = None   # (batch, n_values) numbers of the periods held
+        self._times = None    # (batch, 2) int64 ns: commands, outputs
+        self._diags = {}      # period index -> diagnostics CDR written after it
+        self._held = 0        # periods held
 
     def _write(self, topic, type_name, msg, t_ns):
         self.writer.write(resolve(topic, self.namespace), type_name, msg, t_ns)
@@ -124,6 +298,12 @@ class McapRunSink:
 
     def on_command(self, t, port, values):
         """Record a command as it was applied (Float64MultiArray for effort/voltage ports)."""
+        if self.batch:
+            self._cmds.append((t, port, np.array(values, dtype=float)))
+            return
+        self._write_command(t, port, values)
+
+    def _write_command(self, t, port, values):
         topic = M.PORT_TOPICS[port]
         t_ns = M.to_ns(t)
         # the bytes cdr.encode gives the message dicts (M.wrench_stamped, M.float64_array), without the dicts
@@ -144,6 +324,8 @@ class McapRunSink:
         odom, wrenches, /tf and /clock are encoded straight from the outputs (the bytes the message
         dicts encode to, without building them).
         """
+        if self.batch and self._hold(t, out, sim, level, message):
+            return
         t_ns = M.to_ns(t)
         for topic, type_name, data in output_records(t_ns, out, self.wants_wrenches, self.tf,
                                                      tf_layouts=self._tf_layouts):
@@ -155,6 +337,114 @@ class McapRunSink:
                                              sim.diagnostics_values()), t_ns)
             self._next_diag += self.diagnostics_period
 
+    # -- batches of periods --------------------------------------------------------------
+    def _hold(self, t, out, sim, level, message) -> bool:
+        """Keep this period for the next vectorised pass; False when it must be written message
+        by message now (a new topic is registered on its first message, so that channel records
+        land where the per-message path puts them; odd arrays take the generic encoder)."""
+        cmds = self._cmds
+        kind = (tuple([(p, v.shape[0]) for _, p, v in cmds]), tuple(out.joint_names), len(out.position),
+                len(out.velocity), len(out.effort), out.odom is None,
+                _wrench_kind(out.wrenches) if self.wants_wrenches else ())
+        # the kind of the previous period (tuple equality, no hashing), else one seen before
+        layout = self._layout if kind == self._kind else self._layouts.get(kind)
+        diag = self._next_diag is not None and t >= self._next_diag - 1e-9
+        if layout is None:
+            self._write_held()
+            if not self._layout_ready(kind, out):
+                for tc, port, values in cmds:   # message by message: registers the new channels in order
+                    self._write_command(tc, port, values)
+                self._cmds = []
+                return False
+            layout = self._layouts[kind] = _PeriodLayout([(p, v.shape[0]) for _, p, v in cmds], out,
+                                                         self.wants_wrenches, self.tf, self._channel)
+        if (diag and resolve('diagnostics', self.namespace) not in self.writer._channels) or \
+                (len(cmds) > 1 and any(c[0] != cmds[0][0] for c in cmds)):   # a new topic, commands at several times
+            self._write_held()
+            for tc, port, values in cmds:
+                self._write_command(tc, port, values)
+            self._cmds = []
+            return False
+        if layout is not self._layout:
+            self._write_held()
+            self._layout, self._kind = layout, kind
+            self._values = np.empty((self.batch, layout.n_values))
+            self._times = np.empty((self.batch, 2), dtype=np.int64)
+        k = self._held
+        t_ns = int(round(t * 1e9))   # M.to_ns
+        layout.fill(self._values[k], cmds, out)
+        self._times[k] = (int(round(cmds[0][0] * 1e9)) if cmds else t_ns, t_ns)
+        self._cmds = []
+        self._held = k + 1
+        if diag:
+            self._diags[k] = cdr.encode(M.TOPIC_TYPES['diagnostics'], M.diagnostic_array(
+                t_ns, 'robodyn_ros: simulation', level, message, sim.diagnostics_values()))
+            self._next_diag += self.diagnostics_period
+        if self._held == self.batch or t_ns - int(self._times[0, 1]) >= BATCH_SPAN_NS:
+            self._write_held()
+        return True
+
+    def _layout_ready(self, kind, out) -> bool:
+        """True when every topic of this kind of period has its channel and the arrays are floats."""
+        arrays = (out.position, out.velocity, out.effort)
+        if not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
+            return False
+        topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
+        topics += [] if out.odom is None else ['odom']
+        topics += [M.WRENCH_PREFIX + k for k in out.wrenches] if self.wants_wrenches else []
+        if self.tf is not None and self.tf.frames(out.odom is not None):
+            topics.append('/tf')
+        return all(t in self._channels for t in topics)
+
+    def _channel(self, topic, type_name) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            cid = self._channels[topic] = self.writer.channel(resolve(topic, self.namespace), type_name)
+        return cid
+
+    def _write_held(self):
+        """Encode the periods held in one pass and hand their records to the writer."""
+        K = self._held
+        if not K:
+            return
+        L = self._layout
+        rows = L.rows(self._values[:K], self._times[:K])
+        R = rows.shape[1]
+        times = np.where(L.is_cmd, self._times[:K, 0:1], self._times[:K, 1:2])
+        offs = np.arange(K, dtype=np.int64)[:, None] * R + L.rec_off
+        if not self._diags:
+            records, offsets = rows.reshape(-1), offs.ravel()
+            channels, log_times = np.tile(L.channels, K), times.ravel()
+        else:   # a diagnostics record after some periods
+            diag_cid = self._channel('diagnostics', M.TOPIC_TYPES['diagnostics'])
+            parts, o, c, lt = [], [], [], []
+            pos, a = 0, 0
+            for k in sorted(self._diags) + ([] if K - 1 in self._diags else [K - 1]):
+                parts.append(rows[a:k + 1].reshape(-1))
+                o.append(offs[a:k + 1].ravel() - a * R + pos)
+                c.append(np.tile(L.channels, k + 1 - a))
+                lt.append(times[a:k + 1].ravel())
+                pos += (k + 1 - a) * R
+                a = k + 1
+                d = self._diags.get(k)
+                if d is not None:
+                    parts.append(np.frombuffer(bytes(31) + d, dtype=np.uint8))
+                    o.append(np.array([pos]))
+                    c.append(np.array([diag_cid]))
+                    lt.append(np.array([self._times[k, 1]]))
+                    pos += 31 + len(d)
+            records, offsets = np.concatenate(parts), np.concatenate(o)
+            channels, log_times = np.concatenate(c), np.concatenate(lt)
+        self.writer.write_records(records, offsets, channels, log_times)
+        self.count += len(offsets)
+        self._held = 0
+        self._diags = {}
+
     def close(self):
-        """Finish the file (summary, footer); idempotent."""
+        """Finish the file (periods held, summary, footer); idempotent."""
+        if not self.writer.closed:
+            self._write_held()
+            for tc, port, values in self._cmds:   # applied, but no publication followed (a failed run)
+                self._write_command(tc, port, values)
+            self._cmds = []
         self.writer.close()

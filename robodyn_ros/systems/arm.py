@@ -21,10 +21,12 @@ from .. import dynamics as dyn
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL, Model, bryan_angles, limit_table
-from .base import (BACKENDS, InputPort, LazyValues, System, SystemOutputs, default_backend,  # noqa: F401
-                   effort_actuation)
+from .base import (BACKENDS, InputPort, LazyValues, LazyWrenches, System, SystemOutputs,  # noqa: F401
+                   default_backend, effort_actuation)
 
 
+#: recorded states after which joint wrenches are batched in one compiled call (kernels.outputs)
+BATCH_KERNEL_AFTER = 10_000
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
 
@@ -80,6 +82,11 @@ class ArmSystem(System):
         self._pub_v = np.array([v0 + k for jt, _, v0 in self._pub for k in range(3 if jt == SPHERICAL else 1)],
                                dtype=int)
         self._simple = self.free_body is None and not model.has_spherical   # joint_states = (q, v) as they are
+        # outputs.wrenches: every joint (fixed ones too), at its child link
+        self._wrench_names = tuple(model.joint_names)
+        self._wrench_frames = tuple(model.link_names[:model.nb])
+        self._wrench_index = {n: i for i, n in enumerate(self._wrench_names)}
+        self._wrenches_many = self._wrenches_many   # one bound method: a stable batch key
 
     def split(self, y):
         """Views ``(q, v)`` of the state vector."""
@@ -232,14 +239,18 @@ class ArmSystem(System):
         tau_cmd = self.B @ u['effort']
         w = {}
         if wrenches:
-            if self._km is not None:
-                _, f = self._km.joint_wrenches(q, v, self.generalized_forces(y, u))
+            if self._km is not None:   # computed when read, or for many publications at once by a recorder
+                q1, v1 = q.copy(), v.copy()
+                return self._outputs(q1, v1, tau_cmd, LazyWrenches(
+                    self._wrench_names, self._wrench_frames, self._wrenches_one, self._wrenches_many,
+                    (q1, v1, self.generalized_forces(y, u)), self._wrench_index))
             else:
                 _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u))
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
-        q, v = q.copy(), v.copy()
+        return self._outputs(q.copy(), v.copy(), tau_cmd, w)
 
+    def _outputs(self, q, v, tau_cmd, w):
         def energy():
             kin, pot = self._energies(q, v)
             return {'kinetic': kin, 'potential': pot}
@@ -260,6 +271,19 @@ class ArmSystem(System):
         return SystemOutputs(joint_names=list(self.joint_names), position=np.array(pos), velocity=v[self._pub_v],
                              effort=tau_cmd[self._pub_v], wrenches=w, odom=odom, energy=LazyValues(energy),
                              odom_child=self.model.link_names[self.free_body] if odom is not None else 'base_link')
+
+    def _wrenches_one(self, q, v, tau):
+        return self._km.joint_wrenches(q, v, tau)[1]
+
+    def _wrenches_many(self, args):
+        # the batch kernel takes ~15 ms to load from numba's cache in a new process and saves
+        # ~1.5 us per state: it is loaded once this system has asked for BATCH_KERNEL_AFTER states
+        # (about 100 s of simulation at 100 Hz); before, the per-state kernel (the same numbers)
+        self._many_states = getattr(self, '_many_states', 0) + len(args)
+        if self._many_states <= BATCH_KERNEL_AFTER:
+            return np.array([self._wrenches_one(*a) for a in args])
+        from ..kernels.outputs import joint_wrenches_many
+        return joint_wrenches_many(self._km, *(np.array(a) for a in zip(*args)))
 
     def total_energy(self, y):
         """Kinetic plus gravitational potential energy (J)."""

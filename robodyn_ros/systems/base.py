@@ -166,6 +166,49 @@ class LazyValues(Mapping):
         return repr(self._data())
 
 
+class LazyWrenches(Mapping):
+    """``outputs.wrenches`` computed on first read of a value: joint name -> (child frame,
+    (6,) [torque; force]), names and frames known up front.
+
+    one: ``one(*args) -> (n, 6)`` wrenches of this publication; many: ``many([args, ...]) ->
+    (K, n, 6)``, the same numbers for K publications in one call. A recorder that batches
+    publications keeps ``args`` and calls ``many`` once (``batch_key`` tells which publications
+    it may batch together); everyone else reads the mapping as a dict.
+    """
+
+    __slots__ = ('names', 'frames', 'args', '_one', 'many', '_f', '_index')
+
+    def __init__(self, names: tuple, frames: tuple, one, many, args, index: dict):
+        self.names, self.frames, self.args = names, frames, args
+        self._one, self.many, self._index = one, many, index
+        self._f = None
+
+    @property
+    def batch_key(self):
+        """Publications with the same key share names, frames and ``many``."""
+        return (self.names, self.frames, self.many)
+
+    def array(self) -> np.ndarray:
+        """``(n, 6)`` wrenches in name order (read-only: the mapping's values are views of it)."""
+        if self._f is None:
+            f = np.asarray(self._one(*self.args))
+            f.flags.writeable = False
+            self._f = f
+        return self._f
+
+    def __getitem__(self, key):
+        return self.frames[self._index[key]], self.array()[self._index[key]]
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self):
+        return len(self.names)
+
+    def __repr__(self):
+        return repr(dict(self.items()))
+
+
 @dataclass
 class SystemOutputs:
     """What a system reports at one instant (all arrays finite, SI units).
