@@ -115,6 +115,8 @@ Imported robot (:func:`build_urdf_part`, :mod:`robodyn_ros.urdf`)::
                                           # with zero gravity); no mount, no origin
         locked: {panda_finger_joint1: 0.0}  # joints frozen as fixed (e.g. <mimic> joints)
         actuated: [...]                   # optional, default every 1-DOF joint
+        position_limits: {stiffness: 500.0, damping: 5.0, return: spring}   # optional: <limit lower
+                                          # upper> enforced by eq. 20.2.1 moments (absent: reported only)
 
 A path ending in ``.urdf`` given to :func:`load_scene` is such a scene of one part
 (:func:`urdf_scene_text`).
@@ -720,7 +722,22 @@ PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': buil
                                    'free_base': build_free_base_part}
 
 
-_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated')
+_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated', 'position_limits')
+
+
+def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
+    """``position_limits: {stiffness, damping, return}``: the eq. 20.2.1 joint-limit moments on every
+    joint with URDF ``<limit lower upper>`` (revolute, prismatic; continuous and locked joints have none)."""
+    from .model import LIMIT_RETURNS
+    ctx.mapping(v, path, optional=_LIMIT_KEYS[2:])
+    ret = ctx.string(v.get('return', 'spring'), _key(path, 'return'))
+    if ret not in LIMIT_RETURNS:
+        ctx.fail(_key(path, 'return'), f'unknown return mode {ret!r}; use {" or ".join(LIMIT_RETURNS)}')
+    law = {'limit_return': ret,
+           'limit_stiffness': ctx.number(v.get('stiffness', 0.0), _key(path, 'stiffness'), minimum=0.0),
+           'limit_damping': ctx.number(v.get('damping', 0.0), _key(path, 'damping'), minimum=0.0)}
+    return [replace(s, **law) if s.limits is not None and s.joint_type in ('revolute', 'prismatic') else s
+            for s in specs]
 
 
 def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
@@ -732,8 +749,11 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     the root link is welded to the mount; true: it is a free 6-DOF base in the scene's gravity,
     environment ``free_fall`` — no ground contact — or ``orbit`` with zero gravity);
     ``locked: {joint: position}`` freezes joints (gripper fingers, ``<mimic>`` joints);
-    ``actuated`` as for an arm (default every 1-DOF joint). The part is an arm (its kind is
-    ``arm`` once built) so it mounts wherever an arm does.
+    ``actuated`` as for an arm (default every 1-DOF joint); ``position_limits: {stiffness,
+    damping, return}`` (optional; absent = URDF position limits reported only) enforces every
+    joint's ``<limit lower upper>`` with the joint-limit moments of Huston eq. (20.2.1), as a
+    ``limits`` mapping does for an arm link (world-mounted, non-floating robots). The part is an
+    arm (its kind is ``arm`` once built) so it mounts wherever an arm does.
     """
     from .urdf import UrdfError, read_urdf
     ctx.mapping(spec, path, required=('kind', 'name'), optional=_URDF_KEYS)
@@ -770,6 +790,12 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         j = next(s.joint for s in specs if s.friction > 0.0)
         ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "
                         "only (set friction=\"0\" or mount: world)")
+    if 'position_limits' in spec:
+        ppath = _key(path, 'position_limits')
+        if floating or mount != 'world':
+            ctx.fail(ppath, 'joint-limit moments are supported for a URDF mounted on the world only '
+                            '(not floating, not on a platform); remove position_limits or use mount: world')
+        specs = _urdf_position_limits(ctx, spec['position_limits'], ppath, specs)
     if floating:
         from .systems import freeflyer as ff
         env = 'orbit' if not np.any(ctx.gravity) else 'free_fall'

@@ -19,8 +19,9 @@ never exercised); this module only checks what it read and maps it onto our tree
   ``|q̇| ~ COULOMB_VELOCITY`` it acts as a stiff damper of slope ``f / COULOMB_VELOCITY``.
 * ``<limit effort>`` becomes the joint's effort limit (commands are clamped to ±effort and the
   clamps counted, see :mod:`robodyn_ros.simulation`); ``lower``/``upper`` become
-  ``LinkSpec.limits`` (reported, exported, checked against the initial state; not enforced by
-  the dynamics yet); ``velocity`` is read and reported only.
+  ``LinkSpec.limits`` (reported, exported, checked against the initial state; enforced by the
+  joint-limit moments of Huston eq. 20.2.1 only when a scene's ``kind: urdf`` part gives
+  ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`); ``velocity`` is read and reported only.
 * ``<mimic>`` is refused (a coupled DOF the kernels do not have), unless the mimic joint is
   locked (``locked={joint: position}``: the joint becomes FIXED at that position, as
   Pinocchio's ``buildReducedModel`` does).

@@ -13,6 +13,8 @@ is thrown into its upper stop. Piece by piece:
 
 The simulator's work quadrature must equal the energy lost (E − E0 = W, the stop's work), and a
 too stiff stop must be refused by the step preflight naming the joint and its time constant.
+The same stop written as a URDF ``<limit lower upper>`` and enforced by a ``kind: urdf`` part's
+``position_limits`` mapping must give the same pieces.
 """
 from __future__ import annotations
 
@@ -36,6 +38,32 @@ def one_joint(ret='none', k=K, c=C, damping=0.0):
                     com=(0.0, 0.0, 0.0), inertia=np.diag([0.15, 0.15, I_AX]), limits=(LO, HI),
                     limit_stiffness=k, limit_damping=c, limit_return=ret, damping=damping)
     return ArmSystem(build_model([link], gravity=(0, 0, 0), name='stop'), backend='numba')
+
+
+def urdf_text(lower=LO, upper=HI, kind='revolute'):
+    """One link turning about z, the same body as :func:`one_joint`, as a URDF."""
+    lim = f'<limit effort="100" velocity="10" lower="{lower}" upper="{upper}"/>'
+    return (f'<robot name="stop"><link name="base"/>'
+            f'<link name="arm"><inertial><mass value="2.0"/>'
+            f'<inertia ixx="0.15" iyy="0.15" izz="{I_AX}" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+            f'<joint name="hinge" type="{kind}"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/>'
+            f'{lim}</joint></robot>')
+
+
+def urdf_scene(position_limits=None, text=None, extra=''):
+    import yaml
+    part = {'kind': 'urdf', 'name': 'stop', 'urdf': text or urdf_text()}
+    if position_limits is not None:
+        part['position_limits'] = position_limits
+    return yaml.safe_dump({'name': 'stop', 'gravity': [0.0, 0.0, -9.81], 'parts': [part]}, sort_keys=False) + extra
+
+
+def urdf_joint(ret='none', k=K, c=C):
+    """The stop of :func:`one_joint` imported from a URDF with ``position_limits`` (gravity along the axis)."""
+    from robodyn_ros.scene import parse_scene
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope('numba'):
+        return parse_scene(urdf_scene({'stiffness': k, 'damping': c, 'return': ret}), 'stop.yaml').system
 
 
 def run(system, y0, t_end, dt=1e-4, samples=2001):
@@ -71,10 +99,12 @@ def closed_form(t, th0, w0, ret):
     return HI - wn * dpk * (tau - tau2), -wn * dpk
 
 
+@pytest.mark.parametrize('source', ['linkspec', 'urdf'])
 @pytest.mark.parametrize('ret', ['none', 'spring'])
-def test_stop_follows_eq_20_2_1_piece_by_piece(ret):
+def test_stop_follows_eq_20_2_1_piece_by_piece(ret, source):
     th0, w0 = 0.3, 2.0
-    sys_ = one_joint(ret)
+    sys_ = one_joint(ret) if source == 'linkspec' else urdf_joint(ret)
+    assert sys_.model.nv == 1 and sys_._lim.shape[0] == 1
     ts, ys, sim = run(sys_, np.array([th0, w0]), 0.8)
     ref = np.array([closed_form(t, th0, w0, ret) for t in ts])
     wn = math.sqrt(K / I_AX)
@@ -215,3 +245,50 @@ parts:
     assert lim.shape == (1, 12)
     assert tuple(lim[0, [3, 4, 5, 10, 11]]) == (1.0, -1.0, 1.0, 40.0, 0.5)   # mode 1 = 'none'
     assert m.specs[1].limits == (-2.0, 2.0) and m.specs[1].limit_stiffness == 0.0
+
+
+def test_urdf_position_limits_reach_every_limited_joint_and_are_off_by_default():
+    """Without ``position_limits`` a URDF stop is reported only (the joint passes through it freely,
+    as before); with it, every revolute/prismatic joint with ``<limit lower upper>`` gets the law,
+    continuous and locked joints none."""
+    from robodyn_ros.model import limit_table
+    from robodyn_ros.scene import SceneError, parse_scene
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope('numba'):
+        free = parse_scene(urdf_scene(), 'stop.yaml').system
+    assert free.model.specs[0].limits == (LO, HI) and limit_table(free.model).shape == (0, 12)
+    ts, ys, _ = run(free, np.array([0.3, 2.0]), 0.8, samples=81)
+    assert np.allclose(ys[:, 0], 0.3 + 2.0 * ts, atol=1e-9) and ys[-1, 0] > HI + 1.0
+    text = ('<robot name="three"><link name="base"/>' + ''.join(
+        f'<link name="l{i}"><inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" '
+        f'iyz="0"/></inertial></link>' for i in range(4)) +
+        '<joint name="r" type="revolute"><parent link="base"/><child link="l0"/><axis xyz="0 0 1"/>'
+        '<limit effort="1" velocity="1" lower="-1" upper="1.5"/></joint>'
+        '<joint name="c" type="continuous"><parent link="l0"/><child link="l1"/><axis xyz="0 1 0"/>'
+        '<origin xyz="0 0 0.3"/><limit effort="1" velocity="1"/></joint>'
+        '<joint name="p" type="prismatic"><parent link="l1"/><child link="l2"/><axis xyz="1 0 0"/>'
+        '<origin xyz="0 0 0.3"/><limit effort="1" velocity="1" lower="-0.1" upper="0.2"/></joint>'
+        '<joint name="lk" type="revolute"><parent link="l2"/><child link="l3"/><axis xyz="0 1 0"/>'
+        '<origin xyz="0 0 0.3"/><limit effort="1" velocity="1" lower="-1" upper="1"/></joint></robot>')
+    import yaml
+    doc = yaml.safe_load(urdf_scene({'stiffness': 30.0, 'damping': 0.2}, text=text))
+    doc['parts'][0]['locked'] = {'lk': 0.5}
+    with backend_scope('numba'):
+        m = parse_scene(yaml.safe_dump(doc), 'three.yaml').system.model
+    lim = limit_table(m)
+    # rows: [jtype, q index, v index, mode, lo0, hi0, ..., k, c]; 'spring' (the default) is mode 2
+    assert lim[:, 1].tolist() == [0.0, 2.0]            # joints r and p (q indices 0 and 2), not c
+    assert lim[:, [4, 5]].tolist() == [[-1.0, 1.5], [-0.1, 0.2]]
+    assert lim[:, 10].tolist() == [30.0, 30.0] and lim[:, 11].tolist() == [0.2, 0.2]
+    assert lim[:, 3].tolist() == [2.0, 2.0]
+    with pytest.raises(SceneError, match=r'^s\.yaml: parts\[0\]\.position_limits\.return: unknown return mode'):
+        parse_scene(urdf_scene({'stiffness': 1.0, 'return': 'bounce'}), 's.yaml')
+    with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits\.stiffness: '):
+        parse_scene(urdf_scene({'stiffness': -1.0}), 's.yaml')
+    with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits\.stifness: unknown key'):
+        parse_scene(urdf_scene({'stifness': 1.0}), 's.yaml')
+    doc = yaml.safe_load(urdf_scene({'stiffness': 1.0}))
+    doc['parts'][0]['floating'] = True
+    with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits: joint-limit moments are supported for a '
+                                         r'URDF mounted on the world only'):
+        parse_scene(yaml.safe_dump(doc), 's.yaml')
