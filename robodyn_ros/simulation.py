@@ -56,7 +56,8 @@ class Diagnostics:
 
     energy0: total energy at start (J); work: ∫ (input power − dissipation) dt (J), integrated
     with the state; steps, rhs_evals, rejected_steps: integrator statistics; wall: wall time
-    spent in advance() (s); sim_time: simulated time (s).
+    spent in advance() (s); sim_time: simulated time (s); velocity_limit_exceeded: published
+    joint-velocity samples above their joint's velocity limit (URDF ``<limit velocity>``).
     """
 
     energy0: float = 0.0
@@ -66,6 +67,7 @@ class Diagnostics:
     rejected_steps: int = 0
     wall: float = 0.0
     sim_time: float = 0.0
+    velocity_limit_exceeded: int = 0
     extra: dict = field(default_factory=dict)
 
 
@@ -136,6 +138,10 @@ class Simulator:
         self.command_timeout = command_timeout
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
+        specs = getattr(getattr(system, 'model', None), 'specs', ())
+        self._velocity_limit_of = {s.joint: s.velocity_limit for s in specs
+                                   if getattr(s, 'velocity_limit', None) is not None}   # joint -> rad/s or m/s
+        self._vlim_cache = (None, None)
         self.reset()
         preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
         check_step(system, integrator, dt, self.y)
@@ -150,6 +156,7 @@ class Simulator:
         self.y = self.system.project(self._y0.copy())
         self.ports = {k: CommandPort(np.zeros(p.size)) for k, p in self.system.inputs.items()}
         self.diag = Diagnostics(energy0=self.system.total_energy(self.y))
+        self._velocity_checked_at = None
         self.failed: str | None = None
 
     # -- commands ------------------------------------------------------------------------
@@ -297,7 +304,21 @@ class Simulator:
         """
         out = self.system.outputs(self.t, self.y, self.held_inputs(), wrenches=wrenches)
         self.diag.extra.update(out.extra)
+        lim = self._velocity_limits(out.joint_names)
+        if lim is not None and self.t != self._velocity_checked_at:  # each published state counted once
+            self._velocity_checked_at = self.t
+            self.diag.velocity_limit_exceeded += int(np.count_nonzero(np.abs(out.velocity) > lim))
         return out
+
+    def _velocity_limits(self, names):
+        """``(len(names),)`` velocity limits of the joint_states entries (inf where none), or None
+        when no joint of the system has one (LinkSpec.velocity_limit, from URDF ``<limit velocity>``)."""
+        if not self._velocity_limit_of:
+            return None
+        key = tuple(names)
+        if self._vlim_cache[0] != key:
+            self._vlim_cache = (key, np.array([self._velocity_limit_of.get(n, np.inf) for n in key]))
+        return self._vlim_cache[1]
 
     def energy_report(self) -> dict:
         """Total energy, work done by inputs/dissipation and the drift ``E − E0 − W`` (J)."""
@@ -326,6 +347,8 @@ class Simulator:
             vals[f'{k}_timed_out'] = p.timed_out
             if self.system.inputs[k].limit is not None:
                 vals[f'{k}_clamped'] = p.clamped
+        if self._velocity_limit_of:
+            vals['velocity_limit_exceeded'] = d.velocity_limit_exceeded
         vals.update(d.extra)
         return vals
 
