@@ -144,6 +144,8 @@ def test_stop_follows_eq_20_2_1_piece_by_piece(ret, source):
     rep = sim.energy_report()
     assert rep["work"] == pytest.approx(E1 - E0, rel=1e-6)   # fixed-step RK4 over the kinks: O(h) per kink
     assert rep['work'] < -0.05 * E0
+    # the stop is the only non-conservative element: its own work (integrated apart) is all of it
+    assert rep['limit_work'] == pytest.approx(rep['work'], rel=1e-12, abs=0.0)
     assert wn > 0
 
 
@@ -292,3 +294,57 @@ def test_urdf_position_limits_reach_every_limited_joint_and_are_off_by_default()
     with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits: joint-limit moments are supported for a '
                                          r'URDF mounted on the world only'):
         parse_scene(yaml.safe_dump(doc), 's.yaml')
+
+
+def _split_run(integrator, d, reference=False):
+    sys_ = one_joint('spring', damping=d)
+    if reference:   # an instance attribute named like a fused method: the fused loop declines
+        sys_.rhs = sys_.rhs
+    kw = {'dt': 1e-4} if integrator == 'rk4' else {'dt': None, 'rtol': 1e-10, 'atol': 1e-12}
+    return sys_, Simulator(sys_, np.array([0.3, 2.0]), integrator=integrator, **kw)
+
+
+@pytest.mark.parametrize('integrator', ['rk4', 'dop853'])
+def test_limit_work_is_integrated_as_its_own_part(integrator):
+    """With viscous joint damping d as well, the work splits: ``W = W_lim + W_damp`` with
+    ``W_damp = -d ∫ θ̇² dt`` (quadrature of the sampled rate, an independent route); W_lim is
+    exactly 0 before the joint reaches its stop and < 0 after (dissipation). rk4 takes the fused
+    compiled loop, dop853 the Simulator's reference quadrature."""
+    d = 0.05
+    sys_, sim = _split_run(integrator, d)
+    assert sys_.work_components == ('limit',)
+    ts = np.linspace(0.0, 0.8, 8001)
+    ys = [sim.y.copy()]
+    early = None
+    for t in ts[1:]:
+        ys.append(sim.advance(t).copy())
+        if early is None and t >= 0.05:    # inside the range (the stop is reached at t ≈ 0.1 s)
+            early = sim.energy_report()
+    ys = np.array(ys)
+    assert early['limit_work'] == 0.0 and early['work'] < -1e-4
+    rep = sim.energy_report()
+    from scipy.integrate import simpson
+    w_damp = -d * simpson(ys[:, 1] ** 2, x=ts)
+    assert rep['limit_work'] < -0.01
+    assert rep['work'] - rep['limit_work'] == pytest.approx(w_damp, rel=1e-4)
+    assert abs(rep['drift']) < 1e-8
+    if integrator == 'rk4':   # the fused compiled loop and the Simulator's reference quadrature agree
+        _, ref = _split_run('rk4', d, reference=True)
+        ref.advance(0.8)
+        assert ref.energy_report()['limit_work'] == pytest.approx(rep['limit_work'], rel=1e-10)
+        assert ref.diag.work == pytest.approx(rep['work'], rel=1e-10)
+        gen = Simulator(ArmSystem(sys_.model, backend='generated'), np.array([0.3, 2.0]), integrator='rk4', dt=1e-4)
+        gen.advance(0.8)   # the generated loop of kernels.codegen
+        assert gen.energy_report()['limit_work'] == pytest.approx(rep['limit_work'], rel=1e-10)
+    vals = sim.diagnostics_values()
+    assert vals['limit_work'] == rep['limit_work']
+    from types import SimpleNamespace
+
+    from robodyn_ros.cli.run import summary
+    text = summary(SimpleNamespace(name='stop', system=sys_), sim, {'integrator': integrator, 'dt': 1e-4}, 1.0, None, [])
+    assert f'; joint-limit work {rep["limit_work"]:.6g} J' in text, text
+    # a system without limit moments has no such part
+    free = Simulator(one_joint(k=0.0, c=0.0), np.array([0.3, 2.0]), integrator='rk4', dt=1e-3)
+    assert free.system.work_components == ()
+    free.advance(0.5)
+    assert 'limit_work' not in free.diagnostics_values() and 'limit_work' not in free.energy_report()

@@ -110,6 +110,10 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
         f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
         f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
     ]
+    if 'limit_work' in e:   # joint-limit moments (Huston eq. 20.2.1): their part of the work
+        lines[-1] += f'; joint-limit work {e["limit_work"]:.6g} J'
+    if d.velocity_limit_exceeded:   # URDF <limit velocity>: reported, not enforced
+        lines.append(f'limits       {d.velocity_limit_exceeded} published joint velocities above the velocity limits')
     clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}
     if clamped:  # actuator effort limits (URDF <limit effort>, effort_limit)
         lines.append('limits       ' + ', '.join(f'{n} {k} command components clamped to the effort limits'
