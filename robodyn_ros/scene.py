@@ -55,7 +55,8 @@ Huston eq. (20.2.1) (:func:`robodyn_ros.kernels.core.limit_moment`): zero inside
 ``-k (θ - θlim) - c θ̇`` while moving outward; moving back ``return: spring`` (default: the spring
 without its damper) or ``none`` (the equation as printed: no moment at all — a joint that stops
 beyond its range stays there, and error-controlled integrators crawl through the switching). stiffness k (N·m/rad or
-N/m) and damping c (N·m·s/rad or N·s/m) default to 0; both 0 = reported only.
+N/m) and damping c (N·m·s/rad or N·s/m) default to 0; both 0 = reported only. They act on arms
+on the world or on a free root; an arm carrying them on a free_base or diff_drive platform is refused.
 
 Spherical joints (explicit links, ``type: spherical``, no axis): q is a unit quaternion
 ``[x, y, z, w]`` of the child frame in the joint frame, v its angular velocity in the child frame
@@ -693,6 +694,16 @@ def build_free_base_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     return Part(name=name, kind='free_base', mount='world', system=system, path=path)
 
 
+def _refuse_limit_moments(ctx: SceneContext, part, host: str):
+    """Joint-limit moments act in :class:`ArmSystem` only (fixed or free root): refuse them on an
+    arm that rides on a ``free_base`` or ``diff_drive`` platform rather than drop them silently."""
+    bad = [s.joint for s in part.system.model.specs if s.limit_stiffness or s.limit_damping]
+    if bad:
+        ctx.fail(part.path, f'joint {bad[0]!r}: joint-limit moments (limits with stiffness/damping, URDF '
+                            f'position_limits) are not computed for an arm on a {host} platform; give limits: '
+                            '[lower, upper] (reported only), or mount the arm on the world (or mount: free)')
+
+
 def _assemble_free_base(ctx: SceneContext, parts: list):
     """A free base and the arm parts mounted on it -> one free-flyer system."""
     bases = [p for p in parts if p.kind == 'free_base']
@@ -709,6 +720,7 @@ def _assemble_free_base(ctx: SceneContext, parts: list):
         if p.system.model.root != link:
             ctx.fail(_key(p.path, 'root'), f'the arm must hang from the free base link {link!r}, '
                                             f'its root is {p.system.model.root!r}')
+        _refuse_limit_moments(ctx, p, 'free_base')
         specs += list(p.system.model.specs)
         actuated += list(p.system.actuated)
     try:
@@ -906,6 +918,7 @@ def _assemble_diff_drive(ctx: SceneContext, parts: list):
     if not others:
         return drive.system
     arm = others[0]
+    _refuse_limit_moments(ctx, arm, 'diff_drive')
     am = arm.system.model
     try:
         return DiffDriveSystem(drive.system.params, arm_specs=list(am.specs), arm_root=am.root,

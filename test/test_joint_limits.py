@@ -348,3 +348,31 @@ def test_limit_work_is_integrated_as_its_own_part(integrator):
     assert free.system.work_components == ()
     free.advance(0.5)
     assert 'limit_work' not in free.diagnostics_values() and 'limit_work' not in free.energy_report()
+
+
+@pytest.mark.parametrize('host', ['free_base', 'diff_drive'])
+def test_limit_moments_on_a_platform_are_refused_not_dropped(host):
+    """FreeFlyerSystem and DiffDriveSystem do not compute joint-limit moments: an arm carrying them
+    on such a platform is refused at load (before, the moments were silently left out)."""
+    import yaml
+
+    from robodyn_ros.scene import SceneError, parse_scene
+    link = {'name': 'l1', 'joint': 'j1', 'parent': 'base_link', 'type': 'revolute', 'mass': 1.0,
+            'inertia': [0.1, 0.1, 0.1, 0, 0, 0], 'limits': {'lower': -0.1, 'upper': 0.1, 'stiffness': 100.0}}
+    if host == 'free_base':
+        platform = {'kind': 'free_base', 'name': 'base', 'environment': 'orbit', 'formulation': 'minimal',
+                    'link': 'base_link', 'joint': 'base_joint', 'mass': 10.0, 'inertia': [1, 1, 1, 0, 0, 0]}
+        gravity = [0.0, 0.0, 0.0]
+    else:
+        platform = {'kind': 'diff_drive', 'name': 'base', 'chassis': {'mass': 3.0, 'yaw_inertia': 0.2, 'com': [0, 0, 0.2]},
+                    'wheels': {'radius': 0.1, 'half_track': 0.2, 'mass': 0.3, 'spin_inertia': 0.002},
+                    'motor': {'kind': 'dc_motor', 'torque_constant': 0.06, 'resistance': 1.7}}
+        gravity = [0.0, 0.0, -9.81]
+    doc = {'name': 'x', 'gravity': gravity, 'parts': [platform, {'kind': 'arm', 'name': 'arm', 'mount': 'base',
+                                                                 'links': [link]}]}
+    with pytest.raises(SceneError, match=rf"^x\.yaml: parts\[1\]: joint 'j1': joint-limit moments .* on a {host} "
+                                         r"platform"):
+        parse_scene(yaml.safe_dump(doc), 'x.yaml')
+    link['limits'] = [-0.1, 0.1]    # reported only: accepted
+    sc = parse_scene(yaml.safe_dump(doc), 'x.yaml')
+    assert sc.system.model.specs[-1].limits == (-0.1, 0.1)
