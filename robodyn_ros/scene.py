@@ -1340,16 +1340,21 @@ def find_scene(name_or_path) -> Path:
                      f'(searched {", ".join(str(d) for d in scene_dirs())})')
 
 
-def load_scene(name_or_path) -> Scene:
+def load_scene(name_or_path, position_limits: dict | None = None) -> Scene:
     """Load a bundled scene by name (``stanford_arm``), a scene file by path, or a URDF file.
 
     name_or_path: name or path (str or PathLike); a path ending in ``.urdf`` is imported as a
-    one-part scene (:func:`urdf_scene_text`). Returns the validated :class:`Scene`;
-    raises :class:`SceneError` whose message is ``<file>: <key path>: <reason>``.
+    one-part scene (:func:`urdf_scene_text`), with ``position_limits`` (``{stiffness, damping,
+    return}``, optional) as its part's key; a scene file gives that key itself (refused here).
+    Returns the validated :class:`Scene`; raises :class:`SceneError` whose message is
+    ``<file>: <key path>: <reason>``.
     """
     s = os.fspath(name_or_path)
     if s.lower().endswith('.urdf'):  # a robot description alone: a one-part scene around it
-        return parse_scene(urdf_scene_text(s), file=s, path=s)
+        return parse_scene(urdf_scene_text(s, position_limits=position_limits), file=s, path=s)
+    if position_limits is not None:
+        raise SceneError(f'{s}: (position_limits): applies to a URDF file only; in a scene file give '
+                         'position_limits on its kind: urdf part')
     p = find_scene(name_or_path)
     try:
         text = p.read_text(encoding='utf-8')
@@ -1358,12 +1363,14 @@ def load_scene(name_or_path) -> Scene:
     return parse_scene(text, file=str(p), path=str(p))
 
 
-def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None) -> str:
+def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None,
+                    position_limits: dict | None = None) -> str:
     """Scene YAML of one URDF: ``kind: urdf`` mounted on the world (or ``floating``), no scripted
     commands, default settings. urdf_file: its path (``load_scene('robot.urdf')``, ``robodyn run
     robot.urdf``, the node's ``robot_description_file``), or text: the URDF itself (the node
     reading ``robot_description``). A URDF whose root is a massless ``world`` link with a
-    floating joint is floating anyway."""
+    floating joint is floating anyway. position_limits: the part's ``position_limits`` mapping
+    (``{stiffness, damping, return}``; None = URDF position limits reported only)."""
     part = {'kind': 'urdf'}
     if text is None:
         p = Path(urdf_file)
@@ -1376,6 +1383,8 @@ def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = N
     part['name'] = name = re.sub(r'[^A-Za-z0-9_]', '_', name) or 'robot'
     if floating:
         part['floating'] = True
+    if position_limits is not None:
+        part['position_limits'] = dict(position_limits)
     return yaml.safe_dump({'name': name, 'description': f'imported from {origin}', 'parts': [part]}, sort_keys=False)
 
 

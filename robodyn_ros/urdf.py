@@ -21,9 +21,9 @@ never exercised); this module only checks what it read and maps it onto our tree
   clamps counted, see :mod:`robodyn_ros.simulation`); ``lower``/``upper`` become
   ``LinkSpec.limits`` (reported, exported, checked against the initial state; enforced by the
   joint-limit moments of Huston eq. 20.2.1 only when a scene's ``kind: urdf`` part gives
-  ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`); ``velocity`` (> 0) becomes ``LinkSpec.velocity_limit``: not enforced, but
-  publications of a joint velocity above it are counted (diagnostics ``velocity_limit_exceeded``,
-  :class:`robodyn_ros.simulation.Simulator`).
+  ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`); ``velocity`` (> 0) becomes
+  ``LinkSpec.velocity_limit``: not enforced, but publications of a joint velocity above it are
+  counted (diagnostics ``velocity_limit_exceeded``, :class:`robodyn_ros.simulation.Simulator`).
 * ``<mimic>`` is refused (a coupled DOF the kernels do not have), unless the mimic joint is
   locked (``locked={joint: position}``: the joint becomes FIXED at that position, as
   Pinocchio's ``buildReducedModel`` does).

@@ -341,7 +341,8 @@ def test_limit_work_is_integrated_as_its_own_part(integrator):
     from types import SimpleNamespace
 
     from robodyn_ros.cli.run import summary
-    text = summary(SimpleNamespace(name='stop', system=sys_), sim, {'integrator': integrator, 'dt': 1e-4}, 1.0, None, [])
+    text = summary(SimpleNamespace(name='stop', system=sys_), sim, {'integrator': integrator, 'dt': 1e-4}, 1.0, None,
+                   [])
     assert f'; joint-limit work {rep["limit_work"]:.6g} J' in text, text
     # a system without limit moments has no such part
     free = Simulator(one_joint(k=0.0, c=0.0), np.array([0.3, 2.0]), integrator='rk4', dt=1e-3)
@@ -364,7 +365,8 @@ def test_limit_moments_on_a_platform_are_refused_not_dropped(host):
                     'link': 'base_link', 'joint': 'base_joint', 'mass': 10.0, 'inertia': [1, 1, 1, 0, 0, 0]}
         gravity = [0.0, 0.0, 0.0]
     else:
-        platform = {'kind': 'diff_drive', 'name': 'base', 'chassis': {'mass': 3.0, 'yaw_inertia': 0.2, 'com': [0, 0, 0.2]},
+        platform = {'kind': 'diff_drive', 'name': 'base',
+                    'chassis': {'mass': 3.0, 'yaw_inertia': 0.2, 'com': [0, 0, 0.2]},
                     'wheels': {'radius': 0.1, 'half_track': 0.2, 'mass': 0.3, 'spin_inertia': 0.002},
                     'motor': {'kind': 'dc_motor', 'torque_constant': 0.06, 'resistance': 1.7}}
         gravity = [0.0, 0.0, -9.81]
@@ -376,3 +378,47 @@ def test_limit_moments_on_a_platform_are_refused_not_dropped(host):
     link['limits'] = [-0.1, 0.1]    # reported only: accepted
     sc = parse_scene(yaml.safe_dump(doc), 'x.yaml')
     assert sc.system.model.specs[-1].limits == (-0.1, 0.1)
+
+
+def test_cli_position_limits_option_on_a_urdf_file(tmp_path):
+    """``robodyn run robot.urdf --position-limits K,C``: a pendulum (1 kg at r = 0.5 m, horizontal at
+    q = 0, joint damping 0.5) falls into its upper stop at 0.3 rad and comes to rest where the
+    stop's spring holds the weight, ``k Δ = m g r cos(0.3 + Δ)`` (statics, solved by bisection);
+    without the option it swings through its URDF limits, as before."""
+    import subprocess
+    import sys
+
+    from robodyn_ros.recording import read_messages
+    urdf = tmp_path / 'pendulum.urdf'
+    urdf.write_text('<robot name="pendulum"><link name="base"/>'
+                    '<link name="bob"><inertial><origin xyz="0.5 0 0"/><mass value="1.0"/>'
+                    '<inertia ixx="0.001" iyy="0.001" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+                    '<joint name="swing" type="revolute"><parent link="base"/><child link="bob"/><axis xyz="0 1 0"/>'
+                    '<dynamics damping="0.5"/><limit effort="10" velocity="100" lower="-0.3" upper="0.3"/></joint>'
+                    '</robot>')
+    cmd = [sys.executable, '-m', 'robodyn_ros.cli', 'run', str(urdf), '--duration', '15', '--integrator', 'rk4',
+           '--dt', '1e-3', '--rate', '10']
+
+    def final_q(extra, name):
+        out = tmp_path / f'{name}.mcap'
+        p = subprocess.run(cmd + extra + ['--record', str(out)], capture_output=True, text=True, timeout=240)
+        assert p.returncode == 0, p.stderr
+        js = [m for *_, m in read_messages(out, topics=['/joint_states'])]
+        return float(js[-1].position[0]), p.stdout
+    k, m, g, r = 50.0, 1.0, 9.81, 0.5
+    lo, hi = 0.0, 1.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if k * mid < m * g * r * math.cos(0.3 + mid) else (lo, mid)
+    q_rest, text = final_q(['--position-limits', f'{k},0.6'], 'stop')
+    assert q_rest == pytest.approx(0.3 + lo, abs=1e-6), (q_rest, 0.3 + lo)
+    assert '; joint-limit work -' in text, text
+    q_free, text = final_q([], 'free')
+    assert q_free > 1.0 and 'joint-limit work' not in text
+    bad = subprocess.run(cmd + ['--position-limits', '50'], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and '--position-limits: expected K,C or K,C,RETURN' in bad.stderr, bad.stderr
+    bad = subprocess.run(cmd + ['--position-limits', '50,1,bounce'], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and 'parts[0].position_limits.return: unknown return mode' in bad.stderr, bad.stderr
+    bad = subprocess.run(cmd[:4] + ['stanford_arm', '--duration', '0.1', '--position-limits', '50,1'],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and 'applies to a URDF file only' in bad.stderr, bad.stderr

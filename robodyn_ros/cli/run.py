@@ -25,6 +25,10 @@ def add_parser(sub):
     p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
                    help='dynamics kernels (default: $ROBODYN_BACKEND, else generated: specialised per scene, '
                         'compiled once and cached)')
+    p.add_argument('--position-limits', default=None, metavar='K,C[,RETURN]',
+                   help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
+                        '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
+                        '(Huston eq. 20.2.1; a scene file gives position_limits on its kind: urdf part)')
     p.add_argument('--diagnostics-period', type=float, default=0.1,
                    help='simulated seconds between recorded diagnostics messages (default 0.1)')
     return p
@@ -61,9 +65,22 @@ def main(args) -> int:
             print(f'robodyn run: {e}', file=sys.stderr)
             return 2
     backend = tools_backend(getattr(args, 'backend', None))
+    limits = None
+    if getattr(args, 'position_limits', None) is not None:
+        f = args.position_limits.split(',')
+        try:
+            if len(f) not in (2, 3):
+                raise ValueError
+            limits = {'stiffness': float(f[0]), 'damping': float(f[1])}
+            if len(f) == 3:
+                limits['return'] = f[2].strip()
+        except ValueError:
+            print(f'robodyn run: --position-limits: expected K,C or K,C,RETURN (numbers, then spring or none), '
+                  f'got {args.position_limits!r}', file=sys.stderr)
+            return 2
     try:
         with backend_scope(backend):
-            scene = load_scene(args.scene)
+            scene = load_scene(args.scene, position_limits=limits)
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
