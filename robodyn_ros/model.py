@@ -77,8 +77,10 @@ class LinkSpec:
     discontinuous in θ̇ at rest, which error-controlled integrators resolve only with tiny steps).
     friction: Coulomb joint friction (N·m or N; regularised, see :mod:`robodyn_ros.urdf`);
     effort_limit: optional largest |effort| (N·m or N) an actuator may apply (commands are
-    clamped); visuals: URDF ``<visual>`` elements (XML text) exported as given (imported URDFs),
-    else :func:`to_urdf` draws a shape of the link's inertia.
+    clamped); velocity_limit: optional largest |q̇| (rad/s or m/s, URDF ``<limit velocity>``),
+    reported only: publications above it are counted (:class:`robodyn_ros.simulation.Simulator`,
+    diagnostics ``velocity_limit_exceeded``); visuals: URDF ``<visual>`` elements (XML text)
+    exported as given (imported URDFs), else :func:`to_urdf` draws a shape of the link's inertia.
     """
 
     name: str
@@ -100,6 +102,7 @@ class LinkSpec:
     limit_stiffness: float = 0.0
     limit_damping: float = 0.0
     limit_return: str = 'spring'
+    velocity_limit: float | None = None
 
 
 @dataclass(frozen=True)
@@ -390,6 +393,8 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
             raise ModelError(f'{where}: friction must be finite and >= 0, got {s.friction!r}')
         if s.effort_limit is not None and not (np.isfinite(s.effort_limit) and s.effort_limit > 0.0):
             raise ModelError(f'{where}: effort limit must be a finite number > 0, got {s.effort_limit!r}')
+        if s.velocity_limit is not None and not (np.isfinite(s.velocity_limit) and s.velocity_limit > 0.0):
+            raise ModelError(f'{where}: velocity limit must be a finite number > 0, got {s.velocity_limit!r}')
         _check_limits(s, jt, where)
         specs.append(s)
     q_idx = np.concatenate([[0], np.cumsum(nq_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
@@ -547,7 +552,7 @@ def to_urdf(model: Model) -> str:
 
     Revolute joints without limits are exported as ``revolute`` with wide limits (not
     ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
-    written as ``floating``. Effort limits, damping and friction are written; each link gets its
+    written as ``floating``. Effort and velocity limits, damping and friction are written; each link gets its
     own ``<visual>`` elements (imported URDFs, meshes passed through) or, failing those, the
     shape of its inertia (:func:`inertia_visual`) so that a 3D viewer shows bodies.
     """
@@ -587,7 +592,8 @@ def to_urdf(model: Model) -> str:
             out.append(f'    <axis xyz="{f(model.axis[i])}"/>')
             lo, hi = np.ravel(s.limits) if s.limits is not None else (-1e4, 1e4)
             eff = float(s.effort_limit) if s.effort_limit is not None else 1e6
-            out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="{eff!r}" velocity="1e6"/>')
+            vel = float(s.velocity_limit) if s.velocity_limit is not None else 1e6
+            out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="{eff!r}" velocity="{vel!r}"/>')
             if s.damping or s.friction:
                 out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="{float(s.friction)!r}"/>')
         out.append('  </joint>')

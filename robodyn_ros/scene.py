@@ -55,7 +55,8 @@ Huston eq. (20.2.1) (:func:`robodyn_ros.kernels.core.limit_moment`): zero inside
 ``-k (θ - θlim) - c θ̇`` while moving outward; moving back ``return: spring`` (default: the spring
 without its damper) or ``none`` (the equation as printed: no moment at all — a joint that stops
 beyond its range stays there, and error-controlled integrators crawl through the switching). stiffness k (N·m/rad or
-N/m) and damping c (N·m·s/rad or N·s/m) default to 0; both 0 = reported only.
+N/m) and damping c (N·m·s/rad or N·s/m) default to 0; both 0 = reported only. They act on arms
+on the world or on a free root; an arm carrying them on a free_base or diff_drive platform is refused.
 
 Spherical joints (explicit links, ``type: spherical``, no axis): q is a unit quaternion
 ``[x, y, z, w]`` of the child frame in the joint frame, v its angular velocity in the child frame
@@ -115,6 +116,8 @@ Imported robot (:func:`build_urdf_part`, :mod:`robodyn_ros.urdf`)::
                                           # with zero gravity); no mount, no origin
         locked: {panda_finger_joint1: 0.0}  # joints frozen as fixed (e.g. <mimic> joints)
         actuated: [...]                   # optional, default every 1-DOF joint
+        position_limits: {stiffness: 500.0, damping: 5.0, return: spring}   # optional: <limit lower
+                                          # upper> enforced by eq. 20.2.1 moments (absent: reported only)
 
 A path ending in ``.urdf`` given to :func:`load_scene` is such a scene of one part
 (:func:`urdf_scene_text`).
@@ -691,6 +694,16 @@ def build_free_base_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     return Part(name=name, kind='free_base', mount='world', system=system, path=path)
 
 
+def _refuse_limit_moments(ctx: SceneContext, part, host: str):
+    """Joint-limit moments act in :class:`ArmSystem` only (fixed or free root): refuse them on an
+    arm that rides on a ``free_base`` or ``diff_drive`` platform rather than drop them silently."""
+    bad = [s.joint for s in part.system.model.specs if s.limit_stiffness or s.limit_damping]
+    if bad:
+        ctx.fail(part.path, f'joint {bad[0]!r}: joint-limit moments (limits with stiffness/damping, URDF '
+                            f'position_limits) are not computed for an arm on a {host} platform; give limits: '
+                            '[lower, upper] (reported only), or mount the arm on the world (or mount: free)')
+
+
 def _assemble_free_base(ctx: SceneContext, parts: list):
     """A free base and the arm parts mounted on it -> one free-flyer system."""
     bases = [p for p in parts if p.kind == 'free_base']
@@ -707,6 +720,7 @@ def _assemble_free_base(ctx: SceneContext, parts: list):
         if p.system.model.root != link:
             ctx.fail(_key(p.path, 'root'), f'the arm must hang from the free base link {link!r}, '
                                             f'its root is {p.system.model.root!r}')
+        _refuse_limit_moments(ctx, p, 'free_base')
         specs += list(p.system.model.specs)
         actuated += list(p.system.actuated)
     try:
@@ -720,7 +734,22 @@ PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': buil
                                    'free_base': build_free_base_part}
 
 
-_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated')
+_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated', 'position_limits')
+
+
+def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
+    """``position_limits: {stiffness, damping, return}``: the eq. 20.2.1 joint-limit moments on every
+    joint with URDF ``<limit lower upper>`` (revolute, prismatic; continuous and locked joints have none)."""
+    from .model import LIMIT_RETURNS
+    ctx.mapping(v, path, optional=_LIMIT_KEYS[2:])
+    ret = ctx.string(v.get('return', 'spring'), _key(path, 'return'))
+    if ret not in LIMIT_RETURNS:
+        ctx.fail(_key(path, 'return'), f'unknown return mode {ret!r}; use {" or ".join(LIMIT_RETURNS)}')
+    law = {'limit_return': ret,
+           'limit_stiffness': ctx.number(v.get('stiffness', 0.0), _key(path, 'stiffness'), minimum=0.0),
+           'limit_damping': ctx.number(v.get('damping', 0.0), _key(path, 'damping'), minimum=0.0)}
+    return [replace(s, **law) if s.limits is not None and s.joint_type in ('revolute', 'prismatic') else s
+            for s in specs]
 
 
 def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
@@ -732,8 +761,11 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     the root link is welded to the mount; true: it is a free 6-DOF base in the scene's gravity,
     environment ``free_fall`` — no ground contact — or ``orbit`` with zero gravity);
     ``locked: {joint: position}`` freezes joints (gripper fingers, ``<mimic>`` joints);
-    ``actuated`` as for an arm (default every 1-DOF joint). The part is an arm (its kind is
-    ``arm`` once built) so it mounts wherever an arm does.
+    ``actuated`` as for an arm (default every 1-DOF joint); ``position_limits: {stiffness,
+    damping, return}`` (optional; absent = URDF position limits reported only) enforces every
+    joint's ``<limit lower upper>`` with the joint-limit moments of Huston eq. (20.2.1), as a
+    ``limits`` mapping does for an arm link (world-mounted, non-floating robots). The part is an
+    arm (its kind is ``arm`` once built) so it mounts wherever an arm does.
     """
     from .urdf import UrdfError, read_urdf
     ctx.mapping(spec, path, required=('kind', 'name'), optional=_URDF_KEYS)
@@ -770,6 +802,12 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         j = next(s.joint for s in specs if s.friction > 0.0)
         ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "
                         "only (set friction=\"0\" or mount: world)")
+    if 'position_limits' in spec:
+        ppath = _key(path, 'position_limits')
+        if floating or mount != 'world':
+            ctx.fail(ppath, 'joint-limit moments are supported for a URDF mounted on the world only '
+                            '(not floating, not on a platform); remove position_limits or use mount: world')
+        specs = _urdf_position_limits(ctx, spec['position_limits'], ppath, specs)
     if floating:
         from .systems import freeflyer as ff
         env = 'orbit' if not np.any(ctx.gravity) else 'free_fall'
@@ -880,6 +918,7 @@ def _assemble_diff_drive(ctx: SceneContext, parts: list):
     if not others:
         return drive.system
     arm = others[0]
+    _refuse_limit_moments(ctx, arm, 'diff_drive')
     am = arm.system.model
     try:
         return DiffDriveSystem(drive.system.params, arm_specs=list(am.specs), arm_root=am.root,
@@ -1301,16 +1340,21 @@ def find_scene(name_or_path) -> Path:
                      f'(searched {", ".join(str(d) for d in scene_dirs())})')
 
 
-def load_scene(name_or_path) -> Scene:
+def load_scene(name_or_path, position_limits: dict | None = None) -> Scene:
     """Load a bundled scene by name (``stanford_arm``), a scene file by path, or a URDF file.
 
     name_or_path: name or path (str or PathLike); a path ending in ``.urdf`` is imported as a
-    one-part scene (:func:`urdf_scene_text`). Returns the validated :class:`Scene`;
-    raises :class:`SceneError` whose message is ``<file>: <key path>: <reason>``.
+    one-part scene (:func:`urdf_scene_text`), with ``position_limits`` (``{stiffness, damping,
+    return}``, optional) as its part's key; a scene file gives that key itself (refused here).
+    Returns the validated :class:`Scene`; raises :class:`SceneError` whose message is
+    ``<file>: <key path>: <reason>``.
     """
     s = os.fspath(name_or_path)
     if s.lower().endswith('.urdf'):  # a robot description alone: a one-part scene around it
-        return parse_scene(urdf_scene_text(s), file=s, path=s)
+        return parse_scene(urdf_scene_text(s, position_limits=position_limits), file=s, path=s)
+    if position_limits is not None:
+        raise SceneError(f'{s}: (position_limits): applies to a URDF file only; in a scene file give '
+                         'position_limits on its kind: urdf part')
     p = find_scene(name_or_path)
     try:
         text = p.read_text(encoding='utf-8')
@@ -1319,12 +1363,14 @@ def load_scene(name_or_path) -> Scene:
     return parse_scene(text, file=str(p), path=str(p))
 
 
-def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None) -> str:
+def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None,
+                    position_limits: dict | None = None) -> str:
     """Scene YAML of one URDF: ``kind: urdf`` mounted on the world (or ``floating``), no scripted
     commands, default settings. urdf_file: its path (``load_scene('robot.urdf')``, ``robodyn run
     robot.urdf``, the node's ``robot_description_file``), or text: the URDF itself (the node
     reading ``robot_description``). A URDF whose root is a massless ``world`` link with a
-    floating joint is floating anyway."""
+    floating joint is floating anyway. position_limits: the part's ``position_limits`` mapping
+    (``{stiffness, damping, return}``; None = URDF position limits reported only)."""
     part = {'kind': 'urdf'}
     if text is None:
         p = Path(urdf_file)
@@ -1337,6 +1383,8 @@ def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = N
     part['name'] = name = re.sub(r'[^A-Za-z0-9_]', '_', name) or 'robot'
     if floating:
         part['floating'] = True
+    if position_limits is not None:
+        part['position_limits'] = dict(position_limits)
     return yaml.safe_dump({'name': name, 'description': f'imported from {origin}', 'parts': [part]}, sort_keys=False)
 
 

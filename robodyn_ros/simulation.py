@@ -55,17 +55,22 @@ class Diagnostics:
     """Running figures of a simulation, published on ``diagnostics`` and printed in summaries.
 
     energy0: total energy at start (J); work: ∫ (input power − dissipation) dt (J), integrated
-    with the state; steps, rhs_evals, rejected_steps: integrator statistics; wall: wall time
-    spent in advance() (s); sim_time: simulated time (s).
+    with the state; work_parts: name -> the part of ``work`` done by one element, integrated
+    with the state by the same quadrature (the system's ``work_components``, e.g. ``limit``:
+    the joint-limit moments); steps, rhs_evals, rejected_steps: integrator statistics; wall: wall time
+    spent in advance() (s); sim_time: simulated time (s); velocity_limit_exceeded: published
+    joint-velocity samples above their joint's velocity limit (URDF ``<limit velocity>``).
     """
 
     energy0: float = 0.0
     work: float = 0.0
+    work_parts: dict = field(default_factory=dict)
     steps: int = 0
     rhs_evals: int = 0
     rejected_steps: int = 0
     wall: float = 0.0
     sim_time: float = 0.0
+    velocity_limit_exceeded: int = 0
     extra: dict = field(default_factory=dict)
 
 
@@ -136,6 +141,10 @@ class Simulator:
         self.command_timeout = command_timeout
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
+        specs = getattr(getattr(system, 'model', None), 'specs', ())
+        self._velocity_limit_of = {s.joint: s.velocity_limit for s in specs
+                                   if getattr(s, 'velocity_limit', None) is not None}   # joint -> rad/s or m/s
+        self._vlim_cache = (None, None)
         self.reset()
         preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
         check_step(system, integrator, dt, self.y)
@@ -150,6 +159,9 @@ class Simulator:
         self.y = self.system.project(self._y0.copy())
         self.ports = {k: CommandPort(np.zeros(p.size)) for k, p in self.system.inputs.items()}
         self.diag = Diagnostics(energy0=self.system.total_energy(self.y))
+        self._work_parts = tuple(getattr(self.system, 'work_components', ()))
+        self.diag.work_parts = {k: 0.0 for k in self._work_parts}
+        self._velocity_checked_at = None
         self.failed: str | None = None
 
     # -- commands ------------------------------------------------------------------------
@@ -207,7 +219,8 @@ class Simulator:
 
     # -- stepping ------------------------------------------------------------------------
     def _integrate(self, u, t1):
-        """Stage 2: integrate ``[y; W]`` from self.t to t1 with u held (W = work done on the system).
+        """Stage 2: integrate ``[y; W; W_parts]`` from self.t to t1 with u held (W = work done on the
+        system, W_parts: the parts of it listed in ``system.work_components``, kept in diag.work_parts).
 
         Returns ``(y1, W1, stats)``. The fused path checks finiteness itself (it raises otherwise):
         the array it returns is noted in ``_verified`` so that :meth:`advance` need not check again.
@@ -215,9 +228,12 @@ class Simulator:
         sys_ = self.system
         ny = sys_.ny
         integ = self.integrator
-        z0 = np.empty(ny + 1)
+        parts = self._work_parts
+        z0 = np.empty(ny + 1 + len(parts))
         z0[:ny] = self.y
         z0[ny] = self.diag.work
+        for k, name in enumerate(parts):
+            z0[ny + 1 + k] = self.diag.work_parts[name]
         fused = getattr(sys_, 'fused_advance', None)
         if fused is not None and integ.spec.kind == 'fixed':
             # fast path: the system runs the same method, grid and projection in compiled code
@@ -226,13 +242,16 @@ class Simulator:
                 z1, st = res
                 integ.stats.accumulate(st)
                 self._verified = z1
+                self._parts_z = z1[ny + 1:]
                 return z1[:ny], z1[ny], st
 
         def f(t, z):
             y = z[:ny]
-            dz = np.empty(ny + 1)
+            dz = np.empty(z.shape[0])
             dz[:ny] = sys_.rhs(t, y, u)
             dz[ny] = sys_.input_power(t, y, u)
+            if parts:
+                dz[ny + 1:] = sys_.work_component_powers(t, y, u)
             return dz
 
         def project(z):
@@ -240,6 +259,7 @@ class Simulator:
             return z
 
         z1, st = integ.advance(f, self.t, z0, t1, project=project)
+        self._parts_z = z1[ny + 1:]
         return z1[:ny], z1[ny], st
 
     def advance(self, t1: float):
@@ -281,6 +301,8 @@ class Simulator:
         else:
             self.diag.rejected_steps += st.rejected_steps
         self.t, self.y, self.diag.work = float(t1), y1, float(work)
+        for k, name in enumerate(self._work_parts):
+            self.diag.work_parts[name] = float(self._parts_z[k])
         self.diag.sim_time = self.t - self._t0
         return self.y
 
@@ -297,15 +319,32 @@ class Simulator:
         """
         out = self.system.outputs(self.t, self.y, self.held_inputs(), wrenches=wrenches)
         self.diag.extra.update(out.extra)
+        lim = self._velocity_limits(out.joint_names)
+        if lim is not None and self.t != self._velocity_checked_at:  # each published state counted once
+            self._velocity_checked_at = self.t
+            self.diag.velocity_limit_exceeded += int(np.count_nonzero(np.abs(out.velocity) > lim))
         return out
+
+    def _velocity_limits(self, names):
+        """``(len(names),)`` velocity limits of the joint_states entries (inf where none), or None
+        when no joint of the system has one (LinkSpec.velocity_limit, from URDF ``<limit velocity>``)."""
+        if not self._velocity_limit_of:
+            return None
+        key = tuple(names)
+        if self._vlim_cache[0] != key:
+            self._vlim_cache = (key, np.array([self._velocity_limit_of.get(n, np.inf) for n in key]))
+        return self._vlim_cache[1]
 
     def energy_report(self) -> dict:
         """Total energy, work done by inputs/dissipation and the drift ``E − E0 − W`` (J)."""
         E = self.system.total_energy(self.y)
         drift = E - self.diag.energy0 - self.diag.work
         scale = max(abs(self.diag.energy0), abs(E), abs(self.diag.work), 1e-12)
-        return {'energy': E, 'energy0': self.diag.energy0, 'work': self.diag.work, 'drift': drift,
-                'relative_drift': drift / scale}
+        out = {'energy': E, 'energy0': self.diag.energy0, 'work': self.diag.work, 'drift': drift,
+               'relative_drift': drift / scale}
+        for name, w in self.diag.work_parts.items():   # e.g. limit_work: the joint-limit moments' part of work
+            out[f'{name}_work'] = w
+        return out
 
     def diagnostics_values(self, wall_clock: bool = False) -> dict:
         """Flat name -> value map for the ``diagnostics`` topic.
@@ -317,6 +356,7 @@ class Simulator:
         d = self.diag
         vals = {'sim_time': self.t, 'energy': e['energy'], 'energy_drift': e['drift'],
                 'energy_drift_relative': e['relative_drift'], 'work_in': e['work'],
+                **{f'{name}_work': w for name, w in d.work_parts.items()},
                 'steps': d.steps, 'rhs_evals': d.rhs_evals,
                 'rejected_steps': 'unknown' if d.rejected_steps is None else d.rejected_steps,
                 'rejected_commands': self.rejected_commands, 'integrator': self.settings['integrator']}
@@ -326,6 +366,8 @@ class Simulator:
             vals[f'{k}_timed_out'] = p.timed_out
             if self.system.inputs[k].limit is not None:
                 vals[f'{k}_clamped'] = p.clamped
+        if self._velocity_limit_of:
+            vals['velocity_limit_exceeded'] = d.velocity_limit_exceeded
         vals.update(d.extra)
         return vals
 

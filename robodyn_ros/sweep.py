@@ -71,13 +71,14 @@ import itertools
 import json
 import math
 import os
-import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import yaml
+
+from .measures import Progress, state_error  # noqa: F401  (Progress: part of this module's API)
 
 __all__ = ['SweepError', 'ClusterError', 'Spec', 'parse_spec', 'load_spec', 'expand', 'execute_run', 'Pool', 'Progress',
            'run_sweep', 'read_table', 'TIMING_COLUMNS', 'FIGURES']
@@ -562,12 +563,6 @@ class _Figures:
         pass
 
 
-def final_error(y, y_ref) -> float:
-    """``max_i |y_i − y_ref,i| / (1 + |y_ref,i|)`` (the error measure of the precision benchmark)."""
-    y, y_ref = np.asarray(y, dtype=float), np.asarray(y_ref, dtype=float)
-    return float(np.max(np.abs(y - y_ref) / (1.0 + np.abs(y_ref)))) if y.size else 0.0
-
-
 def _simulate(scene, st, sinks=()):
     """Run ``scene`` with settings ``st``: ``(sim, status, message)``; never raises for the run's own failures."""
     import warnings
@@ -699,7 +694,7 @@ def execute_run(task: dict) -> dict:
                 elif y_ref is None:
                     row['message'] = '; '.join(x for x in (row['message'], why) if x)
                 else:
-                    row['final_error'] = final_error(sim.y, y_ref)
+                    row['final_error'] = state_error(sim.y, y_ref)
     row['wall_time'] = time.perf_counter() - w0
     row['worker'] = f'{os.uname().nodename}:{os.getpid()}'
     return {'row': row, 'mcap': mcap}
@@ -845,52 +840,6 @@ def chunk_size(runs: int, threads: int) -> int:
     """Runs per Dask task: about ``TASKS_PER_THREAD`` tasks per worker thread (load balance), at
     most ``MAX_CHUNK`` runs each (a lost task is rerun whole, and rows arrive a task at a time)."""
     return max(1, min(MAX_CHUNK, runs // (TASKS_PER_THREAD * max(1, threads))))
-
-
-class Progress:
-    """Progress bar with rate and ETA on stderr: ``\\r`` updates on a terminal, one line per
-    update otherwise (at most every ``interval`` seconds, and at the end); silent if quiet."""
-
-    def __init__(self, total: int, done: int = 0, stream=None, quiet: bool = False, width: int = 30,
-                 interval: float = 2.0, label: str = 'sweep'):
-        self.total, self.done, self.start_done = max(int(total), 0), int(done), int(done)
-        self.stream = stream or sys.stderr
-        self.quiet, self.width, self.interval, self.label = quiet, width, interval, label
-        self.tty = hasattr(self.stream, 'isatty') and self.stream.isatty()
-        self.t0 = time.perf_counter()
-        self.last = -math.inf
-
-    def eta(self) -> float:
-        """Seconds left at the rate of the runs finished since start (nan before the first)."""
-        n = self.done - self.start_done
-        if n <= 0:
-            return math.nan
-        return (time.perf_counter() - self.t0) / n * (self.total - self.done)
-
-    def line(self, text: str = '') -> str:
-        """The progress line."""
-        frac = self.done / self.total if self.total else 1.0
-        bar = '#' * int(round(frac * self.width))
-        eta = self.eta()
-        eta_s = '--:--' if not math.isfinite(eta) else f'{int(eta) // 60:02d}:{int(eta) % 60:02d}'
-        return (f'{self.label} [{bar:<{self.width}}] {self.done}/{self.total} '
-                f'{time.perf_counter() - self.t0:6.1f} s, ETA {eta_s} {text}').rstrip()
-
-    def step(self, text: str = ''):
-        """Count one finished unit and show the bar."""
-        self.done += 1
-        if self.quiet:
-            return
-        now = time.perf_counter()
-        if not self.tty and now - self.last < self.interval and self.done < self.total:
-            return
-        self.last = now
-        line = self.line(text)
-        if self.tty:
-            self.stream.write('\r' + line[:118].ljust(118) + ('\n' if self.done >= self.total else ''))
-        else:
-            self.stream.write(line + '\n')
-        self.stream.flush()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -19,8 +19,11 @@ never exercised); this module only checks what it read and maps it onto our tree
   ``|q̇| ~ COULOMB_VELOCITY`` it acts as a stiff damper of slope ``f / COULOMB_VELOCITY``.
 * ``<limit effort>`` becomes the joint's effort limit (commands are clamped to ±effort and the
   clamps counted, see :mod:`robodyn_ros.simulation`); ``lower``/``upper`` become
-  ``LinkSpec.limits`` (reported, exported, checked against the initial state; not enforced by
-  the dynamics yet); ``velocity`` is read and reported only.
+  ``LinkSpec.limits`` (reported, exported, checked against the initial state; enforced by the
+  joint-limit moments of Huston eq. 20.2.1 only when a scene's ``kind: urdf`` part gives
+  ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`); ``velocity`` (> 0) becomes
+  ``LinkSpec.velocity_limit``: not enforced, but publications of a joint velocity above it are
+  counted (diagnostics ``velocity_limit_exceeded``, :class:`robodyn_ros.simulation.Simulator`).
 * ``<mimic>`` is refused (a coupled DOF the kernels do not have), unless the mimic joint is
   locked (``locked={joint: position}``: the joint becomes FIXED at that position, as
   Pinocchio's ``buildReducedModel`` does).
@@ -326,6 +329,10 @@ def _spec(lk, j, jtype, jname, xml_links, base_dir) -> LinkSpec:
                         raise UrdfError(f'{jw}: <limit effort> must be > 0, got {eff!r} '
                                         '(a joint that can exert no effort: make it passive instead)')
                     kw['effort_limit'] = eff
+                if lim.velocity is not None:  # reported only; <= 0 (written by some exporters) = none
+                    vel = _float(lim.velocity, f'{jw}: <limit velocity>')
+                    if vel > 0.0:
+                        kw['velocity_limit'] = vel
                 if j.type != 'continuous' and (lim.lower is not None or lim.upper is not None):
                     lo = _float(lim.lower, f'{jw}: <limit lower>')
                     hi = _float(lim.upper, f'{jw}: <limit upper>')
@@ -348,7 +355,7 @@ def _lock(s: LinkSpec, j, q: float) -> LinkSpec:
     else:
         R, p = R0, np.asarray(s.origin_xyz) + R0 @ (a * q)
     return replace(s, joint_type='fixed', origin_R=R, origin_xyz=tuple(p), origin_rpy=tuple(R_to_rpy(R)),
-                   damping=0.0, friction=0.0, effort_limit=None, limits=None)
+                   damping=0.0, friction=0.0, effort_limit=None, limits=None, velocity_limit=None)
 
 
 def _check_masses(specs, no_inertial):

@@ -13,6 +13,8 @@ is thrown into its upper stop. Piece by piece:
 
 The simulator's work quadrature must equal the energy lost (E − E0 = W, the stop's work), and a
 too stiff stop must be refused by the step preflight naming the joint and its time constant.
+The same stop written as a URDF ``<limit lower upper>`` and enforced by a ``kind: urdf`` part's
+``position_limits`` mapping must give the same pieces.
 """
 from __future__ import annotations
 
@@ -36,6 +38,32 @@ def one_joint(ret='none', k=K, c=C, damping=0.0):
                     com=(0.0, 0.0, 0.0), inertia=np.diag([0.15, 0.15, I_AX]), limits=(LO, HI),
                     limit_stiffness=k, limit_damping=c, limit_return=ret, damping=damping)
     return ArmSystem(build_model([link], gravity=(0, 0, 0), name='stop'), backend='numba')
+
+
+def urdf_text(lower=LO, upper=HI, kind='revolute'):
+    """One link turning about z, the same body as :func:`one_joint`, as a URDF."""
+    lim = f'<limit effort="100" velocity="10" lower="{lower}" upper="{upper}"/>'
+    return (f'<robot name="stop"><link name="base"/>'
+            f'<link name="arm"><inertial><mass value="2.0"/>'
+            f'<inertia ixx="0.15" iyy="0.15" izz="{I_AX}" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+            f'<joint name="hinge" type="{kind}"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/>'
+            f'{lim}</joint></robot>')
+
+
+def urdf_scene(position_limits=None, text=None, extra=''):
+    import yaml
+    part = {'kind': 'urdf', 'name': 'stop', 'urdf': text or urdf_text()}
+    if position_limits is not None:
+        part['position_limits'] = position_limits
+    return yaml.safe_dump({'name': 'stop', 'gravity': [0.0, 0.0, -9.81], 'parts': [part]}, sort_keys=False) + extra
+
+
+def urdf_joint(ret='none', k=K, c=C):
+    """The stop of :func:`one_joint` imported from a URDF with ``position_limits`` (gravity along the axis)."""
+    from robodyn_ros.scene import parse_scene
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope('numba'):
+        return parse_scene(urdf_scene({'stiffness': k, 'damping': c, 'return': ret}), 'stop.yaml').system
 
 
 def run(system, y0, t_end, dt=1e-4, samples=2001):
@@ -71,10 +99,12 @@ def closed_form(t, th0, w0, ret):
     return HI - wn * dpk * (tau - tau2), -wn * dpk
 
 
+@pytest.mark.parametrize('source', ['linkspec', 'urdf'])
 @pytest.mark.parametrize('ret', ['none', 'spring'])
-def test_stop_follows_eq_20_2_1_piece_by_piece(ret):
+def test_stop_follows_eq_20_2_1_piece_by_piece(ret, source):
     th0, w0 = 0.3, 2.0
-    sys_ = one_joint(ret)
+    sys_ = one_joint(ret) if source == 'linkspec' else urdf_joint(ret)
+    assert sys_.model.nv == 1 and sys_._lim.shape[0] == 1
     ts, ys, sim = run(sys_, np.array([th0, w0]), 0.8)
     ref = np.array([closed_form(t, th0, w0, ret) for t in ts])
     wn = math.sqrt(K / I_AX)
@@ -114,6 +144,8 @@ def test_stop_follows_eq_20_2_1_piece_by_piece(ret):
     rep = sim.energy_report()
     assert rep["work"] == pytest.approx(E1 - E0, rel=1e-6)   # fixed-step RK4 over the kinks: O(h) per kink
     assert rep['work'] < -0.05 * E0
+    # the stop is the only non-conservative element: its own work (integrated apart) is all of it
+    assert rep['limit_work'] == pytest.approx(rep['work'], rel=1e-12, abs=0.0)
     assert wn > 0
 
 
@@ -215,3 +247,178 @@ parts:
     assert lim.shape == (1, 12)
     assert tuple(lim[0, [3, 4, 5, 10, 11]]) == (1.0, -1.0, 1.0, 40.0, 0.5)   # mode 1 = 'none'
     assert m.specs[1].limits == (-2.0, 2.0) and m.specs[1].limit_stiffness == 0.0
+
+
+def test_urdf_position_limits_reach_every_limited_joint_and_are_off_by_default():
+    """Without ``position_limits`` a URDF stop is reported only (the joint passes through it freely,
+    as before); with it, every revolute/prismatic joint with ``<limit lower upper>`` gets the law,
+    continuous and locked joints none."""
+    from robodyn_ros.model import limit_table
+    from robodyn_ros.scene import SceneError, parse_scene
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope('numba'):
+        free = parse_scene(urdf_scene(), 'stop.yaml').system
+    assert free.model.specs[0].limits == (LO, HI) and limit_table(free.model).shape == (0, 12)
+    ts, ys, _ = run(free, np.array([0.3, 2.0]), 0.8, samples=81)
+    assert np.allclose(ys[:, 0], 0.3 + 2.0 * ts, atol=1e-9) and ys[-1, 0] > HI + 1.0
+    text = ('<robot name="three"><link name="base"/>' + ''.join(
+        f'<link name="l{i}"><inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" '
+        f'iyz="0"/></inertial></link>' for i in range(4)) +
+        '<joint name="r" type="revolute"><parent link="base"/><child link="l0"/><axis xyz="0 0 1"/>'
+        '<limit effort="1" velocity="1" lower="-1" upper="1.5"/></joint>'
+        '<joint name="c" type="continuous"><parent link="l0"/><child link="l1"/><axis xyz="0 1 0"/>'
+        '<origin xyz="0 0 0.3"/><limit effort="1" velocity="1"/></joint>'
+        '<joint name="p" type="prismatic"><parent link="l1"/><child link="l2"/><axis xyz="1 0 0"/>'
+        '<origin xyz="0 0 0.3"/><limit effort="1" velocity="1" lower="-0.1" upper="0.2"/></joint>'
+        '<joint name="lk" type="revolute"><parent link="l2"/><child link="l3"/><axis xyz="0 1 0"/>'
+        '<origin xyz="0 0 0.3"/><limit effort="1" velocity="1" lower="-1" upper="1"/></joint></robot>')
+    import yaml
+    doc = yaml.safe_load(urdf_scene({'stiffness': 30.0, 'damping': 0.2}, text=text))
+    doc['parts'][0]['locked'] = {'lk': 0.5}
+    with backend_scope('numba'):
+        m = parse_scene(yaml.safe_dump(doc), 'three.yaml').system.model
+    lim = limit_table(m)
+    # rows: [jtype, q index, v index, mode, lo0, hi0, ..., k, c]; 'spring' (the default) is mode 2
+    assert lim[:, 1].tolist() == [0.0, 2.0]            # joints r and p (q indices 0 and 2), not c
+    assert lim[:, [4, 5]].tolist() == [[-1.0, 1.5], [-0.1, 0.2]]
+    assert lim[:, 10].tolist() == [30.0, 30.0] and lim[:, 11].tolist() == [0.2, 0.2]
+    assert lim[:, 3].tolist() == [2.0, 2.0]
+    with pytest.raises(SceneError, match=r'^s\.yaml: parts\[0\]\.position_limits\.return: unknown return mode'):
+        parse_scene(urdf_scene({'stiffness': 1.0, 'return': 'bounce'}), 's.yaml')
+    with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits\.stiffness: '):
+        parse_scene(urdf_scene({'stiffness': -1.0}), 's.yaml')
+    with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits\.stifness: unknown key'):
+        parse_scene(urdf_scene({'stifness': 1.0}), 's.yaml')
+    doc = yaml.safe_load(urdf_scene({'stiffness': 1.0}))
+    doc['parts'][0]['floating'] = True
+    with pytest.raises(SceneError, match=r'parts\[0\]\.position_limits: joint-limit moments are supported for a '
+                                         r'URDF mounted on the world only'):
+        parse_scene(yaml.safe_dump(doc), 's.yaml')
+
+
+def _split_run(integrator, d, reference=False):
+    sys_ = one_joint('spring', damping=d)
+    if reference:   # an instance attribute named like a fused method: the fused loop declines
+        sys_.rhs = sys_.rhs
+    kw = {'dt': 1e-4} if integrator == 'rk4' else {'dt': None, 'rtol': 1e-10, 'atol': 1e-12}
+    return sys_, Simulator(sys_, np.array([0.3, 2.0]), integrator=integrator, **kw)
+
+
+@pytest.mark.parametrize('integrator', ['rk4', 'dop853'])
+def test_limit_work_is_integrated_as_its_own_part(integrator):
+    """With viscous joint damping d as well, the work splits: ``W = W_lim + W_damp`` with
+    ``W_damp = -d ∫ θ̇² dt`` (quadrature of the sampled rate, an independent route); W_lim is
+    exactly 0 before the joint reaches its stop and < 0 after (dissipation). rk4 takes the fused
+    compiled loop, dop853 the Simulator's reference quadrature."""
+    d = 0.05
+    sys_, sim = _split_run(integrator, d)
+    assert sys_.work_components == ('limit',)
+    ts = np.linspace(0.0, 0.8, 8001)
+    ys = [sim.y.copy()]
+    early = None
+    for t in ts[1:]:
+        ys.append(sim.advance(t).copy())
+        if early is None and t >= 0.05:    # inside the range (the stop is reached at t ≈ 0.1 s)
+            early = sim.energy_report()
+    ys = np.array(ys)
+    assert early['limit_work'] == 0.0 and early['work'] < -1e-4
+    rep = sim.energy_report()
+    from scipy.integrate import simpson
+    w_damp = -d * simpson(ys[:, 1] ** 2, x=ts)
+    assert rep['limit_work'] < -0.01
+    assert rep['work'] - rep['limit_work'] == pytest.approx(w_damp, rel=1e-4)
+    assert abs(rep['drift']) < 1e-8
+    if integrator == 'rk4':   # the fused compiled loop and the Simulator's reference quadrature agree
+        _, ref = _split_run('rk4', d, reference=True)
+        ref.advance(0.8)
+        assert ref.energy_report()['limit_work'] == pytest.approx(rep['limit_work'], rel=1e-10)
+        assert ref.diag.work == pytest.approx(rep['work'], rel=1e-10)
+        gen = Simulator(ArmSystem(sys_.model, backend='generated'), np.array([0.3, 2.0]), integrator='rk4', dt=1e-4)
+        gen.advance(0.8)   # the generated loop of kernels.codegen
+        assert gen.energy_report()['limit_work'] == pytest.approx(rep['limit_work'], rel=1e-10)
+    vals = sim.diagnostics_values()
+    assert vals['limit_work'] == rep['limit_work']
+    from types import SimpleNamespace
+
+    from robodyn_ros.cli.run import summary
+    text = summary(SimpleNamespace(name='stop', system=sys_), sim, {'integrator': integrator, 'dt': 1e-4}, 1.0, None,
+                   [])
+    assert f'; joint-limit work {rep["limit_work"]:.6g} J' in text, text
+    # a system without limit moments has no such part
+    free = Simulator(one_joint(k=0.0, c=0.0), np.array([0.3, 2.0]), integrator='rk4', dt=1e-3)
+    assert free.system.work_components == ()
+    free.advance(0.5)
+    assert 'limit_work' not in free.diagnostics_values() and 'limit_work' not in free.energy_report()
+
+
+@pytest.mark.parametrize('host', ['free_base', 'diff_drive'])
+def test_limit_moments_on_a_platform_are_refused_not_dropped(host):
+    """FreeFlyerSystem and DiffDriveSystem do not compute joint-limit moments: an arm carrying them
+    on such a platform is refused at load (before, the moments were silently left out)."""
+    import yaml
+
+    from robodyn_ros.scene import SceneError, parse_scene
+    link = {'name': 'l1', 'joint': 'j1', 'parent': 'base_link', 'type': 'revolute', 'mass': 1.0,
+            'inertia': [0.1, 0.1, 0.1, 0, 0, 0], 'limits': {'lower': -0.1, 'upper': 0.1, 'stiffness': 100.0}}
+    if host == 'free_base':
+        platform = {'kind': 'free_base', 'name': 'base', 'environment': 'orbit', 'formulation': 'minimal',
+                    'link': 'base_link', 'joint': 'base_joint', 'mass': 10.0, 'inertia': [1, 1, 1, 0, 0, 0]}
+        gravity = [0.0, 0.0, 0.0]
+    else:
+        platform = {'kind': 'diff_drive', 'name': 'base',
+                    'chassis': {'mass': 3.0, 'yaw_inertia': 0.2, 'com': [0, 0, 0.2]},
+                    'wheels': {'radius': 0.1, 'half_track': 0.2, 'mass': 0.3, 'spin_inertia': 0.002},
+                    'motor': {'kind': 'dc_motor', 'torque_constant': 0.06, 'resistance': 1.7}}
+        gravity = [0.0, 0.0, -9.81]
+    doc = {'name': 'x', 'gravity': gravity, 'parts': [platform, {'kind': 'arm', 'name': 'arm', 'mount': 'base',
+                                                                 'links': [link]}]}
+    with pytest.raises(SceneError, match=rf"^x\.yaml: parts\[1\]: joint 'j1': joint-limit moments .* on a {host} "
+                                         r"platform"):
+        parse_scene(yaml.safe_dump(doc), 'x.yaml')
+    link['limits'] = [-0.1, 0.1]    # reported only: accepted
+    sc = parse_scene(yaml.safe_dump(doc), 'x.yaml')
+    assert sc.system.model.specs[-1].limits == (-0.1, 0.1)
+
+
+def test_cli_position_limits_option_on_a_urdf_file(tmp_path):
+    """``robodyn run robot.urdf --position-limits K,C``: a pendulum (1 kg at r = 0.5 m, horizontal at
+    q = 0, joint damping 0.5) falls into its upper stop at 0.3 rad and comes to rest where the
+    stop's spring holds the weight, ``k Δ = m g r cos(0.3 + Δ)`` (statics, solved by bisection);
+    without the option it swings through its URDF limits, as before."""
+    import subprocess
+    import sys
+
+    from robodyn_ros.recording import read_messages
+    urdf = tmp_path / 'pendulum.urdf'
+    urdf.write_text('<robot name="pendulum"><link name="base"/>'
+                    '<link name="bob"><inertial><origin xyz="0.5 0 0"/><mass value="1.0"/>'
+                    '<inertia ixx="0.001" iyy="0.001" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+                    '<joint name="swing" type="revolute"><parent link="base"/><child link="bob"/><axis xyz="0 1 0"/>'
+                    '<dynamics damping="0.5"/><limit effort="10" velocity="100" lower="-0.3" upper="0.3"/></joint>'
+                    '</robot>')
+    cmd = [sys.executable, '-m', 'robodyn_ros.cli', 'run', str(urdf), '--duration', '15', '--integrator', 'rk4',
+           '--dt', '1e-3', '--rate', '10']
+
+    def final_q(extra, name):
+        out = tmp_path / f'{name}.mcap'
+        p = subprocess.run(cmd + extra + ['--record', str(out)], capture_output=True, text=True, timeout=240)
+        assert p.returncode == 0, p.stderr
+        js = [m for *_, m in read_messages(out, topics=['/joint_states'])]
+        return float(js[-1].position[0]), p.stdout
+    k, m, g, r = 50.0, 1.0, 9.81, 0.5
+    lo, hi = 0.0, 1.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if k * mid < m * g * r * math.cos(0.3 + mid) else (lo, mid)
+    q_rest, text = final_q(['--position-limits', f'{k},0.6'], 'stop')
+    assert q_rest == pytest.approx(0.3 + lo, abs=1e-6), (q_rest, 0.3 + lo)
+    assert '; joint-limit work -' in text, text
+    q_free, text = final_q([], 'free')
+    assert q_free > 1.0 and 'joint-limit work' not in text
+    bad = subprocess.run(cmd + ['--position-limits', '50'], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and '--position-limits: expected K,C or K,C,RETURN' in bad.stderr, bad.stderr
+    bad = subprocess.run(cmd + ['--position-limits', '50,1,bounce'], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and 'parts[0].position_limits.return: unknown return mode' in bad.stderr, bad.stderr
+    bad = subprocess.run(cmd[:4] + ['stanford_arm', '--duration', '0.1', '--position-limits', '50,1'],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and 'applies to a URDF file only' in bad.stderr, bad.stderr

@@ -452,3 +452,37 @@ def test_resume_retries_error_rows(tmp_path):
     res = S.run_sweep(spec, str(out), workers=0, plot=False)
     assert (res.skipped, res.executed) == (1, 1)
     assert [r['status'] for r in S.read_table(res.table)] == ['ok', 'ok']
+
+
+def test_sweep_and_bench_share_the_error_measure_and_the_progress_bar():
+    """One final-state error and one progress bar (robodyn_ros.measures) serve the sweep and the
+    precision benchmark; the bar prints off a terminal at most every ``interval`` s and at the end
+    (the sweep), or once per run (the benchmark, interval 0)."""
+    import io
+
+    from robodyn_ros import measures, sweep
+    from robodyn_ros.bench import precision
+    assert sweep.state_error is measures.state_error and precision.state_error is measures.state_error
+    assert sweep.Progress is measures.Progress and issubclass(precision.Progress, measures.Progress)
+    assert measures.state_error([1.0, 3.0, -2.0], [1.0, 1.0, -1.5]) == 1.0   # |3 - 1| / (1 + 1)
+    with pytest.raises(ValueError, match='state shapes differ'):
+        measures.state_error([1.0], [1.0, 2.0])
+    out = io.StringIO()
+    bar = measures.Progress(5, stream=out, interval=3600.0)
+    for k in range(5):
+        bar.step(f'run {k}')
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 2 and lines[0].startswith('sweep [######   ') and ' 1/5 ' in lines[0], lines
+    assert lines[1].startswith('sweep [' + '#' * 30 + '] 5/5') and lines[1].endswith('ETA 00:00 run 4'), lines
+    out = io.StringIO()
+    bench_bar = precision.Progress(3, stream=out)
+    for k in range(3):
+        bench_bar.step(f'run {k}')
+    lines = out.getvalue().splitlines()
+    assert [ln.split(']')[1].split()[0] for ln in lines] == ['1/3', '2/3', '3/3'], lines
+    assert all(ln.startswith('precision [') for ln in lines)
+    out = io.StringIO()
+    quiet = precision.Progress(2, stream=out, quiet=True)
+    quiet.step('x')
+    quiet.step('y')
+    assert out.getvalue() == '' and quiet.done == 2

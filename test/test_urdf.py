@@ -327,6 +327,65 @@ def test_coulomb_friction_decelerates_at_f_over_I():
     assert COULOMB_VELOCITY == 0.05
 
 
+def test_velocity_limit_is_reported_and_counted_at_publication():
+    """``<limit velocity>`` is not enforced; the published joint-velocity samples above it are
+    counted (diagnostics ``velocity_limit_exceeded``). A damped spin with no gravity moment:
+    q̇(t) = q̇0 e^(-d t / I) (closed form) crosses the 1 rad/s limit at t = ln 2 s from
+    q̇0 = 2 rad/s, so of the 11 publications at 10 Hz over 1 s, those at t = 0 ... 0.6 s exceed it
+    (7); the second joint (limit 5 rad/s) never does, a continuous third joint without a limit
+    never counts, and velocity="0" means no limit."""
+    inertial = ('<inertial><mass value="1"/><inertia ixx="0.25" iyy="0.25" izz="0.2" ixy="0" ixz="0" iyz="0"/>'
+                '</inertial>')
+    text = _robot(_link('base'), _link('a', inertial), _link('b', inertial), _link('c', inertial),
+                  _link('d', inertial),
+                  _joint('j1', 'base', 'a', 'revolute', '<axis xyz="0 0 1"/><dynamics damping="0.2"/>'
+                                                        '<limit effort="1" lower="-9" upper="9" velocity="1.0"/>'),
+                  _joint('j2', 'a', 'b', 'revolute', '<axis xyz="0 0 1"/><origin xyz="0 0 0.1"/>'
+                                                     '<limit effort="1" lower="-9" upper="9" velocity="5.0"/>'),
+                  _joint('j3', 'b', 'c', 'continuous', '<axis xyz="0 0 1"/><origin xyz="0 0 0.1"/>'),
+                  _joint('j4', 'c', 'd', 'revolute', '<axis xyz="0 0 1"/><origin xyz="0 0 0.1"/>'
+                                                     '<limit effort="1" lower="-9" upper="9" velocity="0"/>'))
+    r = read_urdf(text)
+    assert [s.velocity_limit for s in r.specs] == [1.0, 5.0, None, None]
+    assert 'velocity="1.0"' in to_urdf(build_model(r.specs, root='base'))
+    # links b, c, d start at rest in space and feel no moment about z: they stay at rest, so link a
+    # alone carries the damper (I = 0.2): q̇1 = 2 e^(-t), q̇2 = -q̇1 (|q̇2| <= 2 < 5), q̇3 = q̇4 = 0
+    scene = ('name: v\ngravity: [0, 0, -9.81]\nparts:\n  - kind: urdf\n    name: v\n    urdf: |\n      ' + text +
+             '\ninitial_state: {v: [2.0, -2.0, 0.0, 0.0]}\n')
+    sc = parse_scene(scene)
+    sim = Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-4)
+    t_cross = 0.2 / 0.2 * np.log(2.0)   # I / d ln(q̇0 / limit)
+    assert 0.6 < t_cross < 0.7
+
+    class Counts:
+        wants_wrenches = False
+        seen = []
+
+        def on_start(self, sim):
+            pass
+
+        def on_command(self, *a):
+            pass
+
+        def on_output(self, t, out, sim):
+            sim.outputs(wrenches=False)   # a second look at the same state is not counted again
+            self.seen.append(sim.diagnostics_values()['velocity_limit_exceeded'])
+
+        def close(self):
+            pass
+    sink = Counts()
+    run_headless(sim, 1.0, 10.0, sinks=[sink])
+    assert sink.seen[0] == 1 and sink.seen[-1] == 7, sink.seen
+    assert sim.diag.velocity_limit_exceeded == 7
+    from robodyn_ros.cli.run import summary
+    assert 'limits       7 published joint velocities above the velocity limits' in \
+        summary(sc, sim, {'integrator': 'rk4', 'dt': 1e-4}, 1.0, None, [])
+    assert sim.y[4] == pytest.approx(2.0 * np.exp(-1.0), rel=1e-9) and sim.y[5] == pytest.approx(-sim.y[4], rel=1e-9)
+    # a scene without velocity limits publishes no such value (its recordings stay as they were)
+    plain = load_scene('stanford_arm')
+    assert 'velocity_limit_exceeded' not in Simulator(plain.system, plain.y0).diagnostics_values()
+
+
 def test_friction_is_refused_where_it_is_not_modelled():
     text = _robot(_link('a', ''), _link('b'), _joint('j1', 'a', 'b', extra='<axis xyz="0 0 1"/>'
                                                                           '<dynamics friction="1"/>'))

@@ -60,6 +60,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..measures import Progress as _Progress
+from ..measures import state_error  # noqa: F401  (used here and by bench.extremes)
+
 HELP = 'work-precision: error vs cost of every integrator and formulation per scene (CSV, markdown, PNG)'
 
 #: scenes measured when none are named (those that exist in this install)
@@ -239,14 +242,6 @@ def comparable(system, y) -> np.ndarray:
     if model is not None and model.nb and model.jtype[0] == FREE and q[6] < 0:
         q[3:7] = -q[3:7]
     return np.concatenate([q, np.asarray(v, dtype=float)])
-
-
-def state_error(y, y_ref) -> float:
-    """Mixed absolute/relative final-state error ``max_i |y_i − y_ref,i| / (1 + |y_ref,i|)``."""
-    y, y_ref = np.asarray(y, dtype=float), np.asarray(y_ref, dtype=float)
-    if y.shape != y_ref.shape:
-        raise ValueError(f'state shapes differ: {y.shape} vs {y_ref.shape}')
-    return float(np.max(np.abs(y - y_ref) / (1.0 + np.abs(y_ref)))) if y.size else 0.0
 
 
 def closed_form(scene):
@@ -451,31 +446,12 @@ def ladder(scene, mode: str = 'full', integrators=None) -> list:
     return out
 
 
-class Progress:
-    """A one-line ``\\r`` progress bar on a terminal (plain lines otherwise; silent if quiet)."""
+class Progress(_Progress):
+    """The shared progress bar (:class:`robodyn_ros.measures.Progress`) labelled ``precision``,
+    a line per run off a terminal."""
 
     def __init__(self, total: int, stream=None, quiet=False, width=30):
-        self.total, self.done, self.width, self.quiet = max(total, 1), 0, width, quiet
-        self.stream = stream or sys.stderr
-        self.tty = hasattr(self.stream, 'isatty') and self.stream.isatty()
-        self.t0 = time.perf_counter()
-
-    def step(self, text: str):
-        """Count one unit of work done and show ``text``."""
-        self.done += 1
-        if self.quiet:
-            return
-        frac = self.done / self.total
-        bar = '#' * int(round(frac * self.width))
-        line = (f'[{bar:<{self.width}}] {self.done:3d}/{self.total} {time.perf_counter() - self.t0:6.0f} s  '
-                f'{text}')
-        if self.tty:
-            self.stream.write('\r' + line[:118].ljust(118))
-            if self.done == self.total:
-                self.stream.write('\n')
-        else:
-            self.stream.write(line + '\n')
-        self.stream.flush()
+        super().__init__(total, stream=stream, quiet=quiet, width=width, interval=0.0, label='precision')
 
 
 @dataclass

@@ -25,6 +25,10 @@ def add_parser(sub):
     p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
                    help='dynamics kernels (default: $ROBODYN_BACKEND, else generated: specialised per scene, '
                         'compiled once and cached)')
+    p.add_argument('--position-limits', default=None, metavar='K,C[,RETURN]',
+                   help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
+                        '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
+                        '(Huston eq. 20.2.1; a scene file gives position_limits on its kind: urdf part)')
     p.add_argument('--diagnostics-period', type=float, default=0.1,
                    help='simulated seconds between recorded diagnostics messages (default 0.1)')
     return p
@@ -61,9 +65,22 @@ def main(args) -> int:
             print(f'robodyn run: {e}', file=sys.stderr)
             return 2
     backend = tools_backend(getattr(args, 'backend', None))
+    limits = None
+    if getattr(args, 'position_limits', None) is not None:
+        f = args.position_limits.split(',')
+        try:
+            if len(f) not in (2, 3):
+                raise ValueError
+            limits = {'stiffness': float(f[0]), 'damping': float(f[1])}
+            if len(f) == 3:
+                limits['return'] = f[2].strip()
+        except ValueError:
+            print(f'robodyn run: --position-limits: expected K,C or K,C,RETURN (numbers, then spring or none), '
+                  f'got {args.position_limits!r}', file=sys.stderr)
+            return 2
     try:
         with backend_scope(backend):
-            scene = load_scene(args.scene)
+            scene = load_scene(args.scene, position_limits=limits)
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
@@ -110,6 +127,10 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
         f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
         f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
     ]
+    if 'limit_work' in e:   # joint-limit moments (Huston eq. 20.2.1): their part of the work
+        lines[-1] += f'; joint-limit work {e["limit_work"]:.6g} J'
+    if d.velocity_limit_exceeded:   # URDF <limit velocity>: reported, not enforced
+        lines.append(f'limits       {d.velocity_limit_exceeded} published joint velocities above the velocity limits')
     clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}
     if clamped:  # actuator effort limits (URDF <limit effort>, effort_limit)
         lines.append('limits       ' + ', '.join(f'{n} {k} command components clamped to the effort limits'

@@ -1008,23 +1008,47 @@ def qdot(mi, q, v):
 # fused fixed-step integration of an arm with its work quadrature
 # ----------------------------------------------------------------------------------------------
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
-    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``.
-
-    tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
-    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch.
-    (ArmSystem.rhs and .input_power of the reference path.)
-    """
+def arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv):
+    """``tauv = B u − D v + τ_lim`` at ``z = [q, v, W(, W_lim)]``; returns the power ``vᵀ tauv``.
+    With W_lim in z, ``dz[nq + nv + 1] = vᵀ τ_lim`` (the limit forces are formed alone in
+    ``dz[nq:nq + nv]``, which the caller's ABA overwrites; one row per joint, so tauv gets the
+    same sums as :func:`limit_forces_add` on it). Shared by :func:`arm_rhs` and the generated one."""
     q = z[:nq]
     v = z[nq:nq + nv]
-    qdot_into(mi, q, v, dz[:nq])
     for k in range(nv):
         tauv[k] = tau_app[k] - damping[k] * v[k]
-    if lim.shape[0]:
+    if z.shape[0] > nq + nv + 1:
+        tl = dz[nq:nq + nv]
+        for k in range(nv):
+            tl[k] = 0.0
+        if lim.shape[0]:
+            limit_forces_add(lim, q, v, tl)
+        P = 0.0
+        for k in range(nv):
+            P += v[k] * tl[k]
+            tauv[k] += tl[k]
+        dz[nq + nv + 1] = P
+    elif lim.shape[0]:
         limit_forces_add(lim, q, v, tauv)
     P = 0.0
     for k in range(nv):
         P += v[k] * tauv[k]
+    return P
+
+
+@njit(**_JIT)
+def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
+    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``;
+    for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
+
+    tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
+    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch.
+    (ArmSystem.rhs, .input_power and .limit_power of the reference path.)
+    """
+    q = z[:nq]
+    v = z[nq:nq + nv]
+    qdot_into(mi, q, v, dz[:nq])
+    P = arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
     transforms(mi, mf, q, W)
     aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
     dz[nq + nv] = P
@@ -1032,7 +1056,8 @@ def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
 
 @njit(**_JIT)
 def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last):
-    """Integrate ``z = [q, v, W]`` in place over ``n_full`` steps of dt and one of h_last (if > 0).
+    """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
+    ``n_full`` steps of dt and one of h_last (if > 0).
 
     method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
     :mod:`robodyn_ros.integrators` (RK4: ``acc = k1 + 2 k2 + 2 k3 + k4`` folded stage by
@@ -1043,7 +1068,7 @@ def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_la
     """
     nb = mi.shape[0]
     n = z.shape[0]
-    nv = n - nq - 1
+    nv = damping.shape[0]
     W = workspace(nb)
     buf = np.empty(3 * n + nv + nq)
     K = buf[:n]

@@ -126,6 +126,16 @@ class ArmSystem(System):
             tau += self._km.limit_forces(q, v)
         return tau
 
+    @property
+    def work_components(self) -> tuple:
+        """Parts of the work quadrature the Simulator integrates on their own: ``('limit',)``
+        (:meth:`limit_power`) when the model has joint-limit moments, else ``()``."""
+        return ('limit',) if self._lim.shape[0] else ()
+
+    def work_component_powers(self, t, y, u) -> np.ndarray:
+        """The powers (W) of :attr:`work_components` at state y, in that order."""
+        return np.array([self.limit_power(y)]) if self._lim.shape[0] else np.zeros(0)
+
     def limit_power(self, y) -> float:
         """Power (W) of the joint-limit moments at state y (<= 0 for the seed's law: dissipation)."""
         if not self._lim.shape[0]:
@@ -199,14 +209,15 @@ class ArmSystem(System):
         ``dW/dt = vᵀ (B u − D v)`` as ``Simulator._integrate`` with this system's ``rhs``,
         computed by :func:`robodyn_ros.kernels.core.integrate_arm`. Declines (returns None) on
         the numpy backend, for other integrators, and in subclasses that change the dynamics.
-        Returns ``(z1 (ny + 1,), IntegratorStats)``; raises ``IntegrationError`` like the
+        ``z = [y, W, W_lim]`` also integrates :meth:`limit_power` (the Simulator does so when
+        :attr:`work_components` names it). Returns ``(z1, IntegratorStats)``; raises ``IntegrationError`` like the
         reference integrator when the state becomes non-finite.
         """
         if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact() \
                 or self._has_friction:  # the fused loop has viscous damping only
             return None
         z = np.array(z0, dtype=np.float64)
-        if z.shape != (self.ny + 1,):
+        if z.shape not in ((self.ny + 1,), (self.ny + 2,)):   # [y, W] or [y, W, W_lim]
             return None
         grid = self._grids.get(dt)
         if grid is None:
