@@ -420,6 +420,26 @@ def best_run(fn, repeat=3) -> tuple:
     return min(walls), statistics.median(walls), min(r[2] for r in runs)
 
 
+def _timed_scenes(names, args, notes):
+    """The scenes a timing section measures: ``(name, scene, arm, backend, fused, horizon, repeats)``
+    per scene that loads (a scene that does not is a line in ``notes``). backend: what robodyn run
+    and the node use (the tools' backend for arms, numba otherwise); horizon: ``args.duration``,
+    or :data:`NUMPY_SYSTEM_HORIZON` for systems without a compiled fused path (run once)."""
+    from ..systems.arm import ArmSystem
+    from ..systems.base import TOOLS_BACKEND
+    for name in names:
+        try:
+            scene = _load(name)
+        except Exception as e:
+            notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
+            continue
+        arm = type(scene.system) is ArmSystem
+        fused = has_fused_path(scene.system)
+        yield (name, scene, arm, TOOLS_BACKEND if arm else 'numba', fused,
+               args.duration if fused else min(args.duration, NUMPY_SYSTEM_HORIZON),
+               (args.repeat if args.quick else 3) if fused else 1)
+
+
 def has_fused_path(system) -> bool:
     """True when the system runs whole periods in compiled code (``fused_advance`` accepts rk4)."""
     fused = getattr(system, 'fused_advance', None)
@@ -494,25 +514,13 @@ def mujoco_loop(m, q0, v0, duration, nstep=1, rate=RTF_RATE):
 def section_rtf(args, names) -> str:
     """Real-time factors of the robodyn runs and the references."""
     from ..model import to_urdf
-    from ..systems.arm import ArmSystem
-    from ..systems.base import TOOLS_BACKEND
     rows, notes = [], []
     dur = args.duration
     figures = getattr(args, 'figures', {})
-    for name in names:
-        try:
-            scene = _load(name)
-        except Exception as e:
-            notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
-            continue
-        fused = has_fused_path(scene.system)
-        d = dur if fused else min(dur, NUMPY_SYSTEM_HORIZON)
-        arm = type(scene.system) is ArmSystem
-        tools = TOOLS_BACKEND if arm else 'numba'  # what robodyn run / the node use
+    for name, scene, arm, tools, fused, d, n_rec in _timed_scenes(names, args, notes):
         try:
             run_robodyn(name, 0.05)  # warm-up (compiled code, caches)
             run_robodyn(name, 0.05, backend=tools)
-            n_rec = (args.repeat if args.quick else 3) if fused else 1
             t_tools = best_run(lambda: run_robodyn(name, d, backend=tools), n_rec)
             t_numba = best_run(lambda: run_robodyn(name, d), n_rec) if arm else None
             t_tf = best_run(lambda: run_robodyn(name, d, backend=tools, tf=True), n_rec)
@@ -718,23 +726,11 @@ def section_recording(args, names) -> str:
     per message, and MuJoCo RK4 from Python with its state copied out every period."""
     from ..model import to_urdf
     from ..recording.run_sink import BATCH_SPAN, HEADLESS_BATCH
-    from ..systems.arm import ArmSystem
-    from ..systems.base import TOOLS_BACKEND
     rows, notes, zrows = [], [], []
     dur = args.duration
     figures = getattr(args, 'figures', {})
     periods = 100 if args.quick else 300
-    for name in names:
-        try:
-            scene = _load(name)
-        except Exception as e:
-            notes.append(f'{name}: not loaded ({type(e).__name__}: {e})')
-            continue
-        arm = type(scene.system) is ArmSystem
-        backend = TOOLS_BACKEND if arm else 'numba'   # what robodyn run uses
-        fused = has_fused_path(scene.system)
-        d = dur if fused else min(dur, NUMPY_SYSTEM_HORIZON)
-        n_rec = (args.repeat if args.quick else 3) if fused else 1
+    for name, scene, arm, backend, fused, d, n_rec in _timed_scenes(names, args, notes):
         try:
             run_robodyn(name, 0.05, backend=backend, full=True)   # warm-up
             t_adv = best_run(lambda: run_robodyn(name, d, backend=backend, advance_only=True), n_rec)
