@@ -27,7 +27,8 @@ from robodyn_ros.simulation import Simulator
 from robodyn_ros.spatial import quat_mul, quat_to_R
 from robodyn_ros.systems.arm import ArmSystem
 
-pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='spherical joints need the compiled kernels')
+# numba is a hard dependency: without it these tests fail, never skip (spherical joints need the compiled kernels)
+assert kernels.AVAILABLE, kernels.UNAVAILABLE_REASON
 
 L_K = [0, 0, 1, 2, 3, 4, 5, 3, 7, 3, 9, 10, 1, 12, 13, 1, 15, 16]   # Huston sec. 20.3, K = 0..17
 NAMES = ['lower_torso', 'mid_torso', 'upper_torso', 'upper_left_arm', 'lower_left_arm', 'left_hand', 'neck', 'head',
