@@ -111,7 +111,7 @@ class _PeriodLayout:
         msgs.append(('joint_states', M.TOPIC_TYPES['joint_states'], tpl, False, vals, [cdr.STAMP_AT]))
         self.odom_cols = None
         if out.odom is not None:    # position 3, orientation 4, linear 3, angular 3
-            tpl, at = cdr.odometry_layout(child=getattr(out, 'odom_child', 'base_link'))
+            tpl, at = cdr.odometry_layout(child=out.odom_child)
             self.odom_cols = col
             vals = [(at + 8 * i, col + i) for i in range(7)] + [(at + 8 * (43 + i), col + 7 + i) for i in range(6)]
             msgs.append(('odom', M.TOPIC_TYPES['odom'], tpl, False, vals, [cdr.STAMP_AT]))
