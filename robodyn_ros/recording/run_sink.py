@@ -126,7 +126,7 @@ class _PeriodLayout:
                 ((name, frame) for name, (frame, _) in out.wrenches.items())
             for name, frame in items:   # w = [torque; force], the message: force, torque
                 tpl, at = cdr.wrench_stamped_layout(frame)
-                msgs.append((M.WRENCH_PREFIX + name, M.WRENCH_TYPE, tpl, False,
+                msgs.append((M.wrench_topic(name), M.WRENCH_TYPE, tpl, False,
                              [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
                 self.wrench_cols.append(slice(col, col + 6))
                 col += 6
@@ -391,7 +391,7 @@ class McapRunSink:
             return False
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
         topics += [] if out.odom is None else ['odom']
-        topics += [M.WRENCH_PREFIX + k for k in out.wrenches] if self.wants_wrenches else []
+        topics += [M.wrench_topic(k) for k in out.wrenches] if self.wants_wrenches else []
         if self.tf is not None and self.tf.frames(out.odom is not None):
             topics.append('/tf')
         return all(t in self._channels for t in topics)
