@@ -371,9 +371,9 @@ class McapRunSink:
             self._values = np.empty((self.batch, layout.n_values))
             self._times = np.empty((self.batch, 2), dtype=np.int64)
         k = self._held
-        t_ns = int(round(t * 1e9))   # M.to_ns
+        t_ns = M.to_ns(t)
         layout.fill(self._values[k], cmds, out)
-        self._times[k] = (int(round(cmds[0][0] * 1e9)) if cmds else t_ns, t_ns)
+        self._times[k] = (M.to_ns(cmds[0][0]) if cmds else t_ns, t_ns)
         self._cmds = []
         self._held = k + 1
         if diag:
