@@ -395,16 +395,14 @@ def make_node_class():
         def _read_robot_description(self, timeout: float) -> str:
             """The URDF text on ``robot_description`` (transient local: a robot_state_publisher's),
             waiting up to ``timeout`` wall seconds; ConfigError if none arrives."""
-            import time as _time
-
             import rclpy
             got = []
             qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
             sub = self.create_subscription(_import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description',
                                            lambda msg: got.append(msg.data), qos)
-            end = _time.monotonic() + timeout
-            while not got and _time.monotonic() < end:
+            end = time.monotonic() + timeout
+            while not got and time.monotonic() < end:
                 rclpy.spin_once(self, timeout_sec=0.05)
             self.destroy_subscription(sub)
             if not got:
