@@ -169,7 +169,7 @@ def resolve_config(p: dict, scene) -> Config:
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
-    for name in ('scripted_commands', 'start_paused', 'publish_tf'):
+    for name in ('scripted_commands', 'start_paused', 'publish_tf', 'overwrite'):
         if not isinstance(p[name], bool):
             raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
     if p['scripted_commands'] and mode == 'lockstep':
@@ -181,12 +181,10 @@ def resolve_config(p: dict, scene) -> Config:
         raise ConfigError(f'scripted_commands: scene {scene.name!r} has no scripted commands')
     if not isinstance(p['record'], str):
         raise ConfigError(f"parameter 'record' must be a file path string, got {p['record']!r}")
-    if not isinstance(p.get('overwrite', False), bool):
-        raise ConfigError(f"parameter 'overwrite' must be true or false, got {p['overwrite']!r}")
     if p['record']:  # before the simulation starts: never overwrite silently, never fail at the end
         from ..recording.target import RecordPathError, check_record_path, episode_files
         try:
-            check_record_path(p['record'], overwrite=p.get('overwrite', False), how_to_overwrite='overwrite:=true',
+            check_record_path(p['record'], overwrite=p['overwrite'], how_to_overwrite='overwrite:=true',
                               also=episode_files(p['record']))
         except RecordPathError as e:
             raise ConfigError(f"parameter 'record': {e}") from None
