@@ -127,7 +127,7 @@ def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):
     msgs = [('joint_states', TOPIC_TYPES['joint_states'],
              joint_state(t_ns, out.joint_names, out.position, out.velocity, out.effort))]
     if out.odom is not None:
-        msgs.append(('odom', TOPIC_TYPES['odom'], odometry(t_ns, out.odom, child=getattr(out, 'odom_child', 'base_link'))))
+        msgs.append(('odom', TOPIC_TYPES['odom'], odometry(t_ns, out.odom, child=out.odom_child)))
     if wrenches:
         for name, (frame, w) in out.wrenches.items():
             msgs.append((wrench_topic(name), WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))

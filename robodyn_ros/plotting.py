@@ -751,12 +751,13 @@ def _rows_stick(data) -> List[_Row]:
         picks = sorted({int(k) for k in np.searchsorted(t, np.arange(t[0], t[-1] + 1e-9, 0.1))} | {len(t) - 1})
         picks = [k for k in picks if k < len(t)]
         cmap = _mpl_cmap('viridis')
+        parents = {a for a, _ in data.tf_edges}
+        leaves = [f for f in data.tf_pos if f != 'odom' and f not in parents]
         for n, k in enumerate(picks):
             c = cmap(n / max(len(picks) - 1, 1))
             for a, b in data.tf_edges:
                 pa, pb = data.tf_pos[a][k], data.tf_pos[b][k]
                 ax.plot([pa[0], pb[0]], [pa[2], pb[2]], color=c, lw=1.6, solid_capstyle='round')
-            leaves = [f for f in data.tf_pos if f != 'odom' and not any(a == f for a, _ in data.tf_edges)]
             ax.plot([data.tf_pos[f][k][0] for f in leaves], [data.tf_pos[f][k][2] for f in leaves], 'o', color=c,
                     ms=3)
         ax.plot(data.odom_xyz[:, 0], data.odom_xyz[:, 2], color='0.6', lw=0.8, ls='--', label='base_link path')

@@ -49,6 +49,10 @@ class CommandPort:
     applied: np.ndarray | None = None
     clamped: int = 0
 
+    def __post_init__(self):
+        if self.applied is None:   # nothing clamped yet: the actuators apply the command as held
+            self.applied = self.value
+
 
 @dataclass
 class Diagnostics:
@@ -209,7 +213,7 @@ class Simulator:
                      and self.t - p.stamp > self.command_timeout + 1e-12)
             if stale and not p.timed_out:
                 p.timed_out = True
-            u[k] = np.zeros_like(p.value) if p.timed_out else (p.value if p.applied is None else p.applied)
+            u[k] = np.zeros_like(p.value) if p.timed_out else p.applied
         return u
 
     @property

@@ -192,6 +192,33 @@ def test_chunks_close_every_half_second_of_simulation(tmp_path, batch):
     assert max(np.diff(starts)) <= 510_000_000
 
 
+def test_node_recording_closes_chunks_every_half_second_of_simulation(tmp_path):
+    # the node's recorder (chunk_span NODE_CHUNK_SPAN), not only a sink built with chunk_span:
+    # betancur_pendulum writes about 0.5 KiB per period, so by size alone a 64 KiB chunk would
+    # span over a second of simulation
+    from mcap.reader import make_reader
+    from ros_helpers import Domain, start_sim
+    rec = tmp_path / 'node.mcap'
+    dom = Domain()
+    try:
+        node = start_sim(dom, {'scene': 'betancur_pendulum', 'mode': 'max', 'duration': 3.0, 'record': str(rec)},
+                         tmp_path / 'node.log')
+        try:
+            rc = node.wait(timeout=90)
+        finally:
+            node.cleanup()
+        assert rc == 0, node.output()
+    finally:
+        dom.release()
+    with open(rec, 'rb') as f:
+        summary = make_reader(f).get_summary()
+    chunks = summary.chunk_indexes
+    assert summary.statistics.message_end_time >= 3_000_000_000
+    assert len(chunks) >= 6   # 3 s of simulation
+    for c in chunks:
+        assert c.message_end_time - c.message_start_time <= 500_000_000 + 10_000_000  # 0.5 s + one period
+
+
 def _drive(sink, scene, calls):
     """Feed a sink a scripted sequence of on_command/on_output calls taken from a real run."""
     with warnings.catch_warnings():

@@ -636,6 +636,37 @@ def mujoco_recorded_loop(m, q0, v0, duration, rate=RTF_RATE):
     return Q
 
 
+class _StoredCalls:
+    """A sink that keeps what :func:`run_headless` hands its sinks (outputs computed, wrenches
+    wanted), to hand the same calls to a recorder later (:meth:`replay`)."""
+
+    wants_wrenches = True
+
+    def __init__(self):
+        self.calls = []     # ('cmd', t, port, values) and ('out', t, outputs), in run order
+        self.outputs = []   # the ('out', t, outputs) calls
+
+    def on_start(self, sim):
+        pass
+
+    def on_command(self, t, port, values):
+        self.calls.append(('cmd', t, port, values))
+
+    def on_output(self, t, out, sim):
+        self.calls.append(('out', t, out))
+        self.outputs.append(self.calls[-1])
+
+    def close(self):
+        pass
+
+    def replay(self, sink, sim):
+        for kind, t, *rest in self.calls:
+            if kind == 'cmd':
+                sink.on_command(t, *rest)
+            else:
+                sink.on_output(t, rest[0], sim)
+
+
 def _replay_cost(scene, backend, periods, batch, repeat):
     """CPU seconds per period of recording ``periods`` stored publications of a scene (outputs
     computed beforehand, as run_headless hands them over) with McapRunSink(batch), every default
@@ -643,35 +674,26 @@ def _replay_cost(scene, backend, periods, batch, repeat):
     import warnings
     import zstandard
     from ..recording.run_sink import McapRunSink
-    from ..simulation import Simulator
+    from ..simulation import Simulator, run_headless
     from ..systems.base import LazyWrenches
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=RTF_DT)
-    stored = [(None, {}, sim.t, sim.outputs(wrenches=True))]
-    for k in range(periods):
-        t_cmd = sim.t
-        cmds = scene.script(sim.t, sim.y) if scene.script is not None else {}
-        for port, values in cmds.items():
-            sim.set_command(port, values)
-        sim.advance((k + 1) / RTF_RATE)
-        stored.append((t_cmd, {p: sim.ports[p].value for p in cmds}, sim.t, sim.outputs(wrenches=True)))
+    stored = _StoredCalls()
+    run_headless(sim, periods / RTF_RATE, RTF_RATE, scene.script, [stored])
     best, info = None, None
     with tempfile.TemporaryDirectory() as d:
         path = os.path.join(d, 'replay.mcap')
         for _ in range(repeat):
-            for *_, out in stored:
+            for *_, out in stored.outputs:
                 if isinstance(out.wrenches, LazyWrenches):
                     out.wrenches._f = None   # computed again, as in a run
             sink = McapRunSink(path, scene, {'mode': 'bench'}, diagnostics_period=0.1, batch=batch)
             sink.on_start(sim)
             c0 = time.process_time()
-            for t_cmd, cmds, t, out in stored:
-                for port, values in cmds.items():
-                    sink.on_command(t_cmd, port, values)
-                sink.on_output(t, out, sim)
+            stored.replay(sink, sim)
             sink.close()
-            c = (time.process_time() - c0) / len(stored)
+            c = (time.process_time() - c0) / len(stored.outputs)
             best = c if best is None else min(best, c)
             if info is None:
                 from mcap.records import Chunk
@@ -681,7 +703,7 @@ def _replay_cost(scene, backend, periods, batch, repeat):
                            if r.compression == 'zstd' else r.data
                            for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
                 t_z = min(best_of(lambda: [zstandard.compress(x) for x in raw], 3)[2], 1e9)
-                info = {'messages': sink.count, 'bytes': sum(len(x) for x in raw), 'zstd': t_z / len(stored),
+                info = {'messages': sink.count, 'bytes': sum(len(x) for x in raw), 'zstd': t_z / len(stored.outputs),
                         'raw': b''.join(raw)}
     return best, info
 

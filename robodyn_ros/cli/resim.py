@@ -204,7 +204,7 @@ def main(args) -> int:
     from ..simulation import SimulationError
     try:
         rs = Resim(args.input)
-        check_record_path(args.record, overwrite=getattr(args, 'overwrite', False), source=args.input)
+        check_record_path(args.record, overwrite=args.overwrite, source=args.input)
     except (OSError, ValueError, KeyError, SceneError, RecordPathError) as e:
         print(f'robodyn resim: {e}', file=sys.stderr)
         return 2

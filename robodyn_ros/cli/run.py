@@ -66,7 +66,7 @@ def main(args) -> int:
             return 2
     backend = tools_backend(getattr(args, 'backend', None))
     limits = None
-    if getattr(args, 'position_limits', None) is not None:
+    if args.position_limits is not None:
         f = args.position_limits.split(',')
         try:
             if len(f) not in (2, 3):

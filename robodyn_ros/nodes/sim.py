@@ -169,7 +169,7 @@ def resolve_config(p: dict, scene) -> Config:
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
-    for name in ('scripted_commands', 'start_paused', 'publish_tf'):
+    for name in ('scripted_commands', 'start_paused', 'publish_tf', 'overwrite'):
         if not isinstance(p[name], bool):
             raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
     if p['scripted_commands'] and mode == 'lockstep':
@@ -181,12 +181,10 @@ def resolve_config(p: dict, scene) -> Config:
         raise ConfigError(f'scripted_commands: scene {scene.name!r} has no scripted commands')
     if not isinstance(p['record'], str):
         raise ConfigError(f"parameter 'record' must be a file path string, got {p['record']!r}")
-    if not isinstance(p.get('overwrite', False), bool):
-        raise ConfigError(f"parameter 'overwrite' must be true or false, got {p['overwrite']!r}")
     if p['record']:  # before the simulation starts: never overwrite silently, never fail at the end
         from ..recording.target import RecordPathError, check_record_path, episode_files
         try:
-            check_record_path(p['record'], overwrite=p.get('overwrite', False), how_to_overwrite='overwrite:=true',
+            check_record_path(p['record'], overwrite=p['overwrite'], how_to_overwrite='overwrite:=true',
                               also=episode_files(p['record']))
         except RecordPathError as e:
             raise ConfigError(f"parameter 'record': {e}") from None
@@ -395,16 +393,14 @@ def make_node_class():
         def _read_robot_description(self, timeout: float) -> str:
             """The URDF text on ``robot_description`` (transient local: a robot_state_publisher's),
             waiting up to ``timeout`` wall seconds; ConfigError if none arrives."""
-            import time as _time
-
             import rclpy
             got = []
             qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                              reliability=ReliabilityPolicy.RELIABLE)
             sub = self.create_subscription(_import_msg(M.TOPIC_TYPES['robot_description']), 'robot_description',
                                            lambda msg: got.append(msg.data), qos)
-            end = _time.monotonic() + timeout
-            while not got and _time.monotonic() < end:
+            end = time.monotonic() + timeout
+            while not got and time.monotonic() < end:
                 rclpy.spin_once(self, timeout_sec=0.05)
             self.destroy_subscription(sub)
             if not got:

@@ -508,13 +508,9 @@ def joint_state_layout(middle: bytes, counts) -> tuple:
     buf += bytes(8)
     buf += middle
     offsets = []
-    for n in counts:
-        buf += bytes(-(len(buf) - 4) % 4)
-        buf += _U32.pack(n)
-        if n:
-            buf += bytes(-(len(buf) - 4) % 8)
-        offsets.append(len(buf))
-        buf += bytes(8 * n)
+    for n in counts:   # the sequences as _joint_state_bytes appends them
+        _fast_float_seq(buf, (bytes(8 * n), n))
+        offsets.append(len(buf) - 8 * n)
     return bytes(buf), offsets
 
 

@@ -111,7 +111,7 @@ class _PeriodLayout:
         msgs.append(('joint_states', M.TOPIC_TYPES['joint_states'], tpl, False, vals, [cdr.STAMP_AT]))
         self.odom_cols = None
         if out.odom is not None:    # position 3, orientation 4, linear 3, angular 3
-            tpl, at = cdr.odometry_layout(child=getattr(out, 'odom_child', 'base_link'))
+            tpl, at = cdr.odometry_layout(child=out.odom_child)
             self.odom_cols = col
             vals = [(at + 8 * i, col + i) for i in range(7)] + [(at + 8 * (43 + i), col + 7 + i) for i in range(6)]
             msgs.append(('odom', M.TOPIC_TYPES['odom'], tpl, False, vals, [cdr.STAMP_AT]))
@@ -126,7 +126,7 @@ class _PeriodLayout:
                 ((name, frame) for name, (frame, _) in out.wrenches.items())
             for name, frame in items:   # w = [torque; force], the message: force, torque
                 tpl, at = cdr.wrench_stamped_layout(frame)
-                msgs.append((M.WRENCH_PREFIX + name, M.WRENCH_TYPE, tpl, False,
+                msgs.append((M.wrench_topic(name), M.WRENCH_TYPE, tpl, False,
                              [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
                 self.wrench_cols.append(slice(col, col + 6))
                 col += 6
@@ -371,9 +371,9 @@ class McapRunSink:
             self._values = np.empty((self.batch, layout.n_values))
             self._times = np.empty((self.batch, 2), dtype=np.int64)
         k = self._held
-        t_ns = int(round(t * 1e9))   # M.to_ns
+        t_ns = M.to_ns(t)
         layout.fill(self._values[k], cmds, out)
-        self._times[k] = (int(round(cmds[0][0] * 1e9)) if cmds else t_ns, t_ns)
+        self._times[k] = (M.to_ns(cmds[0][0]) if cmds else t_ns, t_ns)
         self._cmds = []
         self._held = k + 1
         if diag:
@@ -391,7 +391,7 @@ class McapRunSink:
             return False
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
         topics += [] if out.odom is None else ['odom']
-        topics += [M.WRENCH_PREFIX + k for k in out.wrenches] if self.wants_wrenches else []
+        topics += [M.wrench_topic(k) for k in out.wrenches] if self.wants_wrenches else []
         if self.tf is not None and self.tf.frames(out.odom is not None):
             topics.append('/tf')
         return all(t in self._channels for t in topics)
