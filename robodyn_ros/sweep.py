@@ -568,8 +568,6 @@ def _simulate(scene, st, sinks=()):
     import warnings
 
     from .simulation import SimulationError, Simulator, run_headless
-    if hasattr(scene.system, 'reset_episode'):
-        scene.system.reset_episode()
     notes = []
     sim, status, msg = None, 'ok', ''
     with warnings.catch_warnings(record=True) as caught:
