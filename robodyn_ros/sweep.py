@@ -614,6 +614,13 @@ def _reference_state(task, scene, st_run):
     return _REFERENCES[key]
 
 
+def _row_head(task) -> dict:
+    """The first columns of a run's row: its index, grid point, sample and ``param.<path>`` values."""
+    row = {'run': task['index'], 'grid_point': task['grid_point'], 'sample': task['sample']}
+    row.update({f'param.{k}': v for k, v in task['params'].items()})
+    return row
+
+
 def execute_run(task: dict) -> dict:
     """Run one task of :func:`expand` and return its row (a dict of plain values; pure: the same
     task gives the same row apart from ``TIMING_COLUMNS``, so a task Dask reruns is harmless).
@@ -628,9 +635,7 @@ def execute_run(task: dict) -> dict:
         os.makedirs(trace, exist_ok=True)
         with open(os.path.join(trace, f'{task["index"]:06d}-{os.getpid()}-{time.time_ns()}'), 'w'):
             pass
-    row = {'run': task['index'], 'grid_point': task['grid_point'], 'sample': task['sample']}
-    for k, v in task['params'].items():
-        row[f'param.{k}'] = v
+    row = _row_head(task)
     row.update({'integrator': None, 'dt': None, 'rtol': None, 'atol': None, 'duration': None,
                 'status': 'ok', 'message': '', 'steps': 0, 'rhs_evals': 0})
     for f in FIGURES:
@@ -890,10 +895,7 @@ def _prepare(spec: Spec, out: str) -> set:
 
 def _error_row(task, message) -> dict:
     """The row of a run whose task raised (status 'error')."""
-    row = {'run': task['index'], 'grid_point': task['grid_point'], 'sample': task['sample']}
-    row.update({f'param.{k}': v for k, v in task['params'].items()})
-    row.update(status='error', message=message)
-    return row
+    return dict(_row_head(task), status='error', message=message)
 
 
 @dataclass
