@@ -390,8 +390,7 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
     # spec), those of keys it lacks here with the first draw (the scene may not allow that key)
     absent = {k for k, _ in random if k not in SETTINGS and _lookup(scene_data, k)[1] is None}
     seen = set()
-    for g in range(spec.n_grid):
-        task = expand(spec, [g * spec.samples])[0]
+    for g, task in enumerate(expand(spec, [j * spec.samples for j in range(spec.n_grid)])):
         params = {k: v for k, v in task['params'].items() if k not in SETTINGS and (k in absent or
                                                                                     k not in dict(random))}
         if json.dumps(params) in seen:
