@@ -987,9 +987,9 @@ def consolidate(spec: Spec, out: str) -> str:
     table = table.replace_schema_metadata({'robodyn_sweep': json.dumps({'spec': spec.text, 'scene': spec.scene_name,
                                                                         'format': FORMAT})})
     path = os.path.join(out, 'results.parquet')
-    tmp = path + f'.tmp-{os.getpid()}'
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    buf = pa.BufferOutputStream()
+    pq.write_table(table, buf)
+    _write_atomic(path, buf.getvalue().to_pybytes())
     return path
 
 
