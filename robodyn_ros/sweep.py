@@ -661,10 +661,11 @@ def execute_run(task: dict) -> dict:
         sinks = [fig]
         tmp = None
         if task['record']:
-            from .recording.run_sink import McapRunSink
+            from .recording.run_sink import HEADLESS_BATCH, McapRunSink
             fd, tmp = tempfile.mkstemp(suffix='.mcap')
             os.close(fd)
-            sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'}))
+            sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
+                                     batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes
         try:
             c0 = time.process_time()
             sim, status, msg = _simulate(scene, st, sinks)
