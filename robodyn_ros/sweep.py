@@ -644,7 +644,7 @@ def execute_run(task: dict) -> dict:
             row[f] = math.nan
     row.update(y_final=None, cpu_time=math.nan, wall_time=math.nan, worker='')
     mcap = None
-    w0, c0 = time.perf_counter(), time.process_time()
+    w0 = time.perf_counter()
     from .scene import SceneError
     try:
         scene = build_scene(task['scene_text'], task['scene_file'], task['params'], task['backend'])
@@ -801,7 +801,7 @@ class Pool:
                 yield key, _run_guarded(fn, arg)
             return
         from dask.distributed import as_completed
-        token = hashlib.sha256(os.urandom(16)).hexdigest()[:8]
+        token = os.urandom(4).hex()
         chunk = max(1, int(chunk))
         futures = {}
         for k in range(0, len(items), chunk):
