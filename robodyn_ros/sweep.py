@@ -390,8 +390,7 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
     # spec), those of keys it lacks here with the first draw (the scene may not allow that key)
     absent = {k for k, _ in random if k not in SETTINGS and _lookup(scene_data, k)[1] is None}
     seen = set()
-    for g in range(spec.n_grid):
-        task = expand(spec, [g * spec.samples])[0]
+    for g, task in enumerate(expand(spec, [j * spec.samples for j in range(spec.n_grid)])):
         params = {k: v for k, v in task['params'].items() if k not in SETTINGS and (k in absent or
                                                                                     k not in dict(random))}
         if json.dumps(params) in seen:
@@ -568,8 +567,6 @@ def _simulate(scene, st, sinks=()):
     import warnings
 
     from .simulation import SimulationError, Simulator, run_headless
-    if hasattr(scene.system, 'reset_episode'):
-        scene.system.reset_episode()
     notes = []
     sim, status, msg = None, 'ok', ''
     with warnings.catch_warnings(record=True) as caught:
@@ -616,6 +613,13 @@ def _reference_state(task, scene, st_run):
     return _REFERENCES[key]
 
 
+def _row_head(task) -> dict:
+    """The first columns of a run's row: its index, grid point, sample and ``param.<path>`` values."""
+    row = {'run': task['index'], 'grid_point': task['grid_point'], 'sample': task['sample']}
+    row.update({f'param.{k}': v for k, v in task['params'].items()})
+    return row
+
+
 def execute_run(task: dict) -> dict:
     """Run one task of :func:`expand` and return its row (a dict of plain values; pure: the same
     task gives the same row apart from ``TIMING_COLUMNS``, so a task Dask reruns is harmless).
@@ -630,9 +634,7 @@ def execute_run(task: dict) -> dict:
         os.makedirs(trace, exist_ok=True)
         with open(os.path.join(trace, f'{task["index"]:06d}-{os.getpid()}-{time.time_ns()}'), 'w'):
             pass
-    row = {'run': task['index'], 'grid_point': task['grid_point'], 'sample': task['sample']}
-    for k, v in task['params'].items():
-        row[f'param.{k}'] = v
+    row = _row_head(task)
     row.update({'integrator': None, 'dt': None, 'rtol': None, 'atol': None, 'duration': None,
                 'status': 'ok', 'message': '', 'steps': 0, 'rhs_evals': 0})
     for f in FIGURES:
@@ -642,7 +644,7 @@ def execute_run(task: dict) -> dict:
             row[f] = math.nan
     row.update(y_final=None, cpu_time=math.nan, wall_time=math.nan, worker='')
     mcap = None
-    w0, c0 = time.perf_counter(), time.process_time()
+    w0 = time.perf_counter()
     from .scene import SceneError
     try:
         scene = build_scene(task['scene_text'], task['scene_file'], task['params'], task['backend'])
@@ -659,10 +661,11 @@ def execute_run(task: dict) -> dict:
         sinks = [fig]
         tmp = None
         if task['record']:
-            from .recording.run_sink import McapRunSink
+            from .recording.run_sink import HEADLESS_BATCH, McapRunSink
             fd, tmp = tempfile.mkstemp(suffix='.mcap')
             os.close(fd)
-            sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'}))
+            sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
+                                     batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes
         try:
             c0 = time.process_time()
             sim, status, msg = _simulate(scene, st, sinks)
@@ -798,7 +801,7 @@ class Pool:
                 yield key, _run_guarded(fn, arg)
             return
         from dask.distributed import as_completed
-        token = hashlib.sha256(os.urandom(16)).hexdigest()[:8]
+        token = os.urandom(4).hex()
         chunk = max(1, int(chunk))
         futures = {}
         for k in range(0, len(items), chunk):
@@ -892,10 +895,7 @@ def _prepare(spec: Spec, out: str) -> set:
 
 def _error_row(task, message) -> dict:
     """The row of a run whose task raised (status 'error')."""
-    row = {'run': task['index'], 'grid_point': task['grid_point'], 'sample': task['sample']}
-    row.update({f'param.{k}': v for k, v in task['params'].items()})
-    row.update(status='error', message=message)
-    return row
+    return dict(_row_head(task), status='error', message=message)
 
 
 @dataclass
@@ -988,9 +988,9 @@ def consolidate(spec: Spec, out: str) -> str:
     table = table.replace_schema_metadata({'robodyn_sweep': json.dumps({'spec': spec.text, 'scene': spec.scene_name,
                                                                         'format': FORMAT})})
     path = os.path.join(out, 'results.parquet')
-    tmp = path + f'.tmp-{os.getpid()}'
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    buf = pa.BufferOutputStream()
+    pq.write_table(table, buf)
+    _write_atomic(path, buf.getvalue().to_pybytes())
     return path
 
 

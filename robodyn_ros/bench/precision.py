@@ -824,7 +824,7 @@ def main(args) -> int:
     progress = Progress(total, quiet=args.quiet)
     results, unplotted = [], []
     from ..sweep import Pool
-    pool = Pool(getattr(args, 'workers', 0), getattr(args, 'scheduler', None))
+    pool = Pool(args.workers, args.scheduler)
     for res in measure_scenes(names, mode, args.horizon, args.budget, args.integrators, args.formulations, progress,
                               pool):
         name = names[len(results)]
