@@ -577,7 +577,7 @@ def _simulate(scene, st, sinks=()):
         except ValueError as e:
             return None, 'refused', str(e)
         try:
-            run_headless(sim, st['duration'], st['rate'], scene.script, sinks)
+            run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop)  # as robodyn run
         except SimulationError as e:
             status, msg = 'failed', str(e)
         for w in caught:
@@ -664,7 +664,9 @@ def execute_run(task: dict) -> dict:
             from .recording.run_sink import HEADLESS_BATCH, McapRunSink
             fd, tmp = tempfile.mkstemp(suffix='.mcap')
             os.close(fd)
+            from .cli.run import DIAGNOSTICS_PERIOD
             sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
+                                     diagnostics_period=DIAGNOSTICS_PERIOD,
                                      batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes
         try:
             c0 = time.process_time()

@@ -486,3 +486,28 @@ def test_sweep_and_bench_share_the_error_measure_and_the_progress_bar():
     quiet.step('x')
     quiet.step('y')
     assert out.getvalue() == '' and quiet.done == 2
+
+
+def test_runs_stop_and_record_as_robodyn_run_does(tmp_path):
+    """A scene with stop_when (the diver) ends its sweep run at the entry, as robodyn run does, and the
+    run's recording carries diagnostics at robodyn run's period."""
+    from robodyn_ros.cli import main as robodyn
+    from robodyn_ros.recording import read_raw_messages
+    spec = _spec(tmp_path, 'scene: diver_tuck\nseed: 1\nsamples: 1\nduration: 3.0\nrecord: true\n'
+                           'figures: [energy_drift]\n')
+    res = S.run_sweep(spec, str(tmp_path / 'out'), workers=0, plot=False)
+    (row,) = S.read_table(res.table)
+    assert row['status'] == 'ok', row['message']
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope(spec.backend):
+        scene = load_scene('diver_tuck')
+    sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=scene.settings['dt'])
+    run_headless(sim, 3.0, 100.0, scene.script, stop=scene.stop)
+    assert sim.t == pytest.approx(1.83) and sim.t < 3.0                # the entry, well before 3 s
+    np.testing.assert_array_equal(row['y_final'], sim.y)
+    (rec,) = list((tmp_path / 'out' / 'mcap').glob('*.mcap'))
+    ref = tmp_path / 'run.mcap'
+    assert robodyn(['run', 'diver_tuck', '--duration', '3.0', '--record', str(ref), '--backend', spec.backend]) == 0
+    diag = [t for _, _, t, _ in read_raw_messages(rec, topics=['/diagnostics'])]
+    assert diag == [t for _, _, t, _ in read_raw_messages(ref, topics=['/diagnostics'])]
+    assert len(diag) == 19                                                 # 0, 0.1, ..., 1.8 s

@@ -7,6 +7,9 @@ import sys
 import time
 
 
+#: simulated seconds between diagnostics messages in a recording (robodyn run, robodyn sweep)
+DIAGNOSTICS_PERIOD = 0.1
+
 def add_parser(sub):
     """Register the subcommand and its options."""
     p = sub.add_parser('run', help='simulate a scene headless with its scripted commands')
@@ -29,7 +32,7 @@ def add_parser(sub):
                    help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
                         '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
                         '(Huston eq. 20.2.1; a scene file gives position_limits on its kind: urdf part)')
-    p.add_argument('--diagnostics-period', type=float, default=0.1,
+    p.add_argument('--diagnostics-period', type=float, default=DIAGNOSTICS_PERIOD,
                    help='simulated seconds between recorded diagnostics messages (default 0.1)')
     return p
 
