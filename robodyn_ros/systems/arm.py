@@ -72,6 +72,10 @@ class ArmSystem(System):
         if self._has_friction and not kernels.AVAILABLE:
             raise ValueError(f'{model.name}: Coulomb joint friction needs the compiled kernels (numba): '
                              f'{kernels.UNAVAILABLE_REASON}')
+        if self._has_friction:   # imported once here, not at every right-hand side
+            from ..kernels.passive import add_coulomb_friction
+            from ..urdf import COULOMB_VELOCITY
+            self._coulomb = (add_coulomb_friction, COULOMB_VELOCITY)
         free = [i for i in range(model.nb) if model.jtype[i] == FREE]
         if len(free) > 1:
             raise ValueError(f'{model.name}: at most one free joint (the root of the tree)')
@@ -119,9 +123,8 @@ class ArmSystem(System):
         q, v = self.split(y)
         tau = self.B @ u['effort'] + dyn.passive_forces(self.model, v)
         if self._has_friction:
-            from ..kernels.passive import add_coulomb_friction
-            from ..urdf import COULOMB_VELOCITY
-            add_coulomb_friction(self._friction, COULOMB_VELOCITY, np.ascontiguousarray(v, dtype=float), tau)
+            add_friction, v_s = self._coulomb
+            add_friction(self._friction, v_s, np.ascontiguousarray(v, dtype=float), tau)
         if self._lim.shape[0]:
             tau += self._km.limit_forces(q, v)
         return tau
