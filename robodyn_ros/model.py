@@ -51,7 +51,7 @@ class SphericalJointError(NotImplementedError):
 
 def refuse_spherical(model, what: str):
     """Raise :class:`SphericalJointError` when ``model`` has a spherical joint (numpy reference paths)."""
-    if np.any(model.jtype == SPHERICAL):
+    if model.has_spherical:
         j = [model.joint_names[i] for i in range(model.nb) if model.jtype[i] == SPHERICAL]
         raise SphericalJointError(
             f'{model.name}: {what} of the numpy reference does not implement spherical joints ({j[:3]}...); '

@@ -95,7 +95,11 @@ class PFLController:
         self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (m,)).copy()
         self.path = path
         self.damping = np.asarray(model.damping, dtype=float)
-        self._km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
+        # the system's compiled model when it has one (crba and rnea do not depend on its backend's
+        # specialisation), else one of our own: the law is computed by the kernels whenever numba is there
+        self._km = getattr(system, '_km', None)
+        if self._km is None and kernels.AVAILABLE:
+            self._km = kernels.CompiledModel(model)
         self._zero = np.zeros(self.nv)
 
     def mass_and_bias(self, q, v):

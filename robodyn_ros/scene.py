@@ -367,7 +367,6 @@ _MODEL_ERROR_KEYS = (('limit', 'limits'), ('parent', 'parent'), ('mass', 'mass')
 def _joint_limits(ctx: SceneContext, v, path: str, spherical: bool = False) -> dict:
     """LinkSpec limit fields from ``[lo, hi]`` (reported only) or ``{lower, upper, stiffness, damping,
     return}`` (eq. 20.2.1 moments; a spherical joint's lower/upper are 3-vectors)."""
-    from .model import LIMIT_RETURNS
     if not isinstance(v, dict):
         if spherical:
             ctx.fail(path, 'a spherical joint takes limits: {lower: [3], upper: [3], stiffness, damping, return}')
@@ -391,10 +390,17 @@ def _joint_limits(ctx: SceneContext, v, path: str, spherical: bool = False) -> d
         lim = tuple(zip(lo, hi))
     else:
         lim = ctx.limits([v['lower'], v['upper']], path)
+    return {'limits': lim, **_limit_law(ctx, v, path)}
+
+
+def _limit_law(ctx: SceneContext, v: dict, path: str) -> dict:
+    """LinkSpec fields of the eq. 20.2.1 law from a limits mapping's ``stiffness``, ``damping``,
+    ``return`` (a link's ``limits`` and a URDF part's ``position_limits``)."""
+    from .model import LIMIT_RETURNS
     ret = ctx.string(v.get('return', 'spring'), _key(path, 'return'))
     if ret not in LIMIT_RETURNS:
         ctx.fail(_key(path, 'return'), f'unknown return mode {ret!r}; use {" or ".join(LIMIT_RETURNS)}')
-    return {'limits': lim, 'limit_return': ret,
+    return {'limit_return': ret,
             'limit_stiffness': ctx.number(v.get('stiffness', 0.0), _key(path, 'stiffness'), minimum=0.0),
             'limit_damping': ctx.number(v.get('damping', 0.0), _key(path, 'damping'), minimum=0.0)}
 
@@ -740,14 +746,8 @@ _URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'lo
 def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
     """``position_limits: {stiffness, damping, return}``: the eq. 20.2.1 joint-limit moments on every
     joint with URDF ``<limit lower upper>`` (revolute, prismatic; continuous and locked joints have none)."""
-    from .model import LIMIT_RETURNS
     ctx.mapping(v, path, optional=_LIMIT_KEYS[2:])
-    ret = ctx.string(v.get('return', 'spring'), _key(path, 'return'))
-    if ret not in LIMIT_RETURNS:
-        ctx.fail(_key(path, 'return'), f'unknown return mode {ret!r}; use {" or ".join(LIMIT_RETURNS)}')
-    law = {'limit_return': ret,
-           'limit_stiffness': ctx.number(v.get('stiffness', 0.0), _key(path, 'stiffness'), minimum=0.0),
-           'limit_damping': ctx.number(v.get('damping', 0.0), _key(path, 'damping'), minimum=0.0)}
+    law = _limit_law(ctx, v, path)
     return [replace(s, **law) if s.limits is not None and s.joint_type in ('revolute', 'prismatic') else s
             for s in specs]
 

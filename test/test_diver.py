@@ -117,6 +117,7 @@ def test_planar_root_matches_pinocchio_joint_model_planar():
 def dive(request):
     sc = load_scene(request.param)
     sys_ = sc.system
+    km = kernels.CompiledModel(sys_.model)
     rec = []
 
     class Sink:
@@ -128,7 +129,7 @@ def dive(request):
 
         def on_output(self, t, out, sim):
             q, v = sys_.split(sim.y)
-            rec.append((t, *kernels.CompiledModel(sys_.model).momentum(q, v), sim.y.copy()))
+            rec.append((t, *km.momentum(q, v), sim.y.copy()))
 
         def close(self):
             pass

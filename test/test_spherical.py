@@ -25,6 +25,7 @@ from robodyn_ros.bench.pinbridge import pin_model
 from robodyn_ros.model import (FREE, PRISMATIC, REVOLUTE, SPHERICAL, SphericalJointError, bryan_angles,
                                random_tree, to_urdf)
 from robodyn_ros.spatial import R_to_quat, quat_mul, quat_to_R
+from test_pinocchio import rel
 
 # numba is a hard dependency: without it these tests fail, never skip (spherical joints need the compiled kernels)
 assert kernels.AVAILABLE, kernels.UNAVAILABLE_REASON
@@ -55,11 +56,6 @@ def sph_trees():
                         gravity=(0.0, 0.0, -9.81) if k % 4 else (1.0, -2.0, -9.0))
         out.append((f'sph{k}', m))
     return out
-
-
-def rel(x, y, floor=1.0):
-    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    return float(np.max(np.abs(x - y), initial=0.0) / max(float(np.max(np.abs(y), initial=0.0)), floor))
 
 
 def test_spherical_trees_against_pinocchio():

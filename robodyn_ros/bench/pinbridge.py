@@ -29,16 +29,14 @@ def pin_model(model):
     import pinocchio as pin
 
     from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL
+    from ..tf import _tree_pose   # the joint frame (R, p) in its parent, from Xtree
     pm = pin.Model()
     pm.gravity.linear = np.asarray(model.gravity, dtype=float)
     jid = {}
     qmap = np.empty(model.nq, dtype=int)
     vmap = np.empty(model.nv, dtype=int)
     for i in depth_first(model):
-        X = model.Xtree[i]
-        E = X[:3, :3]
-        rx = -(E.T @ X[3:, :3])
-        placement = pin.SE3(E.T.copy(), np.array([rx[2, 1], rx[0, 2], rx[1, 0]]))
+        placement = pin.SE3(*_tree_pose(model.Xtree[i]))
         parent = 0 if model.parent[i] < 0 else jid[int(model.parent[i])]
         jt = int(model.jtype[i])
         if jt == SPHERICAL:

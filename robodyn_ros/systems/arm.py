@@ -72,6 +72,10 @@ class ArmSystem(System):
         if self._has_friction and not kernels.AVAILABLE:
             raise ValueError(f'{model.name}: Coulomb joint friction needs the compiled kernels (numba): '
                              f'{kernels.UNAVAILABLE_REASON}')
+        if self._has_friction:   # imported once here, not at every right-hand side
+            from ..kernels.passive import add_coulomb_friction
+            from ..urdf import COULOMB_VELOCITY
+            self._coulomb = (add_coulomb_friction, COULOMB_VELOCITY)
         free = [i for i in range(model.nb) if model.jtype[i] == FREE]
         if len(free) > 1:
             raise ValueError(f'{model.name}: at most one free joint (the root of the tree)')
@@ -119,9 +123,8 @@ class ArmSystem(System):
         q, v = self.split(y)
         tau = self.B @ u['effort'] + dyn.passive_forces(self.model, v)
         if self._has_friction:
-            from ..kernels.passive import add_coulomb_friction
-            from ..urdf import COULOMB_VELOCITY
-            add_coulomb_friction(self._friction, COULOMB_VELOCITY, np.ascontiguousarray(v, dtype=float), tau)
+            add_friction, v_s = self._coulomb
+            add_friction(self._friction, v_s, np.ascontiguousarray(v, dtype=float), tau)
         if self._lim.shape[0]:
             tau += self._km.limit_forces(q, v)
         return tau
@@ -152,19 +155,22 @@ class ArmSystem(System):
             return float('inf')
         q, _ = self.split(y)
         Minv = np.linalg.inv(self._km.crba(np.ascontiguousarray(q, dtype=float)))
-        best = (float('inf'), '')
+        best = None   # (time constant, v index, k, c, I) of the fastest mode so far
         for row in self._lim:
             jt, vi, k, c = int(row[0]), int(row[2]), float(row[10]), float(row[11])
             for j in range(3 if jt == SPHERICAL else 1):
                 inertia = 1.0 / Minv[vi + j, vi + j]
                 lam = np.abs(np.roots([inertia, c, k])).max() if (k or c) else 0.0
-                if lam > 0 and 1.0 / lam < best[0]:
-                    name = [n for n in self.joint_names if self.model.state_index(n)[1] == vi + j][0]
-                    best = (1.0 / lam, f'; the joint limit of {name!r} (stiffness k = {k:.3g}, damping c = {c:.3g}, '
-                                       f'articulated inertia I = {inertia:.3g}): time constant 1/|λ| = {1.0 / lam:.3g} s, '
-                                       f'sqrt(I/k) = {np.sqrt(inertia / k) if k else float("inf"):.3g} s')
-        self.time_constant_words = best[1]
-        return best[0]
+                if lam > 0 and 1.0 / lam < (float('inf') if best is None else best[0]):
+                    best = (1.0 / lam, vi + j, k, c, inertia)
+        if best is None:
+            return float('inf')
+        tau, vj, k, c, inertia = best
+        name = self.model.state_joint_names[list(self._pub_v).index(vj)]   # its joint_states entry (v order)
+        self.time_constant_words = (f'; the joint limit of {name!r} (stiffness k = {k:.3g}, damping c = {c:.3g}, '
+                                    f'articulated inertia I = {inertia:.3g}): time constant 1/|λ| = {tau:.3g} s, '
+                                    f'sqrt(I/k) = {np.sqrt(inertia / k) if k else float("inf"):.3g} s')
+        return tau
 
     def urdf(self) -> str:
         """URDF for ``robot_description``: a free root's floating joint and world link are left out

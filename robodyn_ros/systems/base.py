@@ -301,10 +301,11 @@ def effort_actuation(model, candidates, actuated=None, what='joints'):
     unknown = [j for j in actuated if j not in candidates]
     if unknown:
         raise ValueError(f'actuated joints {unknown} are not {what} of {model.name}; {what} are {candidates}')
+    where = [model.state_index(n) for n in actuated]   # (body, v index) of each driven component
     B = np.zeros((model.nv, len(actuated)))
-    for k, n in enumerate(actuated):
-        B[model.state_index(n)[1], k] = 1.0   # a spherical joint's '<joint>_x/_y/_z': its torque components
-    lim = np.array([model.specs[model.state_index(n)[0]].effort_limit or np.inf for n in actuated], dtype=float)
-    units = sorted({'N' if model.jtype[model.state_index(n)[0]] == PRISMATIC else 'N·m' for n in actuated})
+    for k, (_, vi) in enumerate(where):
+        B[vi, k] = 1.0   # a spherical joint's '<joint>_x/_y/_z': its torque components
+    lim = np.array([model.specs[i].effort_limit or np.inf for i, _ in where], dtype=float)
+    units = sorted({'N' if model.jtype[i] == PRISMATIC else 'N·m' for i, _ in where})
     return actuated, B, InputPort('effort', len(actuated), tuple(actuated), '/'.join(units) or '-',
                                   tuple(lim.tolist()) if np.isfinite(lim).any() else None)

@@ -53,9 +53,8 @@ class KinematicArmSystem(System):
             raise ValueError(f'{model.name}: the motion must give every 1-DOF joint exactly once; '
                              f'missing {missing}, unknown {extra}; joints are {self.joint_names}')
         self.motion = {j: motion[j] for j in self.joint_names}
+        # one function per v index: with 1-DOF and fixed joints only, v is in joint_names order
         self._fns = [self.motion[j] for j in self.joint_names]
-        # joint j's place in q/v (model order = joint_names order for 1-DOF joints)
-        self._vidx = np.array([int(model.v_idx[model.joint_names.index(j)]) for j in self.joint_names])
         self._km = kernels.CompiledModel(model) if self.backend != 'numpy' else None
         self.nq, self.nv, self.ny = 1, 0, 1
         self.initial_state_sizes = (model.nv, model.nv)
@@ -66,10 +65,10 @@ class KinematicArmSystem(System):
         n = self.model.nv
         q, qd, qdd = np.empty(n), np.empty(n), np.empty(n)
         with np.errstate(all='ignore'):
-            for k, f in zip(self._vidx, self._fns):
+            for k, f in enumerate(self._fns):
                 q[k], qd[k], qdd[k] = f.jet(s)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(qdd))):
-            bad = [j for k, j in zip(self._vidx, self.joint_names)
+            bad = [j for k, j in enumerate(self.joint_names)
                    if not np.isfinite([q[k], qd[k], qdd[k]]).all()]
             raise FloatingPointError(f'the prescribed motion of {bad} is not finite at t={s!r} s '
                                      f'({", ".join(self.motion[j].text for j in bad)})')
@@ -114,8 +113,8 @@ class KinematicArmSystem(System):
         def energy():
             kin, pot = self._energies(q, qd)
             return {'kinetic': kin, 'potential': pot}
-        return SystemOutputs(joint_names=list(self.joint_names), position=q[self._vidx], velocity=qd[self._vidx],
-                             effort=tau[self._vidx], wrenches=w, energy=LazyValues(energy))
+        return SystemOutputs(joint_names=list(self.joint_names), position=q.copy(), velocity=qd.copy(),
+                             effort=tau.copy(), wrenches=w, energy=LazyValues(energy))
 
     def _energies(self, q, v):
         if self._km is not None:

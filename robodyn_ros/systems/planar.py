@@ -65,11 +65,11 @@ class PlanarBaseSystem(ArmSystem):
         if pr is None:
             raise ValueError(f'{model.name}: the root joint is not a planar joint (bodies 0-2 must be its '
                              'x, z, pitch joints; see robodyn_ros.model.planar_links)')
-        self.planar_joint, self.base_body = pr
+        self.planar_joint, base_body = pr
         if any(model.parent[i] < 0 for i in range(1, model.nb)):
             raise ValueError(f'{model.name}: with a planar root every other link must hang from '
                              f'{model.link_names[2]!r} (one body in free flight)')
-        inner = [n for n in model.dof_joint_names[3:]]
+        inner = list(model.dof_joint_names[3:])
         if actuated is not None:
             bad = [j for j in actuated if j not in inner]
             if bad:
@@ -79,12 +79,11 @@ class PlanarBaseSystem(ArmSystem):
         self.inner_joint_names = inner
         self.joint_names = list(inner)   # published in joint_states (the base is in odom)
         self.coordinate_names = ['x', 'z', 'pitch'] + inner
-        base = model.link_names[self.base_body]
-        self.base_link = base
+        base = model.link_names[base_body]
         root = 'base_link' if base != 'base_link' else 'base_footprint'
         specs = [LinkSpec(name=base, joint=self.planar_joint, parent=root, joint_type='fixed',
                           mass=model.specs[2].mass, com=model.specs[2].com, inertia=model.specs[2].inertia)]
-        specs += [s for s in model.specs[3:]]
+        specs += list(model.specs[3:])
         self.urdf_model = build_model(specs, gravity=model.gravity, name=model.name, root=root)
         self.initial_state_keys = ('com', 'com_velocity')
 
