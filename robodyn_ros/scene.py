@@ -997,11 +997,27 @@ def _assemble(ctx: SceneContext, parts: list) -> object:
 # --------------------------------------------------------------------------------------------
 # command profiles: builder(params, path, ctx, system, port) -> f(t, y) -> (size,) array
 # --------------------------------------------------------------------------------------------
+def _compiled(f, kind: str, P=None, times=None, values=None, BT=None, Bq=None):
+    """f with ``f.program``: the profile as :func:`robodyn_ros.kernels.core.command_eval` evaluates
+    it (``(kind code, P, times, values, BT, Bq)``, C-contiguous float64), which the Simulator's
+    block path runs inside its compiled loop with the same arithmetic (the recordings test
+    compares both paths byte for byte). Without the compiled kernels f is returned as it is."""
+    from . import kernels
+    if kernels.AVAILABLE:
+        e2 = np.zeros((0, 0))
+        c = np.ascontiguousarray
+        f.program = (int(getattr(kernels.core, kind)), e2 if P is None else c(P, dtype=float),
+                     np.zeros(0) if times is None else c(times, dtype=float),
+                     e2 if values is None else c(values, dtype=float),
+                     e2 if BT is None else c(BT, dtype=float), e2 if Bq is None else c(Bq, dtype=float))
+    return f
+
+
 def _zero_profile(params, path, ctx, system, port):
     """``zero``: no parameters; u = 0."""
     ctx.mapping(params, path, required=('profile',))
     u = np.zeros(system.inputs[port].size)
-    return lambda t, y: u.copy()
+    return _compiled(lambda t, y: u.copy(), 'CMD_ZERO')
 
 
 def _constant_profile(params, path, ctx, system, port):
@@ -1009,7 +1025,7 @@ def _constant_profile(params, path, ctx, system, port):
     ctx.mapping(params, path, required=('profile', 'value'))
     n = system.inputs[port].size
     u = ctx.vector(params['value'], _key(path, 'value'), n, f'values (one per {port} input)')
-    return lambda t, y: u.copy()
+    return _compiled(lambda t, y: u.copy(), 'CMD_CONSTANT', P=u[None, :])
 
 
 def _piecewise_constant_profile(params, path, ctx, system, port):
@@ -1034,7 +1050,7 @@ def _piecewise_constant_profile(params, path, ctx, system, port):
     def f(t, y):
         j = int(np.searchsorted(times, t, side='right')) - 1
         return (zero if j < 0 else values[j]).copy()
-    return f
+    return _compiled(f, 'CMD_PIECEWISE', times=times, values=values)
 
 
 def _sine_parts(params, path, ctx, n, port):
@@ -1051,7 +1067,7 @@ def _sine_profile(params, path, ctx, system, port):
     n = system.inputs[port].size
     A, w, phase = _sine_parts(params, path, ctx, n, port)
     offset = ctx.vector(params['offset'], _key(path, 'offset'), n) if 'offset' in params else np.zeros(n)
-    return lambda t, y: offset + A * np.sin(w * t + phase)
+    return _compiled(lambda t, y: offset + A * np.sin(w * t + phase), 'CMD_SINE', P=np.array([offset, A, w, phase]))
 
 
 def _gravity_compensation_sine_profile(params, path, ctx, system, port):
@@ -1103,6 +1119,10 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
     def f(t, y):
         q = minimal(y)[0] if minimal is not None else system.split(y)[0]
         return BT @ rnea(q, zeros, zeros) + K * (center - Bq @ q) + A * np.sin(w * t + phase)
+    # compiled form: an arm's own compiled RNEA (CompiledModel.rnea) with 0/1 selection matrices
+    if minimal is None and getattr(system, '_km', None) is not None and rnea == system.inverse_dynamics \
+            and getattr(system, '_B_is_selection', False) and Bq is BT:
+        return _compiled(f, 'CMD_GRAVITY_SINE', P=np.array([A, w, phase, K, center]), BT=BT, Bq=BT)
     return f
 
 
@@ -1164,6 +1184,7 @@ def _script(ctx: SceneContext, commands, system):
         """Scripted commands at time t (s) and state y: {port: (size,) array}."""
         return {port: f(t, y) for port, f in fns.items()}
     script.profiles = fns  # port -> f(t, y), e.g. to reach a controller profile's object
+    script.programs = {port: getattr(f, 'program', None) for port, f in fns.items()}  # compiled forms (block path)
     return script
 
 

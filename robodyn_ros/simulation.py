@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .integrators import INTEGRATORS, IntegrationError, make_integrator
+from .integrators import INTEGRATORS, IntegrationError, IntegratorStats, make_integrator
 from .stability import check_fixed_step, diagnose, preflight
 from .systems.base import System, SystemOutputs
 
@@ -415,7 +415,13 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     for s in sinks:
         s.on_output(sim.t, out, sim)
     t_start = sim.t
-    for k in range(n):
+    blocks = _BlockRunner.plan(sim, script, sinks, stop, wrenches)
+    k = 0
+    while k < n:
+        if blocks is not None and k > 0:   # periods 1.. in compiled blocks; period k on this path
+            k = blocks.run(k, n, t_start, rate)   # when a block stops short (or a sink wants it)
+            if k >= n:
+                break
         if k > 0:
             feed()
         sim.advance(t_start + (k + 1) / rate)
@@ -424,4 +430,137 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
             s.on_output(sim.t, out, sim)
         if stop is not None and stop(sim.t, sim.y):
             return k + 1
+        k += 1
     return n
+
+
+#: publication periods per compiled call of the block path (fewer where a sink needs the
+#: Simulator's state, e.g. at a diagnostics message)
+BLOCK_PERIODS = 64
+
+
+@dataclass
+class PeriodBlock:
+    """K consecutive publication periods run in one compiled call (:class:`_BlockRunner`).
+
+    Period k starts at ``t_cmd[k]`` (its scripted commands, ``commands[port][k]``, are applied
+    then) and ends at ``t_out[k]``, where the system's outputs are ``position``, ``velocity``,
+    ``effort`` (K, ·) and, when computed, the joint wrenches ``wrenches`` (K, n, 6) in the order
+    of ``template.wrenches``. template: the SystemOutputs of one such period (names, frames, how
+    wrenches are computed), the same for all K. The Simulator is at the end of the last one.
+    """
+    t_cmd: np.ndarray
+    t_out: np.ndarray
+    commands: dict
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    wrenches: np.ndarray | None
+    template: SystemOutputs
+
+
+class _BlockRunner:
+    """The block path of :func:`run_headless`: many periods per compiled call.
+
+    Taken when the system runs periods in compiled code (``system.fused_periods``: the arms),
+    the integrator is fixed-step, the scripted commands have compiled forms (``script.programs``,
+    :mod:`robodyn_ros.scene`) and every sink takes blocks (``sink.takes_blocks``: it has
+    ``block_periods`` and ``on_block``, see ``McapRunSink``); not with a
+    ``stop`` condition, a command timeout, effort or velocity limits (counted per period). The
+    numbers are those of the per-period path (same compiled functions, same arithmetic; the
+    recordings test compares files byte for byte); a period the compiled loop refuses (a
+    non-finite command or state) is redone on the per-period path, which raises as it always has.
+    """
+
+    def __init__(self, sim, port, program, sinks, wrenches):
+        self.sim, self.port, self.program, self.sinks, self.wrenches = sim, port, program, sinks, wrenches
+        self.template = None
+
+    @classmethod
+    def plan(cls, sim, script, sinks, stop, wrenches):
+        sys_ = sim.system
+        if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
+                or sim.integrator.spec.kind != 'fixed' or sim._velocity_limit_of or len(sys_.inputs) != 1 \
+                or not all(getattr(s, 'takes_blocks', False) for s in sinks):
+            return None
+        (port, spec), = sys_.inputs.items()
+        if spec.limit is not None:
+            return None
+        program = None
+        if script is not None:
+            programs = getattr(script, 'programs', None) or {}
+            if set(programs) != {port} or programs[port] is None:
+                return None
+            program = programs[port]
+        return cls(sim, port, program, sinks, wrenches)
+
+    def run(self, k: int, n: int, t_start: float, rate: float) -> int:
+        """Run periods k.. in blocks; returns the first period not run (n when all are)."""
+        sim, sys_ = self.sim, self.sim.system
+        ny = sys_.ny
+        if self.template is None:
+            self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
+        while k < n:
+            K = min(BLOCK_PERIODS, n - k)
+            ks = np.arange(k, k + K)
+            t_out = t_start + (ks + 1) / rate          # the per-period path's t_start + (k + 1) / rate
+            cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
+            for s in self.sinks:
+                K = min(K, s.block_periods(t_out, self.template, cmd_kind))
+            if K <= 0:   # a sink wants this period on the per-period path
+                return k
+            t_out = t_out[:K]
+            t_cmd = np.empty(K)
+            t_cmd[0] = sim.t
+            t_cmd[1:] = t_out[:-1]
+            port = sim.ports[self.port]
+            u = np.array(port.applied, dtype=float)
+            parts = sim._work_parts
+            z = np.empty(ny + 1 + len(parts))
+            z[:ny] = sim.y
+            z[ny] = sim.diag.work
+            for j, name in enumerate(parts):
+                z[ny + 1 + j] = sim.diag.work_parts[name]
+            w0 = time.perf_counter()
+            res = sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, t_cmd, t_out, u,
+                                     self.program, self.wrenches)
+            sim.diag.wall += time.perf_counter() - w0
+            if res is None:
+                return k
+            done, code, Zs, Us, outs, Fs, steps = res
+            if done:
+                self._commit(done, t_cmd, t_out, Zs, Us, outs, Fs, steps)
+            k += done
+            if code:
+                return k
+        return n
+
+    def _commit(self, K, t_cmd, t_out, Zs, Us, outs, Fs, steps):
+        """The Simulator at the end of period K - 1 of the block, as K advance() calls leave it; the sinks get the block."""
+        sim, sys_ = self.sim, self.sim.system
+        ny = sys_.ny
+        z = Zs[K - 1]
+        n_steps = int(steps[:K].sum())
+        evals = 4 if sim.settings['integrator'] == 'rk4' else 1
+        sim.integrator.stats.accumulate(IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps,
+                                                        advance_calls=K, projections=n_steps))
+        sim.diag.steps += n_steps
+        sim.diag.rhs_evals += evals * n_steps
+        sim.t, sim.y, sim.diag.work = float(t_out[K - 1]), z[:ny].copy(), float(z[ny])
+        for j, name in enumerate(sim._work_parts):
+            sim.diag.work_parts[name] = float(z[ny + 1 + j])
+        sim.diag.sim_time = sim.t - sim._t0
+        commands = {}
+        if self.program is not None:
+            p = sim.ports[self.port]
+            p.value = Us[K - 1].copy()
+            p.applied = p.value
+            p.stamp = float(t_cmd[K - 1])
+            p.timed_out = False
+            commands[self.port] = Us[:K]
+        position, velocity, effort = outs
+        block = PeriodBlock(t_cmd=t_cmd[:K], t_out=t_out[:K], commands=commands, position=position[:K],
+                            velocity=velocity[:K], effort=effort[:K], wrenches=None if Fs is None else Fs[:K],
+                            template=self.template)
+        for s in self.sinks:
+            s.on_block(block, sim)

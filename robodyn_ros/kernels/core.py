@@ -1113,3 +1113,121 @@ def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_la
             if not math.isfinite(z[a]):
                 return k
     return -1
+
+
+# ----------------------------------------------------------------------------------------------
+# many publication periods in one call: scripted commands, integration, outputs (issue 15)
+# ----------------------------------------------------------------------------------------------
+#: compiled command profiles (scene.py ``COMMAND_PROFILES`` -> ``f.program``): kind codes
+CMD_NONE, CMD_ZERO, CMD_CONSTANT, CMD_PIECEWISE, CMD_SINE, CMD_GRAVITY_SINE = -1, 0, 1, 2, 3, 4
+
+
+@njit(**_JIT)
+def command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t, z, g, zeros, u):
+    """u (n,) = a scene's command profile at time t and state z (``[q, v, ...]``), with the
+    arithmetic of its Python form in :mod:`robodyn_ros.scene`, operation by operation:
+
+    - ``CMD_ZERO``: 0; ``CMD_CONSTANT``: ``P[0]``;
+    - ``CMD_PIECEWISE``: ``values[j]`` with ``j = searchsorted(times, t, 'right') - 1`` (0 before
+      ``times[0]``);
+    - ``CMD_SINE`` (P rows offset, A, ω, φ): ``offset + A sin(ω t + φ)``;
+    - ``CMD_GRAVITY_SINE`` (P rows A, ω, φ, K, center): ``Bᵀ g(q) + K (center − B_q q) + A sin(ω t + φ)``
+      with ``g = RNEA(q, 0, 0)`` (:func:`rnea_into` on the merged tree, as ``CompiledModel.rnea``).
+
+    The products ``Bᵀ g`` and ``B_q q`` are sums from +0.0 (numpy's matmul) over 0/1 selection
+    matrices, whose every summation order gives the same bits; the caller only compiles
+    profiles whose matrices are such selections. g (nv,) and zeros (nv,) are scratch.
+    """
+    n = u.shape[0]
+    if kind == CMD_ZERO:
+        for i in range(n):
+            u[i] = 0.0
+    elif kind == CMD_CONSTANT:
+        for i in range(n):
+            u[i] = P[0, i]
+    elif kind == CMD_PIECEWISE:
+        j = -1
+        for m in range(times.shape[0]):
+            if times[m] <= t:
+                j = m
+            else:
+                break
+        for i in range(n):
+            u[i] = 0.0 if j < 0 else values[j, i]
+    elif kind == CMD_SINE:
+        for i in range(n):
+            u[i] = P[0, i] + P[1, i] * math.sin(P[2, i] * t + P[3, i])
+    else:
+        q = z[:nq]
+        rnea_into(mi_r, mf_r, q, zeros, zeros, g)
+        nv = g.shape[0]
+        for i in range(n):
+            gi = 0.0
+            for j in range(nv):
+                gi += BT[i, j] * g[j]
+            bq = 0.0
+            for j in range(nq):
+                bq += Bq[i, j] * q[j]
+            u[i] = (gi + P[3, i] * (P[4, i] - bq)) + P[0, i] * math.sin(P[1, i] * t + P[2, i])
+
+
+@njit(**_JIT)
+def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_start, n_full, h_last,
+                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f):
+    """K publication periods of an arm in one call: per period k the scripted command at its
+    start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), ``τ_app = B u``,
+    :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
+    ``Zs[k] = z``, ``Us[k] = u``, ``TAUs[k] = τ_app`` and, with want_f, the joint wrenches
+    ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v + τ_lim``, :func:`arm_forces`) -- the
+    numbers the Simulator's per-period path computes with the same functions.
+
+    z: ``[q, v, W(, W_lim)]`` in place; u (n,) the command held before period 0. Returns
+    ``(k, code)``: code 0 after all K periods; 1: the command of period k is non-finite (not
+    applied: u and z are those of the end of period k − 1); 2: the state became non-finite in
+    period k (z is put back to its start). The caller redoes period k on the per-period path,
+    which raises with the diagnosis.
+    """
+    K = t_start.shape[0]
+    nv = damping.shape[0]
+    n = z.shape[0]
+    nu = u.shape[0]
+    g = np.zeros(nv)
+    zeros = np.zeros(nv)
+    un = np.empty(nu)
+    tau_app = np.empty(nv)
+    z0 = np.empty(n)
+    dz = np.empty(n)
+    tauv = np.empty(nv)
+    zf = np.zeros((mi.shape[0], 6))
+    for k in range(K):
+        if kind != CMD_NONE:
+            command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t_start[k], z, g, zeros, un)
+            for i in range(nu):
+                if not math.isfinite(un[i]):
+                    return k, 1
+            for i in range(nu):
+                u[i] = un[i]
+        for r in range(nv):
+            acc = 0.0
+            for i in range(nu):
+                acc += B[r, i] * u[i]
+            tau_app[r] = acc
+        for a in range(n):
+            z0[a] = z[a]
+        if integrate_arm(mi_r, mf_r, damping, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k]) >= 0:
+            for a in range(n):
+                z[a] = z0[a]
+            return k, 2
+        for a in range(n):
+            Zs[k, a] = z[a]
+        for i in range(nu):
+            Us[k, i] = u[i]
+        for r in range(nv):
+            TAUs[k, r] = tau_app[r]
+        if want_f:
+            arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
+            _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, False)
+            for b in range(f.shape[0]):
+                for c in range(6):
+                    Fs[k, b, c] = f[b, c]
+    return K, 0

@@ -181,13 +181,26 @@ class _PeriodLayout:
             for sl, (_, w) in zip(self.wrench_cols, out.wrenches.values()):
                 row[sl] = w
 
-    def rows(self, values, times):
+    def fill_block(self, rows, blk, i, m):
+        """Write periods ``i..i+m`` of a :class:`robodyn_ros.simulation.PeriodBlock` into ``rows`` (m, n_values),
+        as :meth:`fill` does one period (wrenches included: the block computed them)."""
+        for sl, values in zip(self.cmd_cols, blk.commands.values()):
+            rows[:, sl] = values[i:i + m]
+        js = self.js_cols
+        rows[:, js[0]] = blk.position[i:i + m]
+        rows[:, js[1]] = blk.velocity[i:i + m]
+        rows[:, js[2]] = blk.effort[i:i + m]
+        if self.wrench_block is not None:
+            rows[:, self.wrench_block] = blk.wrenches[i:i + m].reshape(m, -1)
+
+    def rows(self, values, times, filled=False):
         """The records of K periods: ``(K, R)`` uint8 (record headers left for the writer).
 
-        values: (K, n_values) from :meth:`fill`; times: (K, 2) int64 ns, (commands, outputs).
+        values: (K, n_values) from :meth:`fill` (or :meth:`fill_block`: filled, wrenches included);
+        times: (K, 2) int64 ns, (commands, outputs).
         """
         K = values.shape[0]
-        if self.lazy:
+        if self.lazy and not filled:
             args, self.wrench_args = self.wrench_args, []
             if len(args) != K:
                 raise RuntimeError(f'{len(args)} wrench states held for {K} periods')
@@ -264,6 +277,7 @@ class McapRunSink:
         self._times = None    # (batch, 2) int64 ns: commands, outputs
         self._diags = {}      # period index -> diagnostics CDR written after it
         self._held = 0        # periods held
+        self._filled = False  # the periods held came from blocks (their wrenches are in _values)
 
     def _write(self, topic, type_name, msg, t_ns):
         self.writer.write(resolve(topic, self.namespace), type_name, msg, t_ns)
@@ -338,14 +352,70 @@ class McapRunSink:
             self._next_diag += self.diagnostics_period
 
     # -- batches of periods --------------------------------------------------------------
+    def _period_kind(self, cmd_kind, out) -> tuple:
+        """What periods encoded together share: commands (port, size), joint_states names and
+        sizes, odom or not, the wrenches' names, frames and how they are computed."""
+        return (cmd_kind, tuple(out.joint_names), len(out.position), len(out.velocity), len(out.effort),
+                out.odom is None, _wrench_kind(out.wrenches) if self.wants_wrenches else ())
+
+    @property
+    def takes_blocks(self) -> bool:
+        """True when batching: the Simulator's block path may hand this sink many periods at once."""
+        return self.batch > 0
+
+    def block_periods(self, t_out, template, cmd_kind) -> int:
+        """How many of the periods ending at ``t_out`` (s) :meth:`on_block` can take in one block:
+        up to the first one that ends with a diagnostics message (inclusive: the Simulator is then
+        at its end), 0 when they are not of the kind of the periods held so far (the per-period
+        path registers new channels and layouts first)."""
+        if not self.batch or self._cmds or self._layout is None or \
+                self._period_kind(cmd_kind, template) != self._kind:
+            return 0
+        if self._next_diag is None:
+            return len(t_out)
+        if resolve('diagnostics', self.namespace) not in self.writer._channels:
+            return 0
+        due = np.flatnonzero(t_out >= self._next_diag - 1e-9)
+        return int(due[0]) + 1 if due.size else len(t_out)
+
+    def on_block(self, blk, sim, level=0, message='running'):
+        """Record K periods run in one block (:class:`robodyn_ros.simulation.PeriodBlock`): the
+        records :meth:`on_command` and :meth:`on_output` write for each, batch by batch as they
+        would be (:meth:`block_periods` said this sink takes them; a diagnostics message is due
+        at most after the last one, where ``sim`` is)."""
+        if self._held and not self._filled:
+            self._write_held()   # periods of the per-period path: their wrenches are computed when written
+        L = self._layout
+        K = blk.t_out.shape[0]
+        t_out = np.rint(blk.t_out * 1e9).astype(np.int64)   # messages.to_ns of each
+        t_cmd = np.rint(blk.t_cmd * 1e9).astype(np.int64) if blk.commands else t_out
+        i = 0
+        while i < K:
+            h = self._held
+            first = int(self._times[0, 1]) if h else int(t_out[i])
+            # as many as fit, up to the period at which the per-period path writes (batch full or BATCH_SPAN spanned)
+            m = min(K - i, self.batch - h, int(np.searchsorted(t_out[i:], first + BATCH_SPAN_NS, 'left')) + 1)
+            L.fill_block(self._values[h:h + m], blk, i, m)
+            self._times[h:h + m, 0] = t_cmd[i:i + m]
+            self._times[h:h + m, 1] = t_out[i:i + m]
+            self._held = h + m
+            self._filled = True
+            i += m
+            if i == K and self._next_diag is not None and blk.t_out[-1] >= self._next_diag - 1e-9:
+                self._diags[self._held - 1] = cdr.encode(M.TOPIC_TYPES['diagnostics'], M.diagnostic_array(
+                    int(t_out[-1]), 'robodyn_ros: simulation', level, message, sim.diagnostics_values()))
+                self._next_diag += self.diagnostics_period
+            if self._held == self.batch or int(t_out[i - 1]) - int(self._times[0, 1]) >= BATCH_SPAN_NS:
+                self._write_held()
+
     def _hold(self, t, out, sim, level, message) -> bool:
         """Keep this period for the next vectorised pass; False when it must be written message
         by message now (a new topic is registered on its first message, so that channel records
         land where the per-message path puts them; odd arrays take the generic encoder)."""
         cmds = self._cmds
-        kind = (tuple([(p, v.shape[0]) for _, p, v in cmds]), tuple(out.joint_names), len(out.position),
-                len(out.velocity), len(out.effort), out.odom is None,
-                _wrench_kind(out.wrenches) if self.wants_wrenches else ())
+        if self._filled:
+            self._write_held()   # periods of blocks first (their wrenches are in _values)
+        kind = self._period_kind(tuple([(p, v.shape[0]) for _, p, v in cmds]), out)
         # the kind of the previous period (tuple equality, no hashing), else one seen before
         layout = self._layout if kind == self._kind else self._layouts.get(kind)
         diag = self._next_diag is not None and t >= self._next_diag - 1e-9
@@ -408,7 +478,7 @@ class McapRunSink:
         if not K:
             return
         L = self._layout
-        rows = L.rows(self._values[:K], self._times[:K])
+        rows = L.rows(self._values[:K], self._times[:K], filled=self._filled)
         R = rows.shape[1]
         times = np.where(L.is_cmd, self._times[:K, 0:1], self._times[:K, 1:2])
         offs = np.arange(K, dtype=np.int64)[:, None] * R + L.rec_off
@@ -438,6 +508,7 @@ class McapRunSink:
         self.writer.write_records(records, offsets, channels, log_times)
         self.count += len(offsets)
         self._held = 0
+        self._filled = False
         self._diags = {}
 
     def close(self):

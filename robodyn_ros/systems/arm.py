@@ -31,6 +31,13 @@ BATCH_KERNEL_AFTER = 10_000
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
 
 
+
+def _is_selection(B) -> bool:
+    """True when B has only 0/1 entries, at most one 1 per row and per column (``B @ u`` picks and
+    places entries: every summation order gives the same bits, compiled or not)."""
+    B = np.asarray(B)
+    return bool(np.all((B == 0.0) | (B == 1.0)) and np.all(B.sum(axis=0) <= 1) and np.all(B.sum(axis=1) <= 1))
+
 class ArmSystem(System):
     """Arm on a fixed base: state ``y = [q (nq), v (nv)]``; input ``effort`` per actuated joint.
 
@@ -66,6 +73,8 @@ class ArmSystem(System):
         self.joint_names = model.state_joint_names
         self.actuated, self.B, port = effort_actuation(model, self.joint_names, actuated)  # tau = B u
         self.inputs = {'effort': port}
+        self._B = np.ascontiguousarray(self.B, dtype=np.float64)
+        self._B_is_selection = _is_selection(self.B)   # fused_periods' condition
         # Coulomb joint friction (URDF <dynamics friction>): compiled kernel, reference path only
         self._friction = np.ascontiguousarray(model.friction)
         self._has_friction = bool(np.any(self._friction > 0.0))
@@ -244,6 +253,50 @@ class ArmSystem(System):
                 f'state became non-finite (components {np.flatnonzero(~np.isfinite(z))[:8].tolist()}) in the '
                 f'step from t={t:.12g} s with h={h:.6g} s; reduce dt or check the model')
         return z, IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=1, projections=n_steps)
+
+    def fused_periods(self, integrator_name, dt, z, t_start, t_end, u, program=None, wrenches=False):
+        """Run K publication periods in one compiled call (``core.run_arm_periods``), or None to decline.
+
+        The block path of :func:`robodyn_ros.simulation.run_headless`: per period the scripted
+        command at its start (program: a compiled command profile ``(kind, P, times, values, BT,
+        Bq)`` from :mod:`robodyn_ros.scene`, None: u held), the fused integration of
+        :meth:`fused_advance` over the same step grid, and the outputs at its end. z: ``[y, W(,
+        W_lim)]`` (modified in place); t_start, t_end (K,): the periods; u (n,): the command held
+        before the first period (updated in place). Declines where :meth:`fused_advance` does,
+        for joint_states that are not ``(q, v)`` as they are (spherical joints, a free root),
+        and for input matrices that are not 0/1 selections. Returns ``(k, code, Zs, Us, (position,
+        velocity, effort), Fs, steps)``: see ``core.run_arm_periods``; the joint_states arrays (K, ·)
+        of each period's end, Fs None without wrenches, steps (K,) per period.
+        """
+        if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact() \
+                or self._has_friction or not self._simple or not self._B_is_selection:
+            return None
+        from ..kernels import core
+        grid = self._grids.get(dt)
+        if grid is None:
+            grid = self._grids[dt] = make_integrator('rk4', dt=dt)
+        K = len(t_start)
+        n_full = np.empty(K, dtype=np.int64)
+        h_last = np.empty(K)
+        for k in range(K):
+            n_full[k], h_last[k] = grid.step_grid(float(t_start[k]), float(t_end[k]))
+        if program is None:
+            e = np.zeros((0, 0))
+            program = (core.CMD_NONE, e, np.zeros(0), e, e, e)
+        kind, P, times, values, BT, Bq = program
+        nb = self.model.nb
+        Zs = np.empty((K, z.shape[0]))
+        Us = np.empty((K, u.shape[0]))
+        TAUs = np.empty((K, self.nv))
+        Fs = np.empty((K, nb, 6) if wrenches else (0, nb, 6))
+        km = self._km
+        run = core.run_arm_periods if km.gen is None else km.gen.run_arm_periods
+        k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.lim, self._B, self.nq,
+                      kernels.FUSED_METHODS[integrator_name], z, float(dt), np.ascontiguousarray(t_start, dtype=float),
+                      n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches))
+        steps = n_full + (h_last > 0.0)
+        outs = (Zs[:, :self.nq], Zs[:, self.nq:self.nq + self.nv], TAUs)   # joint_states of a simple arm
+        return k, code, Zs, Us, outs, (Fs if wrenches else None), steps
 
     def _fused_exact(self) -> bool:
         """True when this object computes dy/dt, power, projection and q̇ exactly as ArmSystem

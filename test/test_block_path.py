@@ -1,0 +1,242 @@
+"""The block path of run_headless (many publication periods per compiled call) against the
+per-period path it replaces: the same recording byte for byte, the same final Simulator, the
+same errors at the same period.
+
+The per-period path (``Simulator.advance`` per period, the scripted command evaluated in Python,
+outputs built per period) is the reference the rest of the suite checks against Pinocchio,
+closed forms and the oracle recorder; here it is switched on by disabling the block planner.
+Each case also asserts that the block path really ran most periods, so that a planner that
+silently declines fails the test instead of comparing the reference with itself.
+"""
+from __future__ import annotations
+
+import re
+import warnings
+
+import numpy as np
+import pytest
+
+from robodyn_ros import simulation as S
+from robodyn_ros.kernels import core
+from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink
+from robodyn_ros.scene import find_scene, load_scene, parse_scene
+from robodyn_ros.simulation import CommandError, SimulationError, Simulator, run_headless
+
+
+def _stanford_text(commands: str | None = None, limits: bool = False) -> str:
+    text = find_scene('stanford_arm').read_text()
+    if commands is not None:
+        i = text.index('\ncommands:')
+        j = text.index('\nsimulation:')
+        text = text[:i] + '\ncommands:\n' + commands + text[j:]
+    if limits:   # joint 5 (+-90 deg, at 0.8 rad) gets the joint-limit law: the work quadrature gains W_lim
+        text = text.replace('limits: [-1.5707963267948966, 1.5707963267948966]}',
+                            'limits: {lower: 0.7, upper: 0.85, stiffness: 40.0, damping: 0.5}}')
+    return text
+
+
+VARIANTS = {
+    'sine': '  effort: {profile: sine, amplitude: [3.0, 4.0, 4.0, 0.15, 0.2, 0.001], '
+            'frequency_hz: [0.2, 0.25, 0.3, 0.4, 0.35, 0.5], phase: [0.1, 0.0, 0.3, 0.0, 0.0, 2.0], '
+            'offset: [0.0, 30.0, 40.0, 0.0, 0.0, 0.0]}',
+    'piecewise_constant': '  effort: {profile: piecewise_constant, times: [0.1, 0.35, 0.6], '
+                          'values: [[1, 40, 45, 0, 0, 0], [-1, 35, 40, 0.1, 0, 0], [0, 42, 43, 0, -0.1, 0]]}',
+    'constant': '  effort: {profile: constant, value: [0.5, 40.0, 42.0, 0.0, 0.0, -0.0]}',
+    'zero': '  effort: {profile: zero}',
+}
+
+
+def _scene(case: str, backend: str):
+    import os
+    old = os.environ.get('ROBODYN_BACKEND')
+    os.environ['ROBODYN_BACKEND'] = backend
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            if case in VARIANTS:
+                return parse_scene(_stanford_text(VARIANTS[case]), file=f'stanford_{case}.yaml')
+            if case == 'limits':
+                return parse_scene(_stanford_text(limits=True), file='stanford_limits.yaml')
+            return load_scene(case)
+    finally:
+        if old is None:
+            os.environ.pop('ROBODYN_BACKEND', None)
+        else:
+            os.environ['ROBODYN_BACKEND'] = old
+
+
+class _Count:
+    """Counts the periods the block path commits (to prove it ran)."""
+
+    def __init__(self, monkeypatch):
+        self.periods = 0
+        orig = S._BlockRunner._commit
+
+        def commit(runner, K, *a):
+            self.periods += K
+            return orig(runner, K, *a)
+        monkeypatch.setattr(S._BlockRunner, '_commit', commit)
+
+
+def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None, record=True):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator=integrator, dt=dt)
+    path = tmp_path / f'{tag}.mcap'
+    sinks = [McapRunSink(path, scene, {'integrator': integrator, 'dt': dt}, batch=HEADLESS_BATCH,
+                         diagnostics_period=0.05)] if record else []
+    if record:
+        sinks[0].writer.chunk_size = 3000   # chunk boundaries inside batches and blocks
+    err = None
+    try:
+        n = run_headless(sim, duration, 100.0, scene.script if script is None else script, sinks)
+    except (CommandError, SimulationError) as e:
+        n, err = None, e
+    finally:
+        for s in sinks:
+            s.close()
+    return (path.read_bytes() if record else None), n, sim, err
+
+
+def _both(tmp_path, monkeypatch, scene, duration, **kw):
+    count = _Count(monkeypatch)
+    fast = _run(tmp_path, scene, 'block', duration, **kw)
+    blocked = count.periods
+    monkeypatch.setattr(S._BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    slow = _run(tmp_path, scene, 'period', duration, **kw)
+    return fast, slow, blocked
+
+
+def _same_simulator(a: Simulator, b: Simulator):
+    assert a.t == b.t
+    assert np.array_equal(a.y, b.y) and np.array_equal(np.signbit(a.y), np.signbit(b.y))
+    assert a.diag.work == b.diag.work and a.diag.work_parts == b.diag.work_parts
+    assert (a.diag.steps, a.diag.rhs_evals) == (b.diag.steps, b.diag.rhs_evals)
+    assert a.integrator.stats == b.integrator.stats
+    for k in a.ports:
+        assert np.array_equal(a.ports[k].value, b.ports[k].value) and a.ports[k].stamp == b.ports[k].stamp
+    assert a.diagnostics_values() == b.diagnostics_values()
+
+
+CASES = [('stanford_arm', 'generated'), ('stanford_arm', 'numba'), ('betancur_pendulum', 'generated'),
+         ('huston_p19_2_3', 'numba'), ('huston_p19_4_1', 'generated'), ('huston_p19_4_1', 'numba'),
+         ('sine', 'generated'), ('piecewise_constant', 'numba'), ('constant', 'generated'), ('zero', 'numba'),
+         ('limits', 'generated'), ('limits', 'numba')]
+
+
+@pytest.mark.parametrize('case,backend', CASES)
+def test_block_path_records_the_per_period_bytes(tmp_path, monkeypatch, case, backend):
+    scene = _scene(case, backend)
+    (fast, n, sim_f, err_f), (slow, n_s, sim_s, err_s), blocked = _both(tmp_path, monkeypatch, scene, 1.0)
+    assert err_f is None and err_s is None and n == n_s == 100
+    assert blocked >= 90, f'the block path ran {blocked} of 100 periods'
+    assert fast == slow, f'{case}: recordings differ ({len(fast)} vs {len(slow)} bytes)'
+    _same_simulator(sim_f, sim_s)
+    if case == 'limits':   # the case does exercise the limit law (the W_lim part is not zero)
+        assert abs(sim_f.diag.work_parts['limit']) > 1e-6
+
+
+@pytest.mark.parametrize('integrator', ['euler', 'semi_implicit_euler'])
+def test_block_path_other_fixed_step_methods(tmp_path, monkeypatch, integrator):
+    scene = _scene('stanford_arm', 'numba')
+    (fast, n, sim_f, _), (slow, _, sim_s, _), blocked = _both(tmp_path, monkeypatch, scene, 0.5,
+                                                              integrator=integrator, dt=5e-4)
+    assert blocked >= 45 and fast == slow
+    _same_simulator(sim_f, sim_s)
+
+
+def test_block_path_without_a_recorder(tmp_path, monkeypatch):
+    scene = _scene('stanford_arm', 'generated')
+    (_, n, sim_f, _), (_, _, sim_s, _), blocked = _both(tmp_path, monkeypatch, scene, 0.6, record=False)
+    assert n == 60 and blocked == 59   # period 0 on the per-period path, then one block
+    _same_simulator(sim_f, sim_s)
+
+
+def _piecewise_script(scene, times, values):
+    """A script of one piecewise-constant effort profile, Python and compiled forms, built
+    without the scene loader (which refuses non-finite values)."""
+    times, values = np.array(times, dtype=float), np.array(values, dtype=float)
+
+    def f(t, y):
+        j = int(np.searchsorted(times, t, side='right')) - 1
+        return (np.zeros(values.shape[1]) if j < 0 else values[j]).copy()
+
+    def script(t, y):
+        return {'effort': f(t, y)}
+    e = np.zeros((0, 0))
+    script.programs = {'effort': (core.CMD_PIECEWISE, e, times, values, e, e)}
+    return script
+
+
+def test_a_non_finite_command_is_refused_at_the_same_period(tmp_path, monkeypatch):
+    scene = _scene('stanford_arm', 'generated')
+    g = scene.script(0.0, scene.y0)['effort']
+    bad = g.copy()
+    bad[2] = np.nan
+    script = _piecewise_script(scene, [0.0, 0.42], [g, bad])
+    (fast, _, sim_f, err_f), (slow, _, sim_s, err_s), blocked = _both(tmp_path, monkeypatch, scene, 1.0,
+                                                                      script=script)
+    assert isinstance(err_f, CommandError) and isinstance(err_s, CommandError)
+    assert str(err_f) == str(err_s) and 'non-finite' in str(err_f)
+    assert abs(sim_f.t - 0.42) < 1e-12 and blocked == 40   # periods 0 and 1 start a recorder's layouts
+    assert fast == slow   # the recording keeps every period before the refused command
+    _same_simulator(sim_f, sim_s)
+    assert sim_f.ports['effort'].rejected == 1
+
+
+def test_a_diverging_state_fails_at_the_same_period_keeping_the_last_good_state(tmp_path, monkeypatch):
+    scene = _scene('stanford_arm', 'numba')
+    g = scene.script(0.0, scene.y0)['effort']
+    script = _piecewise_script(scene, [0.0, 0.23], [g, g + 1e305])
+    (fast, _, sim_f, err_f), (slow, _, sim_s, err_s), blocked = _both(tmp_path, monkeypatch, scene, 1.0,
+                                                                      script=script)
+    assert isinstance(err_f, SimulationError) and isinstance(err_s, SimulationError)
+    assert str(err_f) == str(err_s) and re.search(r'non-finite', str(err_f))
+    assert abs(sim_f.t - 0.23) < 1e-12 and blocked == 21 and np.all(np.isfinite(sim_f.y))
+    assert fast == slow
+    _same_simulator(sim_f, sim_s)
+
+
+@pytest.mark.parametrize('case', ['sine', 'piecewise_constant', 'constant', 'zero', 'stanford_arm', 'huston_p19_4_1'])
+def test_compiled_profiles_equal_the_python_ones_bit_for_bit(case):
+    # command_eval against the profile's Python form at random times and states, signs of zero included
+    scene = _scene(case, 'numba')
+    f = scene.script.profiles['effort']
+    kind, P, times, values, BT, Bq = scene.script.programs['effort']
+    sys_ = scene.system
+    km = sys_._km
+    rng = np.random.default_rng(15)
+    nv = sys_.nv
+    checked = 0
+    for t in np.r_[0.0, 0.1, 0.35, 0.6, rng.uniform(0, 20, 40)]:
+        y = scene.y0 + np.r_[rng.normal(0, 0.3, sys_.nq), rng.normal(0, 1, nv)]
+        want = np.asarray(f(t, y), dtype=float)
+        got = np.empty(want.shape[0])
+        core.command_eval(kind, P, times, values, BT, Bq, km.mi_r, km.mf_r, sys_.nq, float(t), y,
+                          np.zeros(nv), np.zeros(nv), got)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want)), (t, got - want)
+        checked += 1
+    assert checked == 44
+
+
+def test_the_planner_declines_what_it_cannot_run_in_blocks():
+    # a profile without a compiled form, a stop condition, a per-period sink: the per-period path
+    scene = _scene('stanford_arm', 'numba')
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
+    plan = S._BlockRunner.plan
+    assert plan(sim, scene.script, [], None, False) is not None
+
+    def python_only(t, y):
+        return scene.script(t, y)
+    assert plan(sim, python_only, [], None, False) is None
+    assert plan(sim, scene.script, [], lambda t, y: False, False) is None
+
+    class PerPeriodSink:
+        pass
+    assert plan(sim, scene.script, [PerPeriodSink()], None, False) is None
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        adaptive = Simulator(scene.system, scene.y0, integrator='dop853', rtol=1e-8, atol=1e-10)
+    assert plan(adaptive, scene.script, [], None, False) is None
