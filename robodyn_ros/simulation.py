@@ -495,26 +495,25 @@ class _BlockRunner:
         return cls(sim, port, program, sinks, wrenches)
 
     def run(self, k: int, n: int, t_start: float, rate: float) -> int:
-        """Run periods k.. in blocks; returns the first period not run (n when all are)."""
+        """Run periods k.. in blocks; returns the first period not run (n when all are).
+
+        One compiled call runs up to :data:`BLOCK_PERIODS` periods; the sinks then get them in
+        pieces that end where one wants the Simulator's state (a diagnostics message), the
+        Simulator being put at the end of each piece first, as per-period calls leave it."""
         sim, sys_ = self.sim, self.sim.system
         ny = sys_.ny
         if self.template is None:
             self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
+        cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
         while k < n:
             K = min(BLOCK_PERIODS, n - k)
-            ks = np.arange(k, k + K)
-            t_out = t_start + (ks + 1) / rate          # the per-period path's t_start + (k + 1) / rate
-            cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
-            for s in self.sinks:
-                K = min(K, s.block_periods(t_out, self.template, cmd_kind))
-            if K <= 0:   # a sink wants this period on the per-period path
-                return k
-            t_out = t_out[:K]
+            t_out = t_start + (np.arange(k, k + K) + 1) / rate    # the per-period path's t_start + (k + 1) / rate
+            if any(s.block_periods(t_out, self.template, cmd_kind) <= 0 for s in self.sinks):
+                return k   # a sink wants this period on the per-period path
             t_cmd = np.empty(K)
             t_cmd[0] = sim.t
             t_cmd[1:] = t_out[:-1]
-            port = sim.ports[self.port]
-            u = np.array(port.applied, dtype=float)
+            u = np.array(sim.ports[self.port].applied, dtype=float)
             parts = sim._work_parts
             z = np.empty(ny + 1 + len(parts))
             z[:ny] = sim.y
@@ -527,40 +526,49 @@ class _BlockRunner:
             sim.diag.wall += time.perf_counter() - w0
             if res is None:
                 return k
-            done, code, Zs, Us, outs, Fs, steps = res
-            if done:
-                self._commit(done, t_cmd, t_out, Zs, Us, outs, Fs, steps)
+            done, code = res[0], res[1]
+            a = 0
+            while a < done:
+                b = done
+                for s in self.sinks:
+                    b = min(b, a + s.block_periods(t_out[a:done], self.template, cmd_kind))
+                if b <= a:   # the rest of the block is dropped: the Simulator is at the end of period k + a - 1
+                    return k + a
+                self._commit(a, b, t_cmd, t_out, res)
+                a = b
             k += done
             if code:
                 return k
         return n
 
-    def _commit(self, K, t_cmd, t_out, Zs, Us, outs, Fs, steps):
-        """The Simulator at the end of period K - 1 of the block, as K advance() calls leave it; the sinks get the block."""
+    def _commit(self, a, b, t_cmd, t_out, res):
+        """The Simulator at the end of period b - 1 of the block, as advance() calls leave it;
+        the sinks get periods a..b-1."""
         sim, sys_ = self.sim, self.sim.system
+        _, _, Zs, Us, outs, Fs, steps = res
         ny = sys_.ny
-        z = Zs[K - 1]
-        n_steps = int(steps[:K].sum())
+        z = Zs[b - 1]
+        n_steps = int(steps[a:b].sum())
         evals = 4 if sim.settings['integrator'] == 'rk4' else 1
         sim.integrator.stats.accumulate(IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps,
-                                                        advance_calls=K, projections=n_steps))
+                                                        advance_calls=b - a, projections=n_steps))
         sim.diag.steps += n_steps
         sim.diag.rhs_evals += evals * n_steps
-        sim.t, sim.y, sim.diag.work = float(t_out[K - 1]), z[:ny].copy(), float(z[ny])
+        sim.t, sim.y, sim.diag.work = float(t_out[b - 1]), z[:ny].copy(), float(z[ny])
         for j, name in enumerate(sim._work_parts):
             sim.diag.work_parts[name] = float(z[ny + 1 + j])
         sim.diag.sim_time = sim.t - sim._t0
         commands = {}
         if self.program is not None:
             p = sim.ports[self.port]
-            p.value = Us[K - 1].copy()
+            p.value = Us[b - 1].copy()
             p.applied = p.value
-            p.stamp = float(t_cmd[K - 1])
+            p.stamp = float(t_cmd[b - 1])
             p.timed_out = False
-            commands[self.port] = Us[:K]
+            commands[self.port] = Us[a:b]
         position, velocity, effort = outs
-        block = PeriodBlock(t_cmd=t_cmd[:K], t_out=t_out[:K], commands=commands, position=position[:K],
-                            velocity=velocity[:K], effort=effort[:K], wrenches=None if Fs is None else Fs[:K],
+        block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
+                            velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
                             template=self.template)
         for s in self.sinks:
             s.on_block(block, sim)

@@ -72,9 +72,9 @@ class _Count:
         self.periods = 0
         orig = S._BlockRunner._commit
 
-        def commit(runner, K, *a):
-            self.periods += K
-            return orig(runner, K, *a)
+        def commit(runner, a, b, *rest):
+            self.periods += b - a
+            return orig(runner, a, b, *rest)
         monkeypatch.setattr(S._BlockRunner, '_commit', commit)
 
 
