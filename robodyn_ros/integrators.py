@@ -241,6 +241,20 @@ class Integrator:
             self.stats.accumulate(delta)
         return y, delta
 
+    def step_grids(self, t0, t1) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`step_grid` of many intervals at once: ``(n_full (K,) int64, h_last (K,))`` for
+        arrays t0, t1 (K,), element by element the same float operations and numbers."""
+        t0 = np.asarray(t0, dtype=float)
+        t1 = np.asarray(t1, dtype=float)
+        dt = self.dt
+        ratio = (t1 - t0) / dt
+        n_near = np.round(ratio)   # half to even, as round()
+        tol = GRID_ROUNDOFF_ULPS * _EPS * (np.maximum(np.abs(t0), np.abs(t1)) / dt + ratio + 1.0)
+        near = np.abs(ratio - n_near) <= tol
+        n_full = np.where(near, n_near, np.floor(ratio)).astype(np.int64)
+        h_last = t1 - (t0 + n_full * dt)
+        return n_full, np.where(near | ~(h_last > 0.0), 0.0, h_last)
+
     def _advance(self, f, t0, y, t1, project, delta):  # pragma: no cover - abstract
         raise NotImplementedError
 

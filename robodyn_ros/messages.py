@@ -110,11 +110,17 @@ def _fmt(v) -> str:
     return str(v)
 
 
+def diagnostic_pairs(values: dict) -> list:
+    """``[(key, value string)]`` of a diagnostics status: booleans true/false, integers in
+    decimal, floats as ``repr`` (shortest round-trip), the rest by ``str``."""
+    return [(k, _fmt(v)) for k, v in values.items()]
+
+
 def diagnostic_array(t_ns: int, name: str, level: int, message: str, values: dict, hardware_id='robodyn_ros') -> dict:
     """``diagnostic_msgs/DiagnosticArray`` with one status; level 0 OK, 1 WARN, 2 ERROR."""
     return {'header': header(t_ns), 'status': [{
         'level': bytes([level]), 'name': name, 'message': message, 'hardware_id': hardware_id,
-        'values': [{'key': k, 'value': _fmt(v)} for k, v in values.items()]}]}
+        'values': [{'key': k, 'value': v} for k, v in diagnostic_pairs(values)]}]}
 
 
 def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):

@@ -193,12 +193,12 @@ class TfTree:
     def transform_values(self, joint_names, positions, odom_pose=None) -> np.ndarray:
         """:meth:`transforms` of many publications at once: ``(K, n_transforms, 7)`` array of
         ``(x, y, z, qx, qy, qz, qw)``, the same numbers as K calls (the same float operations in
-        the same order, on arrays).
+        the same order, compiled: :func:`robodyn_ros.kernels.outputs.tf_values_many`).
 
         positions: (K, n) joint_states positions; odom_pose: (K, 7) odom position and
         orientation, or None when there is no odom entry.
         """
-        positions = np.asarray(positions, dtype=np.float64)
+        positions = np.ascontiguousarray(positions, dtype=np.float64)
         K = positions.shape[0]
         first = 0 if odom_pose is None else 1
         out = np.empty((K, first + len(self._rows), 7))
@@ -206,37 +206,15 @@ class TfTree:
             out[:, 0, :] = odom_pose
         if not self._rows:
             return out
-        src = self._source(joint_names)
-        if self._groups is None:   # per kind of joint: the model columns and constants as arrays
-            self._groups = []
-            for rev in (True, False):
-                sel = [j for j, r in enumerate(self._rows) if r[0] == rev]
-                if sel:
-                    rows = [self._rows[j] for j in sel]
-                    self._groups.append((rev, np.array(sel), np.array([r[4] for r in rows]).T,
-                                         np.array([r[2] for r in rows]).T, np.array([r[3] for r in rows]).T,
-                                         np.array([r[5] for r in rows])))
-        # all revolute joints at once, then all prismatic ones: per element the operations of
-        # transforms() in its order (constants per joint as arrays instead of Python floats)
-        for rev, sel, a, p, q, R in self._groups:
-            th = positions[:, np.asarray(src)[sel]]
-            o = np.empty(th.shape + (7,))
-            if rev:   # q_tree ⊗ (a sin θ/2, cos θ/2)
-                half = 0.5 * th
-                s, c = np.sin(half), np.cos(half)
-                bx, by, bz = a[0] * s, a[1] * s, a[2] * s
-                qx, qy, qz, qw = q
-                o[:, :, 0:3] = p.T
-                o[:, :, 3] = qw * bx + c * qx + qy * bz - qz * by
-                o[:, :, 4] = qw * by + c * qy + qz * bx - qx * bz
-                o[:, :, 5] = qw * bz + c * qz + qx * by - qy * bx
-                o[:, :, 6] = qw * c - qx * bx - qy * by - qz * bz
-            else:     # p_tree + R_tree a d
-                dx, dy, dz = a[0] * th, a[1] * th, a[2] * th
-                for r in range(3):
-                    o[:, :, r] = p[r] + R[:, r, 0] * dx + R[:, r, 1] * dy + R[:, r, 2] * dz
-                o[:, :, 3:7] = q.T
-            out[:, first + sel, :] = o
+        src = np.asarray(self._source(joint_names), dtype=np.int64)
+        if self._groups is None:   # the rows' constants as arrays, once
+            from .kernels.outputs import tf_values_many
+            r = self._rows
+            self._groups = (tf_values_many, np.array([x[0] for x in r]), np.array([x[4] for x in r], dtype=float),
+                            np.array([x[2] for x in r], dtype=float), np.array([x[3] for x in r], dtype=float),
+                            np.array([x[5] for x in r], dtype=float))
+        run, rev, axis, p, q, R = self._groups
+        run(rev, src, axis, p, q, R, positions, out, first)
         return out
 
     def message(self, t_ns: int, out) -> dict:

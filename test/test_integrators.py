@@ -458,3 +458,22 @@ def test_model_errors_propagate_unchanged(name):
 
     with pytest.raises(ZeroDivisionError, match='model bug'):
         build(name).advance(broken, 0.0, [1.0, 0.0], 1.0)
+
+
+def test_step_grids_are_step_grid_element_by_element():
+    # the block path's vectorised grid: the same (n_full, h_last) as the per-period one, on exact
+    # multiples, round-off-near multiples, partial steps and large times
+    from robodyn_ros.integrators import make_integrator
+    rng = np.random.default_rng(7)
+    for dt in (1e-3, 2.5e-4, 0.01, 1.0 / 3.0):
+        g = make_integrator('rk4', dt=dt)
+        t0 = np.r_[rng.uniform(0, 1e4, 300), np.arange(200) / 100.0, 1e6 + np.arange(50) * 0.01]
+        span = np.r_[rng.choice([0.01, 0.02, dt, 3 * dt], 300) * (1 + rng.choice([0, 1e-16, -1e-16, 1e-9], 300)),
+                     np.full(200, 0.01), rng.uniform(1e-6, 0.1, 50)]
+        t1 = t0 + span
+        n_full, h_last = g.step_grids(t0, t1)
+        want = [g.step_grid(float(a), float(b)) for a, b in zip(t0, t1)]
+        assert len(want) == 550
+        assert n_full.tolist() == [w[0] for w in want]
+        assert np.array_equal(h_last, np.array([w[1] for w in want]))
+        assert np.any(h_last > 0) and np.any(h_last == 0)

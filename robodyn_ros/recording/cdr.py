@@ -572,10 +572,7 @@ def _fast_diagnostic_array(msg):
     stamp, frame = _fast_time(header.get('stamp')), header.get('frame_id')
     if stamp is None or type(frame) is not str:
         return None
-    buf = bytearray(ENCAPSULATION_HEADER)
-    buf += _TIME.pack(*stamp)
-    _fast_string(buf, frame)
-    _fast_count(buf, len(status))
+    statuses = []
     for st in status:
         if type(st) is not dict or len(st) != 5:
             return None
@@ -584,19 +581,60 @@ def _fast_diagnostic_array(msg):
         if type(level) is not bytes or len(level) != 1 or type(values) is not list or \
                 not all(type(x) is str for x in strings):
             return None
-        buf += level
-        for x in strings:
-            _fast_string(buf, x)
-        _fast_count(buf, len(values))
+        pairs = []
         for kv in values:
             if type(kv) is not dict or len(kv) != 2:
                 return None
             k, v = kv.get('key'), kv.get('value')
             if type(k) is not str or type(v) is not str:
                 return None
-            _fast_string(buf, k)
-            _fast_string(buf, v)
-    return bytes(buf)
+            pairs.append((k, v))
+        statuses.append((level[0], *strings, pairs))
+    return diagnostic_array_bytes(*stamp, frame, statuses)
+
+
+_PADS = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
+_KEY_BYTES: dict = {}   # key string -> its CDR string without alignment (length, UTF-8, NUL)
+
+
+def diagnostic_array_bytes(sec: int, nsec: int, frame_id: str, statuses) -> bytes:
+    """``diagnostic_msgs/DiagnosticArray`` as canonical CDR, from plain values: statuses
+    ``[(level int, name, message, hardware_id, [(key, value string), ...])]`` (what
+    :meth:`_Encoder.message` writes for the message dict; keys, which repeat from message to
+    message, are encoded once)."""
+    out = [ENCAPSULATION_HEADER, _TIME.pack(sec, nsec)]
+    pos = 8   # bytes after the encapsulation header (CDR aligns relative to it)
+    keys = _KEY_BYTES
+    data = frame_id.encode('utf-8')
+    out.append(_U32.pack(len(data) + 1) + data + b'\x00')
+    pos += 5 + len(data)
+    out.append(_PADS[-pos % 4] + _U32.pack(len(statuses)))
+    pos += -pos % 4 + 4
+    for level, name, message, hw, pairs in statuses:
+        out.append(bytes((level,)))
+        pos += 1
+        for x in (name, message, hw):
+            data = x.encode('utf-8')
+            pad = -pos % 4
+            out.append(_PADS[pad] + _U32.pack(len(data) + 1) + data + b'\x00')
+            pos += pad + 5 + len(data)
+        pad = -pos % 4
+        out.append(_PADS[pad] + _U32.pack(len(pairs)))
+        pos += pad + 4
+        for k, v in pairs:
+            kb = keys.get(k)
+            if kb is None:
+                data = k.encode('utf-8')
+                kb = keys[k] = _U32.pack(len(data) + 1) + data + b'\x00'
+            pad = -pos % 4
+            out.append(_PADS[pad])
+            out.append(kb)
+            pos += pad + len(kb)
+            data = v.encode('utf-8')
+            pad = -pos % 4
+            out.append(_PADS[pad] + _U32.pack(len(data) + 1) + data + b'\x00')
+            pos += pad + 5 + len(data)
+    return b''.join(out)
 
 
 #: canonical type name -> fast encoder returning bytes, or None to decline

@@ -228,6 +228,15 @@ def _wrench_kind(w):
     return tuple((k, f) for k, (f, _) in w.items())
 
 
+def _diagnostics_bytes(t_ns: int, sim, level: int, message: str) -> bytes:
+    """The recorded diagnostics message as CDR: the bytes ``cdr.encode`` gives
+    ``messages.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,
+    sim.diagnostics_values())``, without building the dicts."""
+    sec, nsec = divmod(t_ns, 1_000_000_000)
+    return cdr.diagnostic_array_bytes(sec, nsec, '', [(level, 'robodyn_ros: simulation', message, 'robodyn_ros',
+                                                       M.diagnostic_pairs(sim.diagnostics_values()))])
+
+
 def run_metadata(scene, settings: dict, extra: dict | None = None) -> dict:
     """The ``robodyn`` metadata record: scene text and name, integrator settings, package version."""
     md = {'scene_name': scene.name, 'scene': scene.text, 'settings': json.dumps(settings, sort_keys=True),
@@ -402,8 +411,7 @@ class McapRunSink:
             self._filled = True
             i += m
             if i == K and self._next_diag is not None and blk.t_out[-1] >= self._next_diag - 1e-9:
-                self._diags[self._held - 1] = cdr.encode(M.TOPIC_TYPES['diagnostics'], M.diagnostic_array(
-                    int(t_out[-1]), 'robodyn_ros: simulation', level, message, sim.diagnostics_values()))
+                self._diags[self._held - 1] = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
                 self._next_diag += self.diagnostics_period
             if self._held == self.batch or int(t_out[i - 1]) - int(self._times[0, 1]) >= BATCH_SPAN_NS:
                 self._write_held()
@@ -447,8 +455,7 @@ class McapRunSink:
         self._cmds = []
         self._held = k + 1
         if diag:
-            self._diags[k] = cdr.encode(M.TOPIC_TYPES['diagnostics'], M.diagnostic_array(
-                t_ns, 'robodyn_ros: simulation', level, message, sim.diagnostics_values()))
+            self._diags[k] = _diagnostics_bytes(t_ns, sim, level, message)
             self._next_diag += self.diagnostics_period
         if self._held == self.batch or t_ns - int(self._times[0, 1]) >= BATCH_SPAN_NS:
             self._write_held()

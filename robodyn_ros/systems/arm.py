@@ -276,10 +276,7 @@ class ArmSystem(System):
         if grid is None:
             grid = self._grids[dt] = make_integrator('rk4', dt=dt)
         K = len(t_start)
-        n_full = np.empty(K, dtype=np.int64)
-        h_last = np.empty(K)
-        for k in range(K):
-            n_full[k], h_last[k] = grid.step_grid(float(t_start[k]), float(t_end[k]))
+        n_full, h_last = grid.step_grids(t_start, t_end)
         if program is None:
             e = np.zeros((0, 0))
             program = (core.CMD_NONE, e, np.zeros(0), e, e, e)
