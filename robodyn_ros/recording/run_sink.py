@@ -492,26 +492,22 @@ class McapRunSink:
         if not self._diags:
             records, offsets = rows.reshape(-1), offs.ravel()
             channels, log_times = np.tile(L.channels, K), times.ravel()
-        else:   # a diagnostics record after some periods
+        else:   # a diagnostics record after some periods: inserted after their rows, in one pass
             diag_cid = self._channel('diagnostics', M.TOPIC_TYPES['diagnostics'])
-            parts, o, c, lt = [], [], [], []
-            pos, a = 0, 0
-            for k in sorted(self._diags) + ([] if K - 1 in self._diags else [K - 1]):
-                parts.append(rows[a:k + 1].reshape(-1))
-                o.append(offs[a:k + 1].ravel() - a * R + pos)
-                c.append(np.tile(L.channels, k + 1 - a))
-                lt.append(times[a:k + 1].ravel())
-                pos += (k + 1 - a) * R
-                a = k + 1
-                d = self._diags.get(k)
-                if d is not None:
-                    parts.append(np.frombuffer(bytes(31) + d, dtype=np.uint8))
-                    o.append(np.array([pos]))
-                    c.append(np.array([diag_cid]))
-                    lt.append(np.array([self._times[k, 1]]))
-                    pos += 31 + len(d)
-            records, offsets = np.concatenate(parts), np.concatenate(o)
-            channels, log_times = np.concatenate(c), np.concatenate(lt)
+            after = np.array(sorted(self._diags), dtype=np.int64)           # rows followed by one
+            blobs = [bytes(31) + self._diags[k] for k in after.tolist()]
+            size = np.array([len(b) for b in blobs], dtype=np.int64)
+            shift = np.zeros(K, dtype=np.int64)                                # diagnostics bytes before row k
+            np.add.at(shift, after[after + 1 < K] + 1, size[after + 1 < K])
+            shift = np.cumsum(shift)
+            n = L.n_msgs
+            at = (after + 1) * R                                               # in the rows' bytes
+            records = np.insert(rows.reshape(-1), np.repeat(at, size), np.frombuffer(b''.join(blobs), dtype=np.uint8))
+            d_offs = at + np.cumsum(size) - size
+            pos = (after + 1) * n                                              # in the records' order
+            offsets = np.insert((offs + shift[:, None]).ravel(), pos, d_offs)
+            channels = np.insert(np.tile(L.channels, K), pos, diag_cid)
+            log_times = np.insert(times.ravel(), pos, self._times[after, 1])
         self.writer.write_records(records, offsets, channels, log_times)
         self.count += len(offsets)
         self._held = 0
