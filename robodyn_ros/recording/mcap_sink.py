@@ -35,6 +35,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import LIBRARY_IDENTIFIER as MCAP_LIBRARY
 from mcap.writer import CompressionType, Writer
 
+from ..kernels.records import fill_headers, group_by_channel
 from ..version import __version__
 from . import cdr, msgdefs
 
@@ -48,10 +49,6 @@ DEFAULT_CHUNK_SIZE = 64 * 1024
 #: + log_time 8 + publish_time 8.
 _MESSAGE_RECORD_OVERHEAD = 31
 _MESSAGE_INDEX_OPCODE = 7
-#: one message record header: opcode 5, record length, channel id, sequence, log time, publish time
-RECORD_HEADER = np.dtype([('opcode', 'u1'), ('length', '<u8'), ('channel', '<u2'), ('sequence', '<u4'),
-                          ('log_time', '<u8'), ('publish_time', '<u8')])
-assert RECORD_HEADER.itemsize == _MESSAGE_RECORD_OVERHEAD == 31
 _COMPRESSIONS = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
                  'none': CompressionType.NONE, None: CompressionType.NONE}
 
@@ -243,18 +240,14 @@ class _DirectMessages:
         indices = cb.message_indices
         # entries grouped by channel (stable: in time order within a channel), channels in order of
         # first appearance (the dict insertion order add_message gives)
-        order = np.argsort(channels, kind='stable')
-        sc = channels[order]
-        cuts = np.flatnonzero(sc[1:] != sc[:-1]) + 1
-        starts = np.concatenate(([0], cuts))
-        ends = np.concatenate((cuts, [n]))
-        firsts = order[starts]
         entries = np.empty((n, 2), dtype='<u8')
-        entries[:, 0] = log_times[order]
-        entries[:, 1] = offsets[order]
-        entries[:, 1] += base
-        for g in np.argsort(firsts).tolist():
-            c, a, b = int(sc[starts[g]]), int(starts[g]), int(ends[g])
+        group_channel = np.empty(n, dtype=np.int64)
+        group_start = np.empty(n + 1, dtype=np.int64)
+        g = group_by_channel(np.ascontiguousarray(channels, dtype=np.int64), np.ascontiguousarray(log_times, dtype=np.int64),
+                             np.ascontiguousarray(offsets, dtype=np.int64), base, entries, group_channel, group_start)
+        bounds = group_start[:g + 1].tolist()
+        for i, c in enumerate(group_channel[:g].tolist()):
+            a, b = bounds[i], bounds[i + 1]
             counts[c] += b - a
             index = indices.get(c)
             if not isinstance(index, _BulkIndex):
@@ -534,23 +527,12 @@ class McapSink:
                 a = int(offsets[k])
                 self.write_data(int(channels[k]), bytes(records[a + 31:a + int(sizes[k])]), int(log_times[k]))
             return
-        head = np.empty(n, dtype=RECORD_HEADER)
-        head['opcode'] = 5
-        head['length'] = sizes - 9   # the record's length field counts what follows opcode and length
-        head['channel'] = channels
-        head['log_time'] = log_times
-        head['publish_time'] = log_times
-        # sequence numbers count per channel: rank of each message within its channel
-        counts = np.bincount(channels)     # channel ids are small integers (uint16)
-        order = np.argsort(channels, kind='stable')
-        rank = np.empty(n, dtype=np.int64)
-        rank[order] = np.arange(n) - (np.cumsum(counts) - counts)[channels[order]]
-        first = np.zeros(len(counts), dtype=np.int64)
-        for c in np.flatnonzero(counts).tolist():
-            first[c] = self._sequence[c]
-            self._sequence[c] += int(counts[c])
-        head['sequence'] = first[channels] + rank + 1
-        records[(offsets[:, None] + np.arange(31)).ravel()] = head.view(np.uint8)
+        # headers, sequence numbers counting per channel (channel ids are small integers, uint16)
+        seq = np.array([self._sequence.get(c, 0) for c in range(int(channels.max()) + 1)], dtype=np.int64)
+        fill_headers(records, offsets, sizes, channels, log_times, seq)
+        for c, s in enumerate(seq.tolist()):
+            if c in self._sequence:
+                self._sequence[c] = s
         # close chunks where write_data would: after the message that brings the open bytes to
         # chunk_size or (with chunk_span) that is logged chunk_span after the chunk's first message
         span = self.chunk_span_ns
