@@ -101,6 +101,11 @@ def string(text: str) -> dict:
 
 
 def _fmt(v) -> str:
+    t = type(v)
+    if t is float:   # the common case first (the same strings as below)
+        return repr(v) if math.isfinite(v) else str(v)
+    if t is int:
+        return str(v)
     if isinstance(v, (bool, np.bool_)):
         return 'true' if v else 'false'
     if isinstance(v, (int, np.integer)):

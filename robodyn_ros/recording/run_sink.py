@@ -502,7 +502,16 @@ class McapRunSink:
             shift = np.cumsum(shift)
             n = L.n_msgs
             at = (after + 1) * R                                               # in the rows' bytes
-            records = np.insert(rows.reshape(-1), np.repeat(at, size), np.frombuffer(b''.join(blobs), dtype=np.uint8))
+            flat = rows.reshape(-1)
+            records = np.empty(flat.size + int(size.sum()), dtype=np.uint8)
+            a = b = 0                                                          # read, write positions
+            for end, blob in zip(at.tolist(), blobs):
+                records[b:b + end - a] = flat[a:end]
+                b += end - a
+                records[b:b + len(blob)] = np.frombuffer(blob, dtype=np.uint8)
+                b += len(blob)
+                a = end
+            records[b:] = flat[a:]
             d_offs = at + np.cumsum(size) - size
             pos = (after + 1) * n                                              # in the records' order
             offsets = np.insert((offs + shift[:, None]).ravel(), pos, d_offs)
