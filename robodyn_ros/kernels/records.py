@@ -74,3 +74,21 @@ def group_by_channel(channels, log_times, offsets, base, entries, group_channel,
         entries[p, 1] = base + offsets[k]
         fill[i] = p + 1
     return g
+
+
+@njit(**_JIT)
+def fill_rows(template, bits, value_col, value_at, times, stamp_at, stamp_of, out):
+    """K periods' records from their row template: ``out[k] = template`` with the float64 of
+    column ``value_col[i]`` of ``bits`` (K, n) (the numbers as int64 bit patterns) at byte
+    ``value_at[i]``, and a ``builtin_interfaces/Time`` (int32 sec, uint32 nanosec) of
+    ``times[k, stamp_of[i]]`` (int ns) at byte ``stamp_at[i]``, little-endian."""
+    for k in range(out.shape[0]):
+        row = out[k]
+        row[:] = template
+        for i in range(value_col.shape[0]):
+            _put(row, value_at[i], bits[k, value_col[i]], 8)
+        for i in range(stamp_at.shape[0]):
+            t = times[k, stamp_of[i]]
+            sec = t // 1_000_000_000
+            _put(row, stamp_at[i], sec & 0xFFFFFFFF, 4)
+            _put(row, stamp_at[i] + 4, t - sec * 1_000_000_000, 4)

@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from .. import messages as M
+from ..kernels.records import fill_rows
 from ..systems.base import LazyWrenches
 from ..version import __version__
 from . import cdr
@@ -150,15 +151,15 @@ class _PeriodLayout:
             value_at += [base + a for a, _ in vals]
             value_col += [c for _, c in vals]
             stamp_at += [base + a for a in stamps]
-            stamp_src += [0 if is_cmd else 8] * len(stamps)
+            stamp_src += [0 if is_cmd else 1] * len(stamps)
         self.template = np.frombuffer(bytes(row), dtype=np.uint8)
         self.rec_off = np.array(rec_off, dtype=np.int64)
         self.channels = np.array([channel(m[0], m[1]) for m in msgs], dtype=np.int64)
         self.is_cmd = np.array([m[3] for m in msgs], dtype=bool)
         self.value_col = np.array(value_col, dtype=np.int64)
-        self.value_bytes = (np.array(value_at, dtype=np.int64)[:, None] + np.arange(8)).ravel()
-        self.stamp_bytes = (np.array(stamp_at, dtype=np.int64)[:, None] + np.arange(8)).ravel()
-        self.stamp_src = (np.array(stamp_src, dtype=np.int64)[:, None] + np.arange(8)).ravel()
+        self.value_at = np.array(value_at, dtype=np.int64)
+        self.stamp_at = np.array(stamp_at, dtype=np.int64)
+        self.stamp_of = np.array(stamp_src, dtype=np.int64)   # 0: the commands' time, 1: the outputs'
         self.n_msgs = len(msgs)
 
     def fill(self, row, cmds, out):
@@ -210,14 +211,8 @@ class _PeriodLayout:
             tfv = self.tf.transform_values(self.joint_names, values[:, self.pos_cols], odom).reshape(K, -1)
             values = np.concatenate([values, tfv], axis=1)
         out = np.empty((K, self.template.size), dtype=np.uint8)
-        out[:] = self.template
-        if self.value_col.size:
-            out[:, self.value_bytes] = np.ascontiguousarray(values[:, self.value_col]).view(np.uint8)
-        sec, nsec = np.divmod(times, 1_000_000_000)
-        st = np.empty((K, 2, 2), dtype='<u4')
-        st[:, :, 0] = sec.astype('<i4').view('<u4')
-        st[:, :, 1] = nsec
-        out[:, self.stamp_bytes] = st.view(np.uint8).reshape(K, 16)[:, self.stamp_src]
+        fill_rows(self.template, np.ascontiguousarray(values).view(np.int64), self.value_col, self.value_at,
+                  np.ascontiguousarray(times, dtype=np.int64), self.stamp_at, self.stamp_of, out)
         return out
 
 
