@@ -113,12 +113,12 @@ class _DirectMessages:
         self.stream = writer._Writer__stream
         self.crcs = writer._Writer__enable_crcs
         from mcap.opcode import Opcode
-        from mcap.records import ChunkIndex, MessageIndex
+        from mcap.records import MessageIndex
         from mcap.writer import IndexType
         self.opcode = int(Opcode.MESSAGE)
         self.chunk_opcode = int(Opcode.CHUNK)
+        self.chunk_index_opcode = int(Opcode.CHUNK_INDEX)
         self.MessageIndex = MessageIndex
-        self.ChunkIndex = ChunkIndex
         self.index_message = bool(writer._Writer__index_types & IndexType.MESSAGE)
         kind = writer._Writer__compression
         self.compression = {CompressionType.ZSTD: 'zstd', CompressionType.LZ4: 'lz4', CompressionType.NONE: ''}[kind]
@@ -197,19 +197,27 @@ class _DirectMessages:
                                         cb.message_start_time, cb.message_end_time, len(raw), crc, len(comp))
             rb.write(head + comp + struct.pack('<Q', len(data)))
             rb.write(data)
-            index = self.ChunkIndex(message_start_time=cb.message_start_time, message_end_time=cb.message_end_time,
-                                    chunk_start_offset=start, chunk_length=rb.count, message_index_offsets={},
-                                    message_index_length=0, compression=self.compression,
-                                    compressed_size=len(data), uncompressed_size=len(raw))
+            chunk_length = rb.count
             flush()
             index_start = self.stream.tell()
+            offsets = []
             if self.index_message:
                 for cid, idx in cb.message_indices.items():
-                    index.message_index_offsets[cid] = index_start + rb.count
+                    offsets.append((cid, index_start + rb.count))
                     idx.write(rb)
-            index.message_index_length = rb.count
+            message_index_length = rb.count
             flush()
-            w._Writer__chunk_indices.append(index)
+            # the summary's ChunkIndex record, kept as its bytes (ChunkIndex.write's), not as an object
+            body = [struct.pack('<QQQQI', cb.message_start_time, cb.message_end_time, start, chunk_length,
+                                10 * len(offsets))]
+            body += [struct.pack('<HQ', cid, off) for cid, off in offsets]
+            body.append(struct.pack('<QI', message_index_length, len(comp)) + comp +
+                        struct.pack('<QQ', len(data), len(raw)))
+            body = b''.join(body)
+            indices = w._Writer__chunk_indices
+            if not (indices and isinstance(indices[-1], _ChunkIndexRecords)):
+                indices.append(_ChunkIndexRecords())
+            indices[-1].add(struct.pack('<BQ', self.chunk_index_opcode, len(body)) + body)
             cb.reset()
         w._Writer__flush()
         self.stream.flush()
@@ -298,6 +306,24 @@ class _DirectMessages:
             return write('direct') == ref and write('bulk') == ref
         except Exception:  # any change in mcap's internals: keep the public API
             return False
+
+
+class _ChunkIndexRecords:
+    """Consecutive ChunkIndex records of the file summary, kept as bytes (about 180 per chunk
+    instead of a ChunkIndex object and its dict, some 3 KiB: what made a long recording's memory
+    grow). ``mcap.Writer.finish`` calls :meth:`write` for each entry of its chunk index list; the
+    chunks mcap closes itself stay ChunkIndex objects in that list, in file order."""
+
+    __slots__ = ('data',)
+
+    def __init__(self):
+        self.data = bytearray()
+
+    def add(self, record: bytes):
+        self.data += record
+
+    def write(self, stream):
+        stream.write(bytes(self.data))
 
 
 class _BulkIndex:
