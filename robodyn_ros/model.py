@@ -629,7 +629,7 @@ def bryan_angles(quat) -> tuple:
     ``Rx(α) Ry(β)``, so the three angles rebuild R to rounding even at the gimbal lock β = ±π/2
     (where α and γ are not unique). Plain floats: runs at every publication.
     """
-    x, y, z, w = (float(c) for c in quat)
+    x, y, z, w = quat.tolist() if isinstance(quat, np.ndarray) else (float(c) for c in quat)
     n = math.sqrt(x * x + y * y + z * z + w * w)
     x, y, z, w = x / n, y / n, z / n, w / n
     r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)

@@ -492,6 +492,12 @@ class _BlockRunner:
             if set(programs) != {port} or programs[port] is None:
                 return None
             program = programs[port]
+        # the system may still decline (e.g. joint_states that are not its state as it is): ask with no period
+        none = np.zeros(0)
+        z = np.concatenate([sim.y, [sim.diag.work], np.zeros(len(sim._work_parts))])
+        if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, none, none,
+                              np.array(sim.ports[port].applied, dtype=float), program, wrenches) is None:
+            return None
         return cls(sim, port, program, sinks, wrenches)
 
     def run(self, k: int, n: int, t_start: float, rate: float) -> int:

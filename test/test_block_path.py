@@ -240,3 +240,17 @@ def test_the_planner_declines_what_it_cannot_run_in_blocks():
         warnings.simplefilter('ignore')
         adaptive = Simulator(scene.system, scene.y0, integrator='dop853', rtol=1e-8, atol=1e-10)
     assert plan(adaptive, scene.script, [], None, False) is None
+
+
+def test_the_planner_asks_the_system_once_and_declines_for_spherical_joints(monkeypatch):
+    # huston_human17 publishes Bryan angles (not its quaternion state): its arm declines blocks,
+    # so the run never tries them (no block attempt per period)
+    scene = _scene('huston_human17', 'numba')
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
+    assert scene.script.programs['effort'] is not None
+    assert S._BlockRunner.plan(sim, scene.script, [], None, False) is None
+    tries = []
+    monkeypatch.setattr(S._BlockRunner, 'run', lambda self, *a: tries.append(a) or a[0])
+    assert run_headless(sim, 0.05, 100.0, scene.script, []) == 5 and tries == []
