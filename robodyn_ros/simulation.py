@@ -63,7 +63,9 @@ class Diagnostics:
     with the state by the same quadrature (the system's ``work_components``, e.g. ``limit``:
     the joint-limit moments); steps, rhs_evals, rejected_steps: integrator statistics; wall: wall time
     spent in advance() (s); sim_time: simulated time (s); velocity_limit_exceeded: published
-    joint-velocity samples above their joint's velocity limit (URDF ``<limit velocity>``).
+    joint-velocity samples above their joint's velocity limit (URDF ``<limit velocity>``);
+    block_periods: periods run by :func:`run_headless`'s block path (many per compiled call;
+    not published: a figure for benchmarks and tests).
     """
 
     energy0: float = 0.0
@@ -75,6 +77,7 @@ class Diagnostics:
     wall: float = 0.0
     sim_time: float = 0.0
     velocity_limit_exceeded: int = 0
+    block_periods: int = 0
     extra: dict = field(default_factory=dict)
 
 
@@ -560,6 +563,7 @@ class _BlockRunner:
                                                         advance_calls=b - a, projections=n_steps))
         sim.diag.steps += n_steps
         sim.diag.rhs_evals += evals * n_steps
+        sim.diag.block_periods += b - a
         sim.t, sim.y, sim.diag.work = float(t_out[b - 1]), z[:ny].copy(), float(z[ny])
         for j, name in enumerate(sim._work_parts):
             sim.diag.work_parts[name] = float(z[ny + 1 + j])

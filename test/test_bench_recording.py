@@ -22,5 +22,6 @@ def test_recording_section_measures_every_figure_of_the_issue():
     assert README_RECORDER_US / 100 < r['batched_period'] * 1e6 < README_RECORDER_US * 100
     assert 0 < r['zstd_period'] < r['batched_period']
     assert 0 < r['full'] < r['advance'] and r['ratio'] == r['full'] / r['advance']
+    assert r['blocks'] > 0.9                     # stanford_arm runs in compiled blocks
     assert r['mujoco'] > 0                       # the MuJoCo peer ran, with its state copied out
     assert 'zstd 3 (written)' in text and '| stanford_arm |' in text

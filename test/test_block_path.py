@@ -130,6 +130,7 @@ def test_block_path_records_the_per_period_bytes(tmp_path, monkeypatch, case, ba
     (fast, n, sim_f, err_f), (slow, n_s, sim_s, err_s), blocked = _both(tmp_path, monkeypatch, scene, 1.0)
     assert err_f is None and err_s is None and n == n_s == 100
     assert blocked >= 90, f'the block path ran {blocked} of 100 periods'
+    assert sim_f.diag.block_periods == blocked and sim_s.diag.block_periods == 0
     assert fast == slow, f'{case}: recordings differ ({len(fast)} vs {len(slow)} bytes)'
     _same_simulator(sim_f, sim_s)
     if case == 'limits':   # the case does exercise the limit law (the W_lim part is not zero)

@@ -712,7 +712,9 @@ _RECORDING_NOTE = (
     '"integration only": `Simulator.advance` per period and nothing else. "full recorded": the loop and the '
     "sink of `robodyn run`: the scene's scripted commands, outputs, and every default topic (joint_states, odom, "
     'constraint wrenches, /tf, /clock, commands, diagnostics every 0.1 s) written in batches of {batch} periods '
-    '(or {span:g} s). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
+    '(or {span:g} s). "periods in compiled blocks": the share of that run\'s periods (of a 1 s run) that '
+    "`run_headless`'s block path ran, many per compiled call with the scripted commands compiled (arms whose "
+    'joint_states are their state; the rest run period by period in Python). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
     "stored publications (outputs computed beforehand; the recorder computes the arms' joint wrenches, one "
     'compiled call per state in runs this short, per batch after 10 000 states), CPU time including chunking, '
     'zstd and the file writes; "message by message" is '
@@ -757,6 +759,7 @@ def section_recording(args, names) -> str:
             run_robodyn(name, 0.05, backend=backend, full=True)   # warm-up
             t_adv = best_run(lambda: run_robodyn(name, d, backend=backend, advance_only=True), n_rec)
             t_full = best_run(lambda: run_robodyn(name, d, backend=backend, full=True), n_rec)
+            blocks = run_robodyn(name, 1.0, backend=backend, full=True)[1].diag.block_periods / 100
             t_none = best_run(lambda: run_robodyn(name, d, backend=backend, record=False), n_rec)
             sc = _load(name, backend)
             c_batch, info = _replay_cost(sc, backend, periods, HEADLESS_BATCH, 3)
@@ -767,12 +770,12 @@ def section_recording(args, names) -> str:
             continue
         adv, full, none = d / t_adv[2], d / t_full[2], d / t_none[2]
         per_msg = info['messages'] / (periods + 1)
-        row = [name, backend, f'{adv:.0f}', f'{full:.0f} (wall {d / t_full[0]:.0f})', f'{full / adv:.2f}',
+        row = [name, backend, f'{blocks:.0%}', f'{adv:.0f}', f'{full:.0f} (wall {d / t_full[0]:.0f})', f'{full / adv:.2f}',
                f'{none:.0f}', f'{per_msg:.1f} / {info["bytes"] / (periods + 1):.0f} B',
                f'{c_batch * 1e6:.1f} µs ({c_batch * 1e6 / per_msg:.2f} µs/msg)',
                f'{c_msg * 1e6:.1f} µs ({c_msg * 1e6 / per_msg:.2f} µs/msg)',
                f'{info["zstd"] * 1e6:.1f} µs', f'{c_batch / info["zstd"]:.1f}']
-        fig = {'advance': adv, 'full': full, 'ratio': full / adv, 'batched_period': c_batch,
+        fig = {'advance': adv, 'full': full, 'ratio': full / adv, 'blocks': blocks, 'batched_period': c_batch,
                'message_period': c_msg, 'zstd_period': info['zstd'], 'messages': per_msg}
         model = scene.system.model if arm else None
         m, why = mujoco_model(to_urdf(model)) if model is not None else (None, 'no URDF equivalent')
@@ -791,7 +794,7 @@ def section_recording(args, names) -> str:
             zrows = _compression_trade(info['raw'], info['bytes'] / (periods + 1))
     text = [f'### Recording at the speed of the dynamics: {dur:g} s simulated, RK4 at {RTF_DT * 1e3:g} ms, '
             f'published at {RTF_RATE:g} Hz\n',
-            table(['scene', 'kernels', 'integration only (CPU RTF)', 'full recorded (CPU RTF)', 'full / integration',
+            table(['scene', 'kernels', 'periods in compiled blocks', 'integration only (CPU RTF)', 'full recorded (CPU RTF)', 'full / integration',
                    'no recording (CPU RTF)', 'messages / bytes per period', 'recorder per period, batched',
                    'recorder per period, message by message', 'zstd of those bytes', 'batched / zstd',
                    'MuJoCo RK4 from Python + state copied out (CPU RTF)', 'full recorded / MuJoCo'], rows),
