@@ -225,6 +225,16 @@ class Simulator:
         return sum(p.rejected for p in self.ports.values())
 
     # -- stepping ------------------------------------------------------------------------
+    def _work_state(self) -> np.ndarray:
+        """``[y, W, W_parts]``: the state with the work quadrature, as the integrators advance it."""
+        ny = self.system.ny
+        z = np.empty(ny + 1 + len(self._work_parts))
+        z[:ny] = self.y
+        z[ny] = self.diag.work
+        for k, name in enumerate(self._work_parts):
+            z[ny + 1 + k] = self.diag.work_parts[name]
+        return z
+
     def _integrate(self, u, t1):
         """Stage 2: integrate ``[y; W; W_parts]`` from self.t to t1 with u held (W = work done on the
         system, W_parts: the parts of it listed in ``system.work_components``, kept in diag.work_parts).
@@ -236,11 +246,7 @@ class Simulator:
         ny = sys_.ny
         integ = self.integrator
         parts = self._work_parts
-        z0 = np.empty(ny + 1 + len(parts))
-        z0[:ny] = self.y
-        z0[ny] = self.diag.work
-        for k, name in enumerate(parts):
-            z0[ny + 1 + k] = self.diag.work_parts[name]
+        z0 = self._work_state()
         fused = getattr(sys_, 'fused_advance', None)
         if fused is not None and integ.spec.kind == 'fixed':
             # fast path: the system runs the same method, grid and projection in compiled code
@@ -497,8 +503,7 @@ class _BlockRunner:
             program = programs[port]
         # the system may still decline (e.g. joint_states that are not its state as it is): ask with no period
         none = np.zeros(0)
-        z = np.concatenate([sim.y, [sim.diag.work], np.zeros(len(sim._work_parts))])
-        if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, none, none,
+        if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim._work_state(), none, none,
                               np.array(sim.ports[port].applied, dtype=float), program, wrenches) is None:
             return None
         return cls(sim, port, program, sinks, wrenches)
@@ -510,7 +515,6 @@ class _BlockRunner:
         pieces that end where one wants the Simulator's state (a diagnostics message), the
         Simulator being put at the end of each piece first, as per-period calls leave it."""
         sim, sys_ = self.sim, self.sim.system
-        ny = sys_.ny
         if self.template is None:
             self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
         cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
@@ -523,12 +527,7 @@ class _BlockRunner:
             t_cmd[0] = sim.t
             t_cmd[1:] = t_out[:-1]
             u = np.array(sim.ports[self.port].applied, dtype=float)
-            parts = sim._work_parts
-            z = np.empty(ny + 1 + len(parts))
-            z[:ny] = sim.y
-            z[ny] = sim.diag.work
-            for j, name in enumerate(parts):
-                z[ny + 1 + j] = sim.diag.work_parts[name]
+            z = sim._work_state()
             w0 = time.perf_counter()
             res = sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, t_cmd, t_out, u,
                                      self.program, self.wrenches)

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from robodyn_ros import simulation as S
+from robodyn_ros.bench import speed
 from robodyn_ros.kernels import core
 from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink
 from robodyn_ros.scene import find_scene, load_scene, parse_scene
@@ -47,22 +48,13 @@ VARIANTS = {
 
 
 def _scene(case: str, backend: str):
-    import os
-    old = os.environ.get('ROBODYN_BACKEND')
-    os.environ['ROBODYN_BACKEND'] = backend
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore')
-            if case in VARIANTS:
-                return parse_scene(_stanford_text(VARIANTS[case]), file=f'stanford_{case}.yaml')
-            if case == 'limits':
-                return parse_scene(_stanford_text(limits=True), file='stanford_limits.yaml')
-            return load_scene(case)
-    finally:
-        if old is None:
-            os.environ.pop('ROBODYN_BACKEND', None)
-        else:
-            os.environ['ROBODYN_BACKEND'] = old
+    with speed._backend(backend), warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        if case in VARIANTS:
+            return parse_scene(_stanford_text(VARIANTS[case]), file=f'stanford_{case}.yaml')
+        if case == 'limits':
+            return parse_scene(_stanford_text(limits=True), file='stanford_limits.yaml')
+        return load_scene(case)
 
 
 class _Count:
