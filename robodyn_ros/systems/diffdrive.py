@@ -263,6 +263,16 @@ class DiffDriveSystem(System):
         self._planar_inertia()
         self._cs = self._pack() if compiled else None
         self._grids = {}
+        # published wrenches: the contacts, then every body but the planar virtual ones (the yaw
+        # joint's wrench is the ground plane's, see the module docstring); their rows in the RNEA
+        self._wrench_bodies = np.array([i for i in range(m.nb) if m.joint_names[i] not in ('base_x', 'base_y')],
+                                       dtype=np.int64)
+        self._wrench_names = tuple([f'{side}_wheel_contact' for side in SIDES] + [
+            'base_plane' if m.joint_names[i] == 'base_yaw' else m.joint_names[i] for i in self._wrench_bodies])
+        self._wrench_frames = tuple([f'{side}_wheel_contact' for side in SIDES] +
+                                    [m.link_names[i] for i in self._wrench_bodies])
+        self._wheel_bodies = np.array(self._wheels, dtype=np.int64)
+        self._pub = np.ascontiguousarray(self._pub_idx, dtype=np.int64)
 
     def _pack(self):
         """The packed system for :mod:`robodyn_ros.kernels.constrained` (layout ``DIFFDRIVE``)."""
@@ -519,9 +529,17 @@ class DiffDriveSystem(System):
         a, lam: accelerations and multipliers from :meth:`solve`. The contact forces enter the
         RNEA as external forces on the wheels, so the joint wrenches see them.
         """
+        if self._compiled() is not None:
+            nv = self.nv
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            f = np.empty((len(self._wrench_names), 6))
+            kernels.constrained.dd_contact_wrenches(
+                self._cs.fp, self._km.mi, self._km.mf, y[:nv], y[nv:2 * nv], np.ascontiguousarray(a, dtype=np.float64),
+                np.ascontiguousarray(lam, dtype=np.float64), self._wrench_bodies, self._wheel_bodies, f)
+            return dict(zip(self._wrench_names, zip(self._wrench_frames, f)))
         q, v = self.split(y)
         m = self.model
-        R, p = self._km.body_poses(q) if self._km is not None else dyn.body_poses(m, q)
+        R, p = dyn.body_poses(m, q)
         th = q[_ITH]
         heading = np.array([np.cos(th), np.sin(th), 0.0])
         left = np.array([-np.sin(th), np.cos(th), 0.0])
@@ -535,10 +553,7 @@ class DiffDriveSystem(System):
             f_ext[b, :3] = R[b].T @ rxF  # r × F (np.cross costs ~25 µs of dispatch here)
             f_ext[b, 3:] = R[b].T @ F
             out[f'{side}_wheel_contact'] = (f'{side}_wheel_contact', np.array([0.0, 0.0, 0.0, F_long, F_lat, 0.0]))
-        if self._km is not None:
-            _, f = self._km.rnea_wrenches(np.ascontiguousarray(q), np.ascontiguousarray(v), a, f_ext)
-        else:
-            _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
+        _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
         for i in range(m.nb):
             jn = m.joint_names[i]
             if jn in ('base_x', 'base_y'):
@@ -548,17 +563,13 @@ class DiffDriveSystem(System):
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states (wheels first), odometry, motor diagnostics and (optionally) wrenches."""
+        cs = self._compiled()
+        if cs is not None:
+            return self._compiled_outputs(cs, y, u, wrenches)
         q, v = self.split(y)
-        report = self._report(y, u)
-        if report is not None:
-            c = kernels.constrained
-            el = volts, i, tau = (report[c.DR_EL:c.DR_EL + 2], report[c.DR_EL + 2:c.DR_EL + 4],
-                                  report[c.DR_EL + 4:c.DR_EL + 6])
-            friction = report[c.DR_FRICTION:c.DR_FRICTION + 2]
-        else:
-            el = self.electrical(y, u)
-            volts, i, tau = el
-            friction = [mot.friction_loss(wk) for mot, wk in zip(self.motors, v[[_IL, _IR]])]
+        el = self.electrical(y, u)
+        volts, i, tau = el
+        friction = [mot.friction_loss(wk) for mot, wk in zip(self.motors, v[[_IL, _IR]])]
         arm_effort = (self.B @ u['effort'])[self._arm_idx] if self.B.shape[1] else np.zeros(len(self._arm_idx))
         effort = np.concatenate([tau, arm_effort])
         th = q[_ITH]
@@ -577,20 +588,46 @@ class DiffDriveSystem(System):
         extra['electrical_power'] = float(volts @ i)
         extra['copper_loss'] = float(sum(mot.resistance * x * x for mot, x in zip(self.motors, i)))
         extra['voltage_saturated'] = bool(np.any(volts != np.asarray(u['wheel_voltage'], dtype=float)))
-        if report is not None:
-            extra['constraint_residual'] = float(report[kernels.constrained.DR_RESIDUAL])
-        else:
-            K, _ = self.constraint_jacobian(q, v)
-            extra['constraint_residual'] = float(np.abs(K @ v).max())
+        K, _ = self.constraint_jacobian(q, v)
+        extra['constraint_residual'] = float(np.abs(K @ v).max())
         wr = {}
         if wrenches:
             a, lam, info = self.solve(y, u, el)
             wr = self.contact_wrenches(y, u, a, lam)
             extra['constraint_rank'] = int(info.rank)
-        energy = self.energies(y) if report is None else self._report_energies(report)
         return SystemOutputs(joint_names=list(self.joint_names), position=q[self._pub_idx].copy(),
                              velocity=v[self._pub_idx].copy(), effort=effort, wrenches=wr, odom=odom,
-                             energy=energy, extra=extra)
+                             energy=self.energies(y), extra=extra)
+
+    #: names of the ``extra`` values of :meth:`outputs` in the order of ``dd_outputs``' block
+    _EXTRA_NAMES = tuple(f'{side}_motor_{k}' for side in SIDES for k in
+                         ('voltage', 'current', 'power', 'torque', 'friction_loss')) + (
+        'electrical_power', 'copper_loss', 'voltage_saturated', 'constraint_residual')
+
+    def _compiled_outputs(self, cs, y, u, wrenches):
+        """:meth:`outputs` on the compiled path: one call of ``kernels.constrained.dd_outputs``
+        fills one array; the published arrays are views of it."""
+        c = kernels.constrained
+        n = self._pub.shape[0]
+        o = 3 * n
+        e = o + c.DO_ODOM + c.NDR
+        nw = len(self._wrench_names) if wrenches else 0
+        out = np.empty(e + c.DO_NEXTRA + 6 * nw)
+        if c.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64), self._pub,
+                        bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
+            raise np.linalg.LinAlgError('mass matrix is not positive definite')
+        ex = out[e:e + c.DO_NEXTRA].tolist()
+        extra = dict(zip(self._EXTRA_NAMES, ex))
+        extra['voltage_saturated'] = ex[12] != 0.0
+        wr = {}
+        if wrenches:
+            extra['constraint_rank'] = int(ex[14])
+            wr = dict(zip(self._wrench_names, zip(self._wrench_frames, out[e + c.DO_NEXTRA:].reshape(nw, 6))))
+        odom = {'position': out[o:o + 3], 'orientation': out[o + 3:o + 7], 'linear': out[o + 7:o + 10],
+                'angular': out[o + 10:o + 13]}
+        return SystemOutputs(joint_names=list(self.joint_names), position=out[:n], velocity=out[n:2 * n],
+                             effort=out[2 * n:o], wrenches=wr, odom=odom,
+                             energy=self._report_energies(out[o + c.DO_ODOM:e]), extra=extra)
 
     def _report(self, y, u):
         """:func:`robodyn_ros.kernels.constrained.dd_report` of (y, u) on the compiled path, else None."""
