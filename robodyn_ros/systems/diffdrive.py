@@ -100,6 +100,7 @@ Published wrenches (``outputs.wrenches``; only when ``wrenches=True``)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, eigh
@@ -108,8 +109,8 @@ from .. import dynamics as dyn
 from .. import kernels
 from ..constraints import KKT_RCOND, SolveInfo, baumgarte_rhs, kkt_solve, null_space_basis
 from ..model import LinkSpec, ModelError, build_model, to_urdf
-from .base import (InputPort, System, SystemOutputs, compiled_fused_advance, effort_actuation, keeps_methods,
-                   resolve_backend)
+from .base import (InputPort, LazyValues, LazyWrenches, System, SystemOutputs, compiled_fused_advance,
+                   effort_actuation, keeps_methods, resolve_backend)
 from .motor import DCMotor
 
 __all__ = ['Body', 'PlatformParams', 'DiffDriveSystem', 'PLATFORM_LINKS', 'SIDES']
@@ -197,6 +198,16 @@ _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'electrical
                      'mass_and_bias', 'constraint_jacobian', 'planar_mass_matrix', 'energies')
 
 
+def _computed(f):
+    """The wrenches of one publication, already computed (``LazyWrenches.one``)."""
+    return f
+
+
+def _stacked(args):
+    """The wrenches of K publications (K, n, 6) (``LazyWrenches.many``)."""
+    return np.stack([a[0] for a in args])
+
+
 class DiffDriveSystem(System):
     """Differential-drive platform with two DC motors, optionally carrying an articulated arm.
 
@@ -272,6 +283,7 @@ class DiffDriveSystem(System):
         self._wrench_frames = tuple([f'{side}_wheel_contact' for side in SIDES] +
                                     [m.link_names[i] for i in self._wrench_bodies])
         self._wheel_bodies = np.array(self._wheels, dtype=np.int64)
+        self._wrench_index = {n: k for k, n in enumerate(self._wrench_names)}
         self._pub = np.ascontiguousarray(self._pub_idx, dtype=np.int64)
 
     def _pack(self):
@@ -620,14 +632,15 @@ class DiffDriveSystem(System):
         extra = dict(zip(self._EXTRA_NAMES, ex))
         extra['voltage_saturated'] = ex[12] != 0.0
         wr = {}
-        if wrenches:
+        if wrenches:   # computed with the diagnostics (their rank is one), copied K periods at once by a recorder
             extra['constraint_rank'] = int(ex[14])
-            wr = dict(zip(self._wrench_names, zip(self._wrench_frames, out[e + c.DO_NEXTRA:].reshape(nw, 6))))
+            wr = LazyWrenches(self._wrench_names, self._wrench_frames, _computed, _stacked,
+                              (out[e + c.DO_NEXTRA:].reshape(nw, 6),), self._wrench_index)
         odom = {'position': out[o:o + 3], 'orientation': out[o + 3:o + 7], 'linear': out[o + 7:o + 10],
                 'angular': out[o + 10:o + 13]}
         return SystemOutputs(joint_names=list(self.joint_names), position=out[:n], velocity=out[n:2 * n],
                              effort=out[2 * n:o], wrenches=wr, odom=odom,
-                             energy=self._report_energies(out[o + c.DO_ODOM:e]), extra=extra)
+                             energy=LazyValues(partial(self._report_energies, out[o + c.DO_ODOM:e])), extra=extra)
 
     def _report(self, y, u):
         """:func:`robodyn_ros.kernels.constrained.dd_report` of (y, u) on the compiled path, else None."""
