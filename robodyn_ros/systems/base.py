@@ -98,6 +98,18 @@ def _attr_tuple(names: tuple):
     return operator.attrgetter(*names)
 
 
+#: what :func:`compiled_fused_advance` uses of modules that import this one, once imported
+_FUSED_DEPS = None
+
+
+def _fused_deps():
+    global _FUSED_DEPS
+    from .. import kernels
+    from ..integrators import IntegrationError, IntegratorStats, make_integrator
+    _FUSED_DEPS = (kernels, IntegrationError, IntegratorStats, make_integrator)
+    return _FUSED_DEPS
+
+
 def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_vec, ny):
     """Integrate ``z = [y, W]`` from t0 to t1 in one call of the compiled loop, or None to decline.
 
@@ -109,8 +121,7 @@ def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_v
     Returns ``(z1 (ny + 1,), IntegratorStats)``; raises ``IntegrationError`` like the reference
     when the state becomes non-finite, ``numpy.linalg.LinAlgError`` for a singular mass matrix.
     """
-    from .. import kernels
-    from ..integrators import IntegrationError, IntegratorStats, make_integrator
+    kernels, IntegrationError, IntegratorStats, make_integrator = _FUSED_DEPS or _fused_deps()
     if integrator_name not in kernels.FUSED_METHODS:
         return None
     z = np.array(z0, dtype=np.float64)

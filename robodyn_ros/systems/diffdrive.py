@@ -259,6 +259,7 @@ class DiffDriveSystem(System):
         self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(int)
         actuated, self.B, effort_port = effort_actuation(m, self.arm_joint_names, arm_actuated, 'arm joints')
         self.actuated = actuated  # arm actuation: tau = B u['effort']
+        self._has_effort = self.B.shape[1] > 0
         self._cur = [k for k, mot in enumerate(self.motors) if mot.has_current_state]
         self.n_current = len(self._cur)
         self.ny = 2 * self.nv + self.n_current
@@ -285,6 +286,10 @@ class DiffDriveSystem(System):
         self._wheel_bodies = np.array(self._wheels, dtype=np.int64)
         self._wrench_index = {n: k for k, n in enumerate(self._wrench_names)}
         self._pub = np.ascontiguousarray(self._pub_idx, dtype=np.int64)
+        if compiled:   # where dd_outputs' blocks start in its output
+            c, n = kernels.constrained, len(self._pub)
+            self._out_blocks = (n, 3 * n, 3 * n + c.DO_ODOM, 3 * n + c.DO_ODOM + c.NDR,
+                                3 * n + c.DO_ODOM + c.NDR + c.DO_NEXTRA)
 
     def _pack(self):
         """The packed system for :mod:`robodyn_ros.kernels.constrained` (layout ``DIFFDRIVE``)."""
@@ -309,7 +314,7 @@ class DiffDriveSystem(System):
         """Input vector of the kernels: ``[V_left, V_right, B u_effort (nv)]``."""
         uv = np.zeros(2 + self.nv)
         uv[:2] = u['wheel_voltage']
-        if self.B.shape[1]:
+        if self._has_effort:
             uv[2:] = self.B @ u['effort']
         return uv
 
@@ -619,28 +624,25 @@ class DiffDriveSystem(System):
     def _compiled_outputs(self, cs, y, u, wrenches):
         """:meth:`outputs` on the compiled path: one call of ``kernels.constrained.dd_outputs``
         fills one array; the published arrays are views of it."""
-        c = kernels.constrained
-        n = self._pub.shape[0]
-        o = 3 * n
-        e = o + c.DO_ODOM + c.NDR
+        n, o, r, e, w = self._out_blocks   # joint states, odometry, report, extra values, wrenches
         nw = len(self._wrench_names) if wrenches else 0
-        out = np.empty(e + c.DO_NEXTRA + 6 * nw)
-        if c.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64), self._pub,
-                        bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
+        out = np.empty(w + 6 * nw)
+        if kernels.constrained.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64),
+                                          self._pub, bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
-        ex = out[e:e + c.DO_NEXTRA].tolist()
+        ex = out[e:w].tolist()
         extra = dict(zip(self._EXTRA_NAMES, ex))
         extra['voltage_saturated'] = ex[12] != 0.0
         wr = {}
         if wrenches:   # computed with the diagnostics (their rank is one), copied K periods at once by a recorder
             extra['constraint_rank'] = int(ex[14])
             wr = LazyWrenches(self._wrench_names, self._wrench_frames, _computed, _stacked,
-                              (out[e + c.DO_NEXTRA:].reshape(nw, 6),), self._wrench_index)
+                              (out[w:].reshape(nw, 6),), self._wrench_index)
         odom = {'position': out[o:o + 3], 'orientation': out[o + 3:o + 7], 'linear': out[o + 7:o + 10],
                 'angular': out[o + 10:o + 13]}
         return SystemOutputs(joint_names=list(self.joint_names), position=out[:n], velocity=out[n:2 * n],
                              effort=out[2 * n:o], wrenches=wr, odom=odom,
-                             energy=LazyValues(partial(self._report_energies, out[o + c.DO_ODOM:e])), extra=extra)
+                             energy=LazyValues(partial(self._report_energies, out[r:e])), extra=extra)
 
     def _report(self, y, u):
         """:func:`robodyn_ros.kernels.constrained.dd_report` of (y, u) on the compiled path, else None."""
