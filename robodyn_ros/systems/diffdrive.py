@@ -275,6 +275,7 @@ class DiffDriveSystem(System):
         compiled = self.backend != 'numpy'
         self._km = kernels.CompiledModel(m) if compiled else None  # CRBA/RNEA/wrenches of the tree
         self._zero_v = np.zeros(self.nv)
+        self._zero_uv = np.zeros(2 + self.nv)   # the kernels' input vector of zero_inputs() (never written)
         self._planar_inertia()
         self._cs = self._pack() if compiled else None
         self._grids = {}
@@ -647,14 +648,13 @@ class DiffDriveSystem(System):
                              effort=out[2 * n:o], wrenches=wr, odom=odom,
                              energy=LazyValues(partial(self._report_energies, out[r:e])), extra=extra)
 
-    def _report(self, y, u):
-        """:func:`robodyn_ros.kernels.constrained.dd_report` of (y, u) on the compiled path, else None."""
-        cs = self._compiled()
-        if cs is None:
-            return None
+    def _report(self, y, uv):
+        """:func:`robodyn_ros.kernels.constrained.dd_report` of state y under the kernels' input
+        vector uv (compiled path)."""
+        cs = self._cs
         out = np.empty(kernels.constrained.NDR)
-        kernels.constrained.dd_report(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, self._u_vec(u),
-                                      np.ascontiguousarray(y, dtype=np.float64), out)
+        kernels.constrained.dd_report(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, uv, np.ascontiguousarray(y, dtype=np.float64),
+                                      out)
         return out
 
     @staticmethod
@@ -666,8 +666,8 @@ class DiffDriveSystem(System):
     # -- energy ------------------------------------------------------------------------------
     def energies(self, y):
         """``{'kinetic', 'potential', 'magnetic'}`` (J); kinetic includes the rotor inertia."""
-        if self._compiled() is not None:
-            return self._report_energies(self._report(y, self.zero_inputs()))
+        if self._compiled() is not None:   # (the energies do not depend on the inputs)
+            return self._report_energies(self._report(y, self._zero_uv))
         q, v = self.split(y)
         M, _ = self.mass_and_bias(q, v, bias=False)
         ic = self.currents_state(y)
