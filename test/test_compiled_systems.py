@@ -118,6 +118,12 @@ def test_compiled_system_equals_reference(name, changes):
                     elif not isinstance(v, float):
                         assert oa.extra[k] == v, k
             assert close([fast.total_energy(y)], [ref.total_energy(y)])
+            if hasattr(ref, 'contact_wrenches'):   # the differential drive's wrenches from given multipliers
+                a, lam, _ = ref.solve(y.copy(), u)
+                wa, wb = fast.contact_wrenches(y.copy(), u, a, lam), ref.contact_wrenches(y.copy(), u, a, lam)
+                assert list(wa) == list(wb) and len(wb) >= 5
+                for k in wb:
+                    assert wa[k][0] == wb[k][0] and close(wa[k][1], wb[k][1], 1e-11), k
 
 
 def _run(system, y0, integrator, script):
