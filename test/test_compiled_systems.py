@@ -118,6 +118,12 @@ def test_compiled_system_equals_reference(name, changes):
                     elif not isinstance(v, float):
                         assert oa.extra[k] == v, k
             assert close([fast.total_energy(y)], [ref.total_energy(y)])
+            if hasattr(ref, 'contact_wrenches'):   # the differential drive's wrenches from given multipliers
+                a, lam, _ = ref.solve(y.copy(), u)
+                wa, wb = fast.contact_wrenches(y.copy(), u, a, lam), ref.contact_wrenches(y.copy(), u, a, lam)
+                assert list(wa) == list(wb) and len(wb) >= 5
+                for k in wb:
+                    assert wa[k][0] == wb[k][0] and close(wa[k][1], wb[k][1], 1e-11), k
 
 
 def _run(system, y0, integrator, script):
@@ -175,3 +181,30 @@ def test_compiled_systems_decline_and_fail_like_the_reference():
     with pytest.raises(IntegrationError, match='non-finite'):
         ff.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, {'effort': np.full(len(ff.actuated), 1e308),
                                                        'base_wrench': np.full(6, 1e308)})
+
+
+def test_compiled_path_checks_subclasses_and_instances_at_every_call():
+    """keeps_methods: a subclass that overrides nothing keeps the compiled path, one that overrides a
+    reproduced method (or an instance given one later, after the path was taken) declines."""
+    from robodyn_ros.systems.diffdrive import DiffDriveSystem
+    fast, ref, sc = _pair('betancur_platform')
+    z0 = np.append(sc.y0, 0.0)
+    u = {'wheel_voltage': np.array([1.0, 2.0])}
+
+    class Same(DiffDriveSystem):
+        pass
+
+    class Changed(DiffDriveSystem):
+        def electrical(self, y, u):
+            return ref.electrical(y, u)
+
+    for cls, kept in ((Same, True), (Changed, False)):
+        s = copy.copy(fast)
+        s.__class__ = cls
+        assert (s.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is not None) is kept, cls
+    s = copy.copy(fast)
+    assert s.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is not None
+    s.solve = ref.solve
+    assert s.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is None
+    del s.solve
+    assert s.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is not None

@@ -53,10 +53,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir as llvm_ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL
-from .core import (_JIT, E_, M_RK4, M_SEMI_IMPLICIT_EULER, R_, AX, HV, IB, JTYPE, MASS, PARENT, VIDX,
+from .core import (_JIT, E_, M_RK4, M_SEMI_IMPLICIT_EULER, P_, R_, AX, HV, IB, JTYPE, MASS, PARENT, VIDX,
                    aba_fext_into, crba_into, crba_ws, energies, normalize_into, qdot_into, rnea_ws, transforms,
                    workspace)
 
@@ -68,6 +70,19 @@ NINFO = 4
 # ----------------------------------------------------------------------------------------------
 # small dense linear algebra
 # ----------------------------------------------------------------------------------------------
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """``a * b + c`` rounded once (IEEE 754 fused multiply-add, ``llvm.fma.f64``): the arithmetic
+    of OpenBLAS's dot and gemv kernels on processors with FMA, for results equal to numpy's ``@``."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = llvm_ir.DoubleType()
+        fn = builder.module.declare_intrinsic('llvm.fma', [d], llvm_ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+    return sig, codegen
 
 
 @njit(**_JIT)
@@ -593,11 +608,7 @@ def momentum(mi, mf, q, v):
     """``(p (3,), L (3,), c (3,))``: linear momentum, angular momentum about the CoM and the CoM,
     world coordinates (``freeflyer.momentum_about_com`` of ``FreeFlyerSystem.body_coms``)."""
     nb = mi.shape[0]
-    W = workspace(nb)
-    transforms(mi, mf, q, W)
-    R = np.empty((nb, 3, 3))
-    p = np.empty((nb, 3))
-    body_frames(mi, mf, q, W, R, p)
+    W, R, p = frames_ws(mi, mf, q)
     vb = np.empty((nb, 6))
     body_velocities(mi, mf, q, v, W, vb)
     ms = np.empty(nb)
@@ -657,14 +668,22 @@ def momentum(mi, mf, q, v):
 
 
 @njit(**_JIT)
-def poses(mi, mf, q):
-    """``(R (nb, 3, 3), p (nb, 3))`` world poses of the body frames."""
+def frames_ws(mi, mf, q):
+    """``(W, R (nb, 3, 3), p (nb, 3))``: a workspace holding the transforms at q, and the world
+    poses of the body frames."""
     nb = mi.shape[0]
     W = workspace(nb)
     transforms(mi, mf, q, W)
     R = np.empty((nb, 3, 3))
     p = np.empty((nb, 3))
     body_frames(mi, mf, q, W, R, p)
+    return W, R, p
+
+
+@njit(**_JIT)
+def poses(mi, mf, q):
+    """``(R (nb, 3, 3), p (nb, 3))`` world poses of the body frames."""
+    _, R, p = frames_ws(mi, mf, q)
     return R, p
 
 
@@ -907,6 +926,117 @@ def dd_project(ip, fp, mi_r, mf_r, y):
     h = np.empty(nv)
     dd_mass(ip, fp, mi_r, mf_r, q, v, M, h, flag(0))
     return project_velocities(M, nv, K, v, np.zeros(4), fp[DD_RCOND])
+
+
+#: blocks of :func:`dd_outputs`'s output after the joint states (3 n_pub: positions, velocities,
+#: efforts): odometry (13: position, orientation x y z w, linear, angular), the report (NDR, as
+#: :func:`dd_report`), then DO_NEXTRA diagnostics values in ``DiffDriveSystem.outputs``' order
+#: [per motor: voltage, current, power, torque, friction loss; electrical power, copper loss,
+#: voltage saturated (0/1), constraint residual, constraint rank], then, with wrenches, the
+#: (2 + n_bodies, 6) wrenches (contacts, then the bodies given)
+DO_ODOM, DO_NEXTRA = 13, 15
+
+
+@njit(**_JIT)
+def dd_contact_wrenches(fp, mi, mf, q, v, a, lam, bodies, wheels, f):
+    """Contact and joint wrenches (``DiffDriveSystem.contact_wrenches``) into f (2 + len(bodies), 6):
+    rows 0, 1 the left and right contacts ``[0, 0, 0, F_long, F_lat, 0]``, then the RNEA joint
+    wrench (parent on child, child coordinates) of each body in ``bodies``, with the contact
+    forces acting on the wheel bodies ``wheels`` (2,) as external forces.
+
+    The force at a contact, ``F = F_long heading + F_lat left``, and ``r × F`` (r = contact point
+    minus wheel centre) are taken to the wheel frame with ``Rᵀ x`` as numpy's ``R.T @ x`` computes
+    it through OpenBLAS (Haswell and later kernels: a chain of fused multiply-adds from +0.0,
+    :func:`fma`; signed zeros included), so that the numbers equal the numpy method's to the bit.
+    """
+    nb = mi.shape[0]
+    W, R, p = frames_ws(mi, mf, q)
+    th = q[_ITH]
+    c, s = math.cos(th), math.sin(th)
+    fext = np.zeros((nb, 6))
+    F = np.empty(3)
+    rxF = np.empty(3)
+    r0, r1, r2 = 0.0, 0.0, -fp[DD_RW]
+    for k in range(2):
+        F_long, F_lat = lam[2 * k], lam[2 * k + 1]
+        F[0] = F_long * c + F_lat * -s
+        F[1] = F_long * s + F_lat * c
+        F[2] = F_long * 0.0 + F_lat * 0.0
+        rxF[0] = r1 * F[2] - r2 * F[1]
+        rxF[1] = r2 * F[0] - r0 * F[2]
+        rxF[2] = r0 * F[1] - r1 * F[0]
+        b = wheels[k]
+        for j in range(3):
+            fext[b, j] = fma(R[b, 2, j], rxF[2], fma(R[b, 1, j], rxF[1], fma(R[b, 0, j], rxF[0], 0.0)))
+            fext[b, 3 + j] = fma(R[b, 2, j], F[2], fma(R[b, 1, j], F[1], fma(R[b, 0, j], F[0], 0.0)))
+        for j in range(6):
+            f[k, j] = 0.0
+        f[k, 3] = F_long
+        f[k, 4] = F_lat
+    tau = np.empty(v.shape[0])
+    rnea_ws(mi, mf, q, v, a, fext, True, tau, W)
+    for n in range(bodies.shape[0]):
+        for j in range(6):
+            f[2 + n, j] = W[bodies[n], P_ + j]
+
+
+@njit(**_JIT)
+def dd_outputs(ip, fp, mi, mf, mi_r, mf_r, u, y, pub, wrenches, bodies, wheels, out):
+    """Everything ``DiffDriveSystem.outputs`` publishes, in one call, into out (layout at
+    :data:`DO_ODOM`): pub the published coordinates (wheels, then the arm joints); wrenches:
+    also solve for the ground forces (:func:`dd_solve` with the exact rank) and compute the
+    wrenches of :func:`dd_contact_wrenches` for ``bodies``. Returns OK or SINGULAR.
+
+    The values are those of the numpy method, computed in its order (the electrical power is
+    numpy's two-term ``@``: a fused multiply-add through OpenBLAS, see :func:`dd_contact_wrenches`).
+    """
+    nv = ip[DD_NV]
+    npub = pub.shape[0]
+    o = 3 * npub
+    rep = out[o + DO_ODOM:o + DO_ODOM + NDR]
+    dd_report(ip, fp, mi_r, mf_r, u, y, rep)
+    for n in range(npub):
+        out[n] = y[pub[n]]
+        out[npub + n] = y[nv + pub[n]]
+        out[2 * npub + n] = u[2 + pub[n]]
+    out[2 * npub] = rep[DR_EL + 4]
+    out[2 * npub + 1] = rep[DR_EL + 5]
+    th = y[_ITH]
+    c, s = math.cos(th), math.sin(th)
+    vx, vy = y[nv + _IX], y[nv + _IY]
+    od = out[o:o + DO_ODOM]
+    od[0], od[1], od[2] = y[_IX], y[_IY], 0.0
+    od[3], od[4], od[5], od[6] = 0.0, 0.0, math.sin(0.5 * th), math.cos(0.5 * th)
+    od[7], od[8], od[9] = c * vx + s * vy, -s * vx + c * vy, 0.0
+    od[10], od[11], od[12] = 0.0, 0.0, y[nv + _ITH]
+    ex = out[o + DO_ODOM + NDR:o + DO_ODOM + NDR + DO_NEXTRA]
+    volts, cur = rep[DR_EL:DR_EL + 2], rep[DR_EL + 2:DR_EL + 4]
+    for k in range(2):
+        ex[5 * k] = volts[k]
+        ex[5 * k + 1] = cur[k]
+        ex[5 * k + 2] = volts[k] * cur[k]
+        ex[5 * k + 3] = rep[DR_EL + 4 + k]
+        ex[5 * k + 4] = rep[DR_FRICTION + k]
+    ex[10] = fma(volts[1], cur[1], fma(volts[0], cur[0], 0.0))
+    R0, R1 = fp[DD_MOTOR + MOT_R], fp[DD_MOTOR + MOT_SIZE + MOT_R]
+    ex[11] = R0 * cur[0] * cur[0] + R1 * cur[1] * cur[1]
+    ex[12] = 1.0 if volts[0] != u[0] or volts[1] != u[1] else 0.0
+    ex[13] = rep[DR_RESIDUAL]
+    ex[14] = 0.0
+    if not wrenches:
+        return OK
+    a = np.empty(nv)
+    lam = np.empty(4)
+    info = np.empty(NINFO)
+    el = np.empty(6)
+    st = dd_solve(ip, fp, mi_r, mf_r, u, y, flag(1), a, lam, info, el)
+    if st != OK:
+        return st
+    ex[14] = info[0]
+    w0 = o + DO_ODOM + NDR + DO_NEXTRA
+    f = out[w0:w0 + 6 * (2 + bodies.shape[0])].reshape((2 + bodies.shape[0], 6))
+    dd_contact_wrenches(fp, mi, mf, y[:nv], y[nv:2 * nv], a, lam, bodies, wheels, f)
+    return OK
 
 
 # ----------------------------------------------------------------------------------------------

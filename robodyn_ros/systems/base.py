@@ -1,6 +1,8 @@
 """The interface every system implements, and the containers it returns."""
 from __future__ import annotations
 
+import functools
+import operator
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -74,9 +76,38 @@ def resolve_backend(backend) -> str:
 
 def keeps_methods(obj, base: type, names) -> bool:
     """True when ``obj`` computes ``names`` exactly as class ``base`` does: no subclass override,
-    no method replaced on the instance (the condition for a compiled path to stand in for them)."""
+    no method replaced on the instance (the condition for a compiled path to stand in for them).
+
+    Checked at every call (systems ask once or more per publication period), in C loops: an
+    instance of ``base`` itself has its methods by definition, a subclass's are compared one by
+    one (``attrgetter``, ``operator.is_``), and the instance dictionary must hold none of them.
+    """
     cls = type(obj)
-    return all(getattr(cls, n) is getattr(base, n) for n in names) and obj.__dict__.keys().isdisjoint(names)
+    if cls is not base:
+        get = _attr_tuple(tuple(names))
+        if not all(map(operator.is_, get(cls), get(base))):
+            return False
+    return obj.__dict__.keys().isdisjoint(names)
+
+
+@functools.lru_cache(maxsize=None)
+def _attr_tuple(names: tuple):
+    """``obj -> tuple of obj.<name>`` for each of names (a tuple even for one name)."""
+    if len(names) < 2:
+        return lambda obj: tuple(getattr(obj, n) for n in names)
+    return operator.attrgetter(*names)
+
+
+#: what :func:`compiled_fused_advance` uses of modules that import this one, once imported
+_FUSED_DEPS = None
+
+
+def _fused_deps():
+    global _FUSED_DEPS
+    from .. import kernels
+    from ..integrators import IntegrationError, IntegratorStats, make_integrator
+    _FUSED_DEPS = (kernels, IntegrationError, IntegratorStats, make_integrator)
+    return _FUSED_DEPS
 
 
 def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_vec, ny):
@@ -90,8 +121,7 @@ def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_v
     Returns ``(z1 (ny + 1,), IntegratorStats)``; raises ``IntegrationError`` like the reference
     when the state becomes non-finite, ``numpy.linalg.LinAlgError`` for a singular mass matrix.
     """
-    from .. import kernels
-    from ..integrators import IntegrationError, IntegratorStats, make_integrator
+    kernels, IntegrationError, IntegratorStats, make_integrator = _FUSED_DEPS or _fused_deps()
     if integrator_name not in kernels.FUSED_METHODS:
         return None
     z = np.array(z0, dtype=np.float64)

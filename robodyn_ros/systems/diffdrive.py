@@ -100,6 +100,7 @@ Published wrenches (``outputs.wrenches``; only when ``wrenches=True``)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, eigh
@@ -108,8 +109,8 @@ from .. import dynamics as dyn
 from .. import kernels
 from ..constraints import KKT_RCOND, SolveInfo, baumgarte_rhs, kkt_solve, null_space_basis
 from ..model import LinkSpec, ModelError, build_model, to_urdf
-from .base import (InputPort, System, SystemOutputs, compiled_fused_advance, effort_actuation, keeps_methods,
-                   resolve_backend)
+from .base import (InputPort, LazyValues, LazyWrenches, System, SystemOutputs, compiled_fused_advance,
+                   effort_actuation, keeps_methods, resolve_backend)
 from .motor import DCMotor
 
 __all__ = ['Body', 'PlatformParams', 'DiffDriveSystem', 'PLATFORM_LINKS', 'SIDES']
@@ -197,6 +198,16 @@ _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'electrical
                      'mass_and_bias', 'constraint_jacobian', 'planar_mass_matrix', 'energies')
 
 
+def _computed(f):
+    """The wrenches of one publication, already computed (``LazyWrenches.one``)."""
+    return f
+
+
+def _stacked(args):
+    """The wrenches of K publications (K, n, 6) (``LazyWrenches.many``)."""
+    return np.stack([a[0] for a in args])
+
+
 class DiffDriveSystem(System):
     """Differential-drive platform with two DC motors, optionally carrying an articulated arm.
 
@@ -206,8 +217,11 @@ class DiffDriveSystem(System):
     the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom; backend:
     ``'numpy'`` (the methods below, the reference) or ``'numba'`` (``'generated'`` is taken as
     numba): :mod:`robodyn_ros.kernels.constrained` evaluates the right-hand side, projection and
-    constrained solve (equal to 1e-12) and :meth:`fused_advance` runs whole periods of fixed steps
-    in one call; default :func:`robodyn_ros.systems.base.default_backend`.
+    constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
+    in one call and :meth:`outputs` is one call of ``dd_outputs`` (the numbers of the numpy
+    method, bit for bit where numpy's BLAS fuses multiply-adds, as OpenBLAS does on x86-64 with
+    FMA: see ``dd_contact_wrenches``); default
+    :func:`robodyn_ros.systems.base.default_backend`.
 
     State ``y = [q (nv), v (nv), i (n_L)]`` with q, v as in (D1) and one current per motor with
     ``L > 0`` (left first). Inputs: ``wheel_voltage`` ``[left, right]`` (V) and, with an arm
@@ -248,6 +262,7 @@ class DiffDriveSystem(System):
         self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(int)
         actuated, self.B, effort_port = effort_actuation(m, self.arm_joint_names, arm_actuated, 'arm joints')
         self.actuated = actuated  # arm actuation: tau = B u['effort']
+        self._has_effort = self.B.shape[1] > 0
         self._cur = [k for k, mot in enumerate(self.motors) if mot.has_current_state]
         self.n_current = len(self._cur)
         self.ny = 2 * self.nv + self.n_current
@@ -260,9 +275,25 @@ class DiffDriveSystem(System):
         compiled = self.backend != 'numpy'
         self._km = kernels.CompiledModel(m) if compiled else None  # CRBA/RNEA/wrenches of the tree
         self._zero_v = np.zeros(self.nv)
+        self._zero_uv = np.zeros(2 + self.nv)   # the kernels' input vector of zero_inputs() (never written)
         self._planar_inertia()
         self._cs = self._pack() if compiled else None
         self._grids = {}
+        # published wrenches: the contacts, then every body but the planar virtual ones (the yaw
+        # joint's wrench is the ground plane's, see the module docstring); their rows in the RNEA
+        self._wrench_bodies = np.array([i for i in range(m.nb) if m.joint_names[i] not in ('base_x', 'base_y')],
+                                       dtype=np.int64)
+        self._wrench_names = tuple([f'{side}_wheel_contact' for side in SIDES] + [
+            'base_plane' if m.joint_names[i] == 'base_yaw' else m.joint_names[i] for i in self._wrench_bodies])
+        self._wrench_frames = tuple([f'{side}_wheel_contact' for side in SIDES] +
+                                    [m.link_names[i] for i in self._wrench_bodies])
+        self._wheel_bodies = np.array(self._wheels, dtype=np.int64)
+        self._wrench_index = {n: k for k, n in enumerate(self._wrench_names)}
+        self._pub = np.ascontiguousarray(self._pub_idx, dtype=np.int64)
+        if compiled:   # where dd_outputs' blocks start in its output
+            c, n = kernels.constrained, len(self._pub)
+            self._out_blocks = (n, 3 * n, 3 * n + c.DO_ODOM, 3 * n + c.DO_ODOM + c.NDR,
+                                3 * n + c.DO_ODOM + c.NDR + c.DO_NEXTRA)
 
     def _pack(self):
         """The packed system for :mod:`robodyn_ros.kernels.constrained` (layout ``DIFFDRIVE``)."""
@@ -287,7 +318,7 @@ class DiffDriveSystem(System):
         """Input vector of the kernels: ``[V_left, V_right, B u_effort (nv)]``."""
         uv = np.zeros(2 + self.nv)
         uv[:2] = u['wheel_voltage']
-        if self.B.shape[1]:
+        if self._has_effort:
             uv[2:] = self.B @ u['effort']
         return uv
 
@@ -519,9 +550,17 @@ class DiffDriveSystem(System):
         a, lam: accelerations and multipliers from :meth:`solve`. The contact forces enter the
         RNEA as external forces on the wheels, so the joint wrenches see them.
         """
+        if self._compiled() is not None:
+            nv = self.nv
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            f = np.empty((len(self._wrench_names), 6))
+            kernels.constrained.dd_contact_wrenches(
+                self._cs.fp, self._km.mi, self._km.mf, y[:nv], y[nv:2 * nv], np.ascontiguousarray(a, dtype=np.float64),
+                np.ascontiguousarray(lam, dtype=np.float64), self._wrench_bodies, self._wheel_bodies, f)
+            return dict(zip(self._wrench_names, zip(self._wrench_frames, f)))
         q, v = self.split(y)
         m = self.model
-        R, p = self._km.body_poses(q) if self._km is not None else dyn.body_poses(m, q)
+        R, p = dyn.body_poses(m, q)
         th = q[_ITH]
         heading = np.array([np.cos(th), np.sin(th), 0.0])
         left = np.array([-np.sin(th), np.cos(th), 0.0])
@@ -535,10 +574,7 @@ class DiffDriveSystem(System):
             f_ext[b, :3] = R[b].T @ rxF  # r × F (np.cross costs ~25 µs of dispatch here)
             f_ext[b, 3:] = R[b].T @ F
             out[f'{side}_wheel_contact'] = (f'{side}_wheel_contact', np.array([0.0, 0.0, 0.0, F_long, F_lat, 0.0]))
-        if self._km is not None:
-            _, f = self._km.rnea_wrenches(np.ascontiguousarray(q), np.ascontiguousarray(v), a, f_ext)
-        else:
-            _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
+        _, f = dyn.rnea_wrenches(m, q, v, a, f_ext)
         for i in range(m.nb):
             jn = m.joint_names[i]
             if jn in ('base_x', 'base_y'):
@@ -548,17 +584,13 @@ class DiffDriveSystem(System):
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states (wheels first), odometry, motor diagnostics and (optionally) wrenches."""
+        cs = self._compiled()
+        if cs is not None:
+            return self._compiled_outputs(cs, y, u, wrenches)
         q, v = self.split(y)
-        report = self._report(y, u)
-        if report is not None:
-            c = kernels.constrained
-            el = volts, i, tau = (report[c.DR_EL:c.DR_EL + 2], report[c.DR_EL + 2:c.DR_EL + 4],
-                                  report[c.DR_EL + 4:c.DR_EL + 6])
-            friction = report[c.DR_FRICTION:c.DR_FRICTION + 2]
-        else:
-            el = self.electrical(y, u)
-            volts, i, tau = el
-            friction = [mot.friction_loss(wk) for mot, wk in zip(self.motors, v[[_IL, _IR]])]
+        el = self.electrical(y, u)
+        volts, i, tau = el
+        friction = [mot.friction_loss(wk) for mot, wk in zip(self.motors, v[[_IL, _IR]])]
         arm_effort = (self.B @ u['effort'])[self._arm_idx] if self.B.shape[1] else np.zeros(len(self._arm_idx))
         effort = np.concatenate([tau, arm_effort])
         th = q[_ITH]
@@ -577,29 +609,52 @@ class DiffDriveSystem(System):
         extra['electrical_power'] = float(volts @ i)
         extra['copper_loss'] = float(sum(mot.resistance * x * x for mot, x in zip(self.motors, i)))
         extra['voltage_saturated'] = bool(np.any(volts != np.asarray(u['wheel_voltage'], dtype=float)))
-        if report is not None:
-            extra['constraint_residual'] = float(report[kernels.constrained.DR_RESIDUAL])
-        else:
-            K, _ = self.constraint_jacobian(q, v)
-            extra['constraint_residual'] = float(np.abs(K @ v).max())
+        K, _ = self.constraint_jacobian(q, v)
+        extra['constraint_residual'] = float(np.abs(K @ v).max())
         wr = {}
         if wrenches:
             a, lam, info = self.solve(y, u, el)
             wr = self.contact_wrenches(y, u, a, lam)
             extra['constraint_rank'] = int(info.rank)
-        energy = self.energies(y) if report is None else self._report_energies(report)
         return SystemOutputs(joint_names=list(self.joint_names), position=q[self._pub_idx].copy(),
                              velocity=v[self._pub_idx].copy(), effort=effort, wrenches=wr, odom=odom,
-                             energy=energy, extra=extra)
+                             energy=self.energies(y), extra=extra)
 
-    def _report(self, y, u):
-        """:func:`robodyn_ros.kernels.constrained.dd_report` of (y, u) on the compiled path, else None."""
-        cs = self._compiled()
-        if cs is None:
-            return None
+    #: names of the ``extra`` values of :meth:`outputs` in the order of ``dd_outputs``' block
+    _EXTRA_NAMES = tuple(f'{side}_motor_{k}' for side in SIDES for k in
+                         ('voltage', 'current', 'power', 'torque', 'friction_loss')) + (
+        'electrical_power', 'copper_loss', 'voltage_saturated', 'constraint_residual')
+
+    def _compiled_outputs(self, cs, y, u, wrenches):
+        """:meth:`outputs` on the compiled path: one call of ``kernels.constrained.dd_outputs``
+        fills one array; the published arrays are views of it."""
+        n, o, r, e, w = self._out_blocks   # joint states, odometry, report, extra values, wrenches
+        nw = len(self._wrench_names) if wrenches else 0
+        out = np.empty(w + 6 * nw)
+        if kernels.constrained.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64),
+                                          self._pub, bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
+            raise np.linalg.LinAlgError('mass matrix is not positive definite')
+        ex = out[e:w].tolist()
+        extra = dict(zip(self._EXTRA_NAMES, ex))
+        extra['voltage_saturated'] = ex[12] != 0.0
+        wr = {}
+        if wrenches:   # computed with the diagnostics (their rank is one), copied K periods at once by a recorder
+            extra['constraint_rank'] = int(ex[14])
+            wr = LazyWrenches(self._wrench_names, self._wrench_frames, _computed, _stacked,
+                              (out[w:].reshape(nw, 6),), self._wrench_index)
+        odom = {'position': out[o:o + 3], 'orientation': out[o + 3:o + 7], 'linear': out[o + 7:o + 10],
+                'angular': out[o + 10:o + 13]}
+        return SystemOutputs(joint_names=list(self.joint_names), position=out[:n], velocity=out[n:2 * n],
+                             effort=out[2 * n:o], wrenches=wr, odom=odom,
+                             energy=LazyValues(partial(self._report_energies, out[r:e])), extra=extra)
+
+    def _report(self, y, uv):
+        """:func:`robodyn_ros.kernels.constrained.dd_report` of state y under the kernels' input
+        vector uv (compiled path)."""
+        cs = self._cs
         out = np.empty(kernels.constrained.NDR)
-        kernels.constrained.dd_report(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, self._u_vec(u),
-                                      np.ascontiguousarray(y, dtype=np.float64), out)
+        kernels.constrained.dd_report(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, uv, np.ascontiguousarray(y, dtype=np.float64),
+                                      out)
         return out
 
     @staticmethod
@@ -611,8 +666,8 @@ class DiffDriveSystem(System):
     # -- energy ------------------------------------------------------------------------------
     def energies(self, y):
         """``{'kinetic', 'potential', 'magnetic'}`` (J); kinetic includes the rotor inertia."""
-        if self._compiled() is not None:
-            return self._report_energies(self._report(y, self.zero_inputs()))
+        if self._compiled() is not None:   # (the energies do not depend on the inputs)
+            return self._report_energies(self._report(y, self._zero_uv))
         q, v = self.split(y)
         M, _ = self.mass_and_bias(q, v, bias=False)
         ic = self.currents_state(y)
