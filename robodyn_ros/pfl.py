@@ -186,11 +186,9 @@ def pfl_profile(params, path, ctx, system, port):
         ctl = PFLController(system, pathf, kp, kd)
     except ValueError as e:
         ctx.fail(path, str(e))
-    zero = system.zero_inputs()
 
     def f(t, y):
-        out = system.outputs(t, y, zero, wrenches=False)
-        q, v = state_from_outputs(system, out.joint_names, out.position, out.velocity, out.odom)
+        q, v = system.published_state(y)   # = state_from_outputs of system.outputs(t, y, ...)
         return ctl.torques(stamp_seconds(to_ns(t)), q, v)
     f.controller = ctl
     return f
