@@ -33,16 +33,29 @@ from .base import LazyWrenches
 __all__ = ['PlanarBaseSystem', 'odom_of', 'base_state_from_odom']
 
 
-def odom_of(x, z, pitch, xd, zd, pitch_rate) -> dict:
-    """The ``odom`` output of a planar base at pose (x, z, pitch) with rates (ẋ, ż, pitch rate).
+def _odom_values(x, z, pitch, xd, zd, pitch_rate) -> tuple:
+    """The 13 numbers of :func:`odom_of`: position (3), orientation (4), linear (3), angular (3).
 
-    The four values are views of one (13,) array. ``math.sin``/``math.cos`` are the C library's,
-    the functions ``np.sin``/``np.cos`` evaluate on float64 scalars (the same bits, a tenth of the time).
+    ``math.sin``/``math.cos`` are the C library's functions, which ``np.sin``/``np.cos``
+    evaluate on float64 scalars (the same bits, a tenth of the time).
     """
     c, s = math.cos(pitch), math.sin(pitch)
-    a = np.array([x, 0.0, z, 0.0, math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch),
-                  c * xd - s * zd, 0.0, s * xd + c * zd, 0.0, pitch_rate, 0.0])
+    return (x, 0.0, z, 0.0, math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch),
+            c * xd - s * zd, 0.0, s * xd + c * zd, 0.0, pitch_rate, 0.0)
+
+
+def odom_of(x, z, pitch, xd, zd, pitch_rate) -> dict:
+    """The ``odom`` output of a planar base at pose (x, z, pitch) with rates (ẋ, ż, pitch rate)
+    (the four values are views of one (13,) array)."""
+    a = np.array(_odom_values(x, z, pitch, xd, zd, pitch_rate))
     return {'position': a[0:3], 'orientation': a[3:7], 'linear': a[7:10], 'angular': a[10:13]}
+
+
+def _base_from_odom(x, z, qy, qw, lx, lz, wy) -> tuple:
+    """``((x, z, pitch), (ẋ, ż, pitch rate))`` from the odometry numbers :func:`base_state_from_odom` reads."""
+    pitch = float(2.0 * np.arctan2(qy, qw))   # numpy's arctan2 (not the C library's bits on every machine)
+    c, s = math.cos(pitch), math.sin(pitch)
+    return (x, z, pitch), (c * lx + s * lz, -s * lx + c * lz, wy)
 
 
 def base_state_from_odom(position, orientation, linear, angular):
@@ -52,11 +65,9 @@ def base_state_from_odom(position, orientation, linear, angular):
     link's axes, as a ``nav_msgs/Odometry`` carries them. The pitch comes back through
     ``2 atan2(q_y, q_w)`` (equal to the simulated one to round-off, not bit for bit).
     """
-    pitch = 2.0 * np.arctan2(orientation[1], orientation[3])   # numpy's arctan2: not the C library's bits
-    c, s = math.cos(pitch), math.sin(pitch)
-    xd = c * linear[0] + s * linear[2]
-    zd = -s * linear[0] + c * linear[2]
-    return np.array([position[0], position[2], pitch]), np.array([xd, zd, angular[1]])
+    qb, vb = _base_from_odom(position[0], position[2], orientation[1], orientation[3], linear[0], linear[2],
+                             angular[1])
+    return np.array(qb), np.array(vb)
 
 
 class PlanarBaseSystem(ArmSystem):
@@ -153,7 +164,7 @@ class PlanarBaseSystem(ArmSystem):
         computed when read, or per batch by a recorder, on the compiled backends)."""
         out = super().outputs(t, y, u, wrenches=wrenches)
         q, v = out.position, out.velocity   # copies of the state's
-        out.odom = odom_of(q[0], q[1], q[2], v[0], v[1], v[2])
+        out.odom = odom_of(*q[:3].tolist(), *v[:3].tolist())
         out.position, out.velocity, out.effort = q[3:], v[3:], out.effort[3:]
         if wrenches and not isinstance(out.wrenches, LazyWrenches):   # the numpy reference: every body's
             w = out.wrenches
@@ -173,8 +184,7 @@ class PlanarBaseSystem(ArmSystem):
         and ``odom`` (:func:`robodyn_ros.pfl.state_from_outputs` of :meth:`outputs`, bit for bit):
         the base pose and rates go through :func:`odom_of` and :func:`base_state_from_odom`."""
         nq = self.nq
-        o = odom_of(y[0], y[1], y[2], y[nq], y[nq + 1], y[nq + 2])
-        qb, vb = base_state_from_odom(o['position'], o['orientation'], o['linear'], o['angular'])
+        o = _odom_values(*y[:3].tolist(), *y[nq:nq + 3].tolist())
         q, v = y[:nq].copy(), y[nq:nq + self.nv].copy()
-        q[:3], v[:3] = qb, vb
+        q[:3], v[:3] = _base_from_odom(o[0], o[2], o[4], o[6], o[7], o[9], o[11])
         return q, v
