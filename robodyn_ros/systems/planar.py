@@ -177,7 +177,7 @@ class PlanarBaseSystem(ArmSystem):
     def _wrenches_many(self, args):
         # ArmSystem's: per state through _wrenches_one (rows 2.. already), or one batch kernel call (every row)
         f = super()._wrenches_many(args)
-        return f if f.shape[1] == len(self._wrench_names) else f[:, 2:]
+        return f[:, 2:] if f.ndim == 3 and f.shape[1] != len(self._wrench_names) else f
 
     def published_state(self, y):
         """``(q (nq,), v (nv,))`` as a subscriber rebuilds them from this state's ``joint_states``
