@@ -25,9 +25,11 @@ quintic (zero velocity and acceleration at both ends) between ``schedule[0]`` an
 
 The same :class:`PFLController` runs in the ``pfl`` command profile of a scene (headless
 ``robodyn run``, scripted commands of the sim node) and in the ``diver_controller`` node, and
-both compute it from the same published values (``joint_states`` + ``odom``, through
-:func:`state_from_outputs`, time from the integer stamp), so a lockstep node run equals the
-headless run byte for byte. Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
+both compute it from the same published values (``joint_states`` + ``odom``: the node through
+:func:`state_from_outputs`, the profile through ``PlanarBaseSystem.published_state``, the same
+numbers without building the outputs; time from the integer stamp), so a lockstep node run equals
+the headless run byte for byte. The law itself is one compiled call per update
+(:mod:`robodyn_ros.kernels.pfl`). Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
 
     kp: 100.0            # 1/s², scalar or one per inner joint
     kd: 20.0             # 1/s, scalar or one per inner joint
