@@ -398,3 +398,24 @@ def test_compiled_outputs_wrenches_and_the_state_a_subscriber_rebuilds(monkeypat
     batched = many([a for a, _ in args])
     for k, (_, one) in enumerate(args):
         assert per_state[k].tobytes() == one.tobytes() and batched[k].tobytes() == one.tobytes()
+
+
+def test_pfl_at_a_non_finite_state_gives_nan_torques_that_the_simulator_refuses():
+    """The compiled law does not raise at a non-finite state (numba's solve would): NaN torques,
+    as the numpy formulation gave, which the Simulator refuses as a command (a node would have
+    published them)."""
+    from robodyn_ros.simulation import CommandError
+    sc = load_scene('diver_tuck')
+    s = sc.system
+    ctl = sc.script.profiles['effort'].controller
+    sim = Simulator(s, sc.y0)
+    for k in (2, 5):
+        for bad in (np.nan, np.inf):
+            q, v = s.split(sc.y0.copy())
+            q[k] = bad
+            tau = ctl.torques(0.1, q, v)
+            assert tau.shape == (s.nv - 3,) and np.isnan(tau).all()
+            with pytest.raises(CommandError, match='non-finite'):
+                sim.set_command('effort', tau)
+    assert sim.ports['effort'].rejected == 4 and np.array_equal(sim.y, sc.y0)
+    assert np.isfinite(ctl.torques(0.1, *s.split(sc.y0))).all()

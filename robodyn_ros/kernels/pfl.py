@@ -65,7 +65,11 @@ def torques_into(mi, mf, damping, start, delta, s, d, a, kp, kd, q, v, tau):
     rhs = np.dot(np.ascontiguousarray(M[:3, 3:]), alpha)
     for i in range(3):
         rhs[i] = rhs[i] + h[i]
-    qdd_b = -np.linalg.solve(np.ascontiguousarray(M[:3, :3]), rhs)
+    M_bb = np.ascontiguousarray(M[:3, :3])
+    if not (np.isfinite(M_bb).all() and np.isfinite(rhs).all()):
+        tau[:] = np.nan   # a non-finite state: NaN torques (as numpy's solve gives; numba's raises), refused as a command
+        return
+    qdd_b = -np.linalg.solve(M_bb, rhs)
     t_b = np.dot(np.ascontiguousarray(M[3:, :3]), qdd_b)
     t_a = np.dot(np.ascontiguousarray(M[3:, 3:]), alpha)
     for k in range(m):
