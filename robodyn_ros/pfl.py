@@ -25,9 +25,11 @@ quintic (zero velocity and acceleration at both ends) between ``schedule[0]`` an
 
 The same :class:`PFLController` runs in the ``pfl`` command profile of a scene (headless
 ``robodyn run``, scripted commands of the sim node) and in the ``diver_controller`` node, and
-both compute it from the same published values (``joint_states`` + ``odom``, through
-:func:`state_from_outputs`, time from the integer stamp), so a lockstep node run equals the
-headless run byte for byte. Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
+both compute it from the same published values (``joint_states`` + ``odom``: the node through
+:func:`state_from_outputs`, the profile through ``PlanarBaseSystem.published_state``, the same
+numbers without building the outputs; time from the integer stamp), so a lockstep node run equals
+the headless run byte for byte. The law itself is one compiled call per update
+(:mod:`robodyn_ros.kernels.pfl`). Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
 
     kp: 100.0            # 1/s², scalar or one per inner joint
     kd: 20.0             # 1/s, scalar or one per inner joint
@@ -38,7 +40,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import dynamics as dyn
 from . import kernels
 
 __all__ = ['quintic', 'PosturePath', 'PFLController', 'state_from_outputs', 'controller_from_scene',
@@ -62,20 +63,28 @@ class PosturePath:
     (quintic, schedule[2..3]). start, target: (m,) rad; schedule: 4 increasing times (s)."""
 
     def __init__(self, start, target, schedule):
-        self.start = np.asarray(start, dtype=float)
-        self.delta = np.asarray(target, dtype=float) - self.start
+        self.start = np.ascontiguousarray(start, dtype=float)
+        self.delta = np.ascontiguousarray(np.asarray(target, dtype=float) - self.start)
         self.schedule = tuple(float(x) for x in schedule)
 
-    def __call__(self, t):
-        """``(q_d, q̇_d, q̈_d)`` at time t (s)."""
+    def coefficients(self, t):
+        """``(s, ṡ, s̈)`` at time t (s): the path is ``start + s δ`` (δ = target − start)."""
         t0, t1, t2, t3 = self.schedule
         s1, d1, a1 = quintic(t, t0, t1)
         s2, d2, a2 = quintic(t, t2, t3)
-        return self.start + (s1 - s2) * self.delta, (d1 - d2) * self.delta, (a1 - a2) * self.delta
+        return s1 - s2, d1 - d2, a1 - a2
+
+    def __call__(self, t):
+        """``(q_d, q̇_d, q̈_d)`` at time t (s) (compiled kernels)."""
+        m = self.start.shape[0]
+        qd, vd, ad = np.empty(m), np.empty(m), np.empty(m)
+        _kpfl().path_into(self.start, self.delta, *self.coefficients(t), qd, vd, ad)
+        return qd, vd, ad
 
 
 class PFLController:
-    """The control law above for a planar-base system.
+    """The control law above for a planar-base system, computed by the compiled kernels
+    (:mod:`robodyn_ros.kernels.pfl`, one call per update).
 
     system: a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem` whose inner joints are all
     actuated; path: a :class:`PosturePath` over the inner joints; kp, kd: (m,) gains.
@@ -91,39 +100,49 @@ class PFLController:
         if list(system.actuated) != inner:
             raise ValueError(f'PFL needs every inner joint actuated, in joint order {inner}; '
                              f'actuated are {list(system.actuated)}')
+        if not kernels.AVAILABLE:
+            raise ValueError(f'the PFL law is computed by the compiled kernels (numba), unavailable here: '
+                             f'{kernels.UNAVAILABLE_REASON}')
         self.kp = np.broadcast_to(np.asarray(kp, dtype=float), (m,)).copy()
         self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (m,)).copy()
         self.path = path
-        self.damping = np.asarray(model.damping, dtype=float)
-        # the system's compiled model when it has one (crba and rnea do not depend on its backend's
-        # specialisation), else one of our own: the law is computed by the kernels whenever numba is there
-        self._km = getattr(system, '_km', None)
-        if self._km is None and kernels.AVAILABLE:
-            self._km = kernels.CompiledModel(model)
-        self._zero = np.zeros(self.nv)
+        self.damping = np.ascontiguousarray(model.damping, dtype=float)
+        # the system's compiled model when it has one (its crba and rnea do not depend on the
+        # backend's specialisation), else one of our own
+        km = getattr(system, '_km', None)
+        if km is None:
+            km = kernels.CompiledModel(model)
+        self._mi, self._mf = km.mi_r, km.mf_r
+        self._k = _kpfl()
 
     def mass_and_bias(self, q, v):
-        """``(M (n, n), h (n,))`` with h = C v + g + D v (compiled CRBA and RNEA; the numpy
-        reference without numba)."""
-        q = np.ascontiguousarray(q, dtype=float)
-        v = np.ascontiguousarray(v, dtype=float)
-        if self._km is not None:
-            M, h = self._km.crba(q), self._km.rnea(q, v, self._zero)
-        else:
-            M, h = dyn.crba(self.model, q), dyn.rnea(self.model, q, v, self._zero)
-        return M, h + self.damping * v
+        """``(M (n, n), h (n,))`` with h = C v + g + D v (compiled CRBA and RNEA)."""
+        M, h = np.zeros((self.nv, self.nv)), np.empty(self.nv)
+        self._k.mass_and_bias_into(self._mi, self._mf, self.damping, np.ascontiguousarray(q, dtype=float),
+                                   np.ascontiguousarray(v, dtype=float), M, h)
+        return M, h
 
     def desired_accelerations(self, t, q, v):
         """``α = q̈_d + K_d (q̇_d − q̇_a) + K_p (q_d − q_a)`` (m,) of the inner joints."""
-        qd, vd, ad = self.path(t)
-        return ad + self.kd * (vd - v[3:]) + self.kp * (qd - q[3:])
+        alpha = np.empty(self.nv - 3)
+        self._k.accelerations_into(self.path.start, self.path.delta, *self.path.coefficients(t), self.kp, self.kd,
+                                   np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float), alpha)
+        return alpha
 
     def torques(self, t, q, v):
         """Inner joint torques (m,) at time t (s), coordinates q (n,), velocities v (n,)."""
-        M, h = self.mass_and_bias(q, v)
-        alpha = self.desired_accelerations(t, q, v)
-        qdd_b = -np.linalg.solve(M[:3, :3], M[:3, 3:] @ alpha + h[:3])
-        return M[3:, :3] @ qdd_b + M[3:, 3:] @ alpha + h[3:]
+        tau = np.empty(self.nv - 3)
+        s, d, a = self.path.coefficients(t)
+        self._k.torques_into(self._mi, self._mf, self.damping, self.path.start, self.path.delta, s, d, a,
+                             self.kp, self.kd, np.ascontiguousarray(q, dtype=float),
+                             np.ascontiguousarray(v, dtype=float), tau)
+        return tau
+
+
+def _kpfl():
+    """:mod:`robodyn_ros.kernels.pfl` (imported when first needed: it needs numba)."""
+    from .kernels import pfl
+    return pfl
 
 
 def state_from_outputs(system, names, position, velocity, odom):
@@ -186,11 +205,9 @@ def pfl_profile(params, path, ctx, system, port):
         ctl = PFLController(system, pathf, kp, kd)
     except ValueError as e:
         ctx.fail(path, str(e))
-    zero = system.zero_inputs()
 
     def f(t, y):
-        out = system.outputs(t, y, zero, wrenches=False)
-        q, v = state_from_outputs(system, out.joint_names, out.position, out.velocity, out.odom)
+        q, v = system.published_state(y)   # = state_from_outputs of system.outputs(t, y, ...)
         return ctl.torques(stamp_seconds(to_ns(t)), q, v)
     f.controller = ctl
     return f

@@ -358,3 +358,64 @@ def test_robodyn_plot_draws_the_stick_figure_and_the_somersault_angle(tmp_path):
     assert d.tf_pos['calf'][k][2] > d.tf_pos['thorax'][k][2] + 0.6
     pitch = np.unwrap(2 * np.arctan2(d.odom_q[:, 1], d.odom_q[:, 3]))
     assert pitch[-1] / (2 * np.pi) == pytest.approx(2.5, abs=1e-3)
+
+
+def test_compiled_outputs_wrenches_and_the_state_a_subscriber_rebuilds(monkeypatch):
+    """On the compiled backend the wrenches are computed when read or, for a recorder's batch, by
+    ``many`` (per state, or in one batch kernel call once the system has asked for many states):
+    every path gives the reference's wrenches (dynamics.joint_wrenches; the planar root's is the
+    pitch body's, named after the planar joint). ``published_state`` (what the pfl profile uses) is
+    what state_from_outputs rebuilds from the published joint_states and odom, bit for bit."""
+    from robodyn_ros.pfl import state_from_outputs
+    from robodyn_ros.systems import arm
+    sc = load_scene('diver_tuck')
+    s = sc.system
+    m = s.model
+    rng = np.random.default_rng(11)
+    names = [s.planar_joint] + list(m.joint_names[3:])
+    worst = 0.0
+    args = []
+    for _ in range(3):
+        q, v = _random_state(m, rng)
+        y = np.concatenate([q, v])
+        u = {'effort': rng.uniform(-50.0, 50.0, s.nv - 3)}
+        out = s.outputs(0.25, y, u)
+        _, f = dyn.joint_wrenches(m, q, v, s.generalized_forces(y, u))
+        want = [(m.link_names[2], f[2])] + [(m.link_names[i], f[i]) for i in range(3, m.nb)]
+        assert list(out.wrenches) == names and len(names) == m.nb - 2
+        for (frame, w), (frame0, w0) in zip(out.wrenches.values(), want):
+            assert frame == frame0
+            worst = max(worst, np.abs(w - w0).max() / max(1.0, np.abs(w0).max()))
+        args.append((out.wrenches.args, out.wrenches.array()))
+        qs, vs = s.published_state(y)
+        q2, v2 = state_from_outputs(s, out.joint_names, out.position, out.velocity, out.odom)
+        assert qs.tobytes() == q2.tobytes() and vs.tobytes() == v2.tobytes()
+        assert np.allclose(np.cos(qs[2] - q[2]), 1.0) and np.allclose(vs, v, rtol=1e-12, atol=1e-12)
+    assert worst <= 1e-9
+    many = s.outputs(0.0, sc.y0, s.zero_inputs()).wrenches.many
+    per_state = many([a for a, _ in args])
+    monkeypatch.setattr(arm, 'BATCH_KERNEL_AFTER', 0)
+    batched = many([a for a, _ in args])
+    for k, (_, one) in enumerate(args):
+        assert per_state[k].tobytes() == one.tobytes() and batched[k].tobytes() == one.tobytes()
+
+
+def test_pfl_at_a_non_finite_state_gives_nan_torques_that_the_simulator_refuses():
+    """The compiled law does not raise at a non-finite state (numba's solve would): NaN torques,
+    as the numpy formulation gave, which the Simulator refuses as a command (a node would have
+    published them)."""
+    from robodyn_ros.simulation import CommandError
+    sc = load_scene('diver_tuck')
+    s = sc.system
+    ctl = sc.script.profiles['effort'].controller
+    sim = Simulator(s, sc.y0)
+    for k in (2, 5):
+        for bad in (np.nan, np.inf):
+            q, v = s.split(sc.y0.copy())
+            q[k] = bad
+            tau = ctl.torques(0.1, q, v)
+            assert tau.shape == (s.nv - 3,) and np.isnan(tau).all()
+            with pytest.raises(CommandError, match='non-finite'):
+                sim.set_command('effort', tau)
+    assert sim.ports['effort'].rejected == 4 and np.array_equal(sim.y, sc.y0)
+    assert np.isfinite(ctl.torques(0.1, *s.split(sc.y0))).all()

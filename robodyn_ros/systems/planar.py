@@ -21,22 +21,41 @@ State ``y = [x, z, pitch, q_inner, ẋ, ż, pitch rate, v_inner]``; ``coordinate
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .. import dynamics as dyn
 from ..model import LinkSpec, Model, build_model, planar_root
 from .arm import ArmSystem
+from .base import LazyWrenches
 
 __all__ = ['PlanarBaseSystem', 'odom_of', 'base_state_from_odom']
 
 
+def _odom_values(x, z, pitch, xd, zd, pitch_rate) -> tuple:
+    """The 13 numbers of :func:`odom_of`: position (3), orientation (4), linear (3), angular (3).
+
+    ``math.sin``/``math.cos`` are the C library's functions, which ``np.sin``/``np.cos``
+    evaluate on float64 scalars (the same bits, a tenth of the time).
+    """
+    c, s = math.cos(pitch), math.sin(pitch)
+    return (x, 0.0, z, 0.0, math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch),
+            c * xd - s * zd, 0.0, s * xd + c * zd, 0.0, pitch_rate, 0.0)
+
+
 def odom_of(x, z, pitch, xd, zd, pitch_rate) -> dict:
-    """The ``odom`` output of a planar base at pose (x, z, pitch) with rates (ẋ, ż, pitch rate)."""
-    c, s = np.cos(pitch), np.sin(pitch)
-    return {'position': np.array([x, 0.0, z]),
-            'orientation': np.array([0.0, np.sin(0.5 * pitch), 0.0, np.cos(0.5 * pitch)]),
-            'linear': np.array([c * xd - s * zd, 0.0, s * xd + c * zd]),
-            'angular': np.array([0.0, pitch_rate, 0.0])}
+    """The ``odom`` output of a planar base at pose (x, z, pitch) with rates (ẋ, ż, pitch rate)
+    (the four values are views of one (13,) array)."""
+    a = np.array(_odom_values(x, z, pitch, xd, zd, pitch_rate))
+    return {'position': a[0:3], 'orientation': a[3:7], 'linear': a[7:10], 'angular': a[10:13]}
+
+
+def _base_from_odom(x, z, qy, qw, lx, lz, wy) -> tuple:
+    """``((x, z, pitch), (ẋ, ż, pitch rate))`` from the odometry numbers :func:`base_state_from_odom` reads."""
+    pitch = float(2.0 * np.arctan2(qy, qw))   # numpy's arctan2 (not the C library's bits on every machine)
+    c, s = math.cos(pitch), math.sin(pitch)
+    return (x, z, pitch), (c * lx + s * lz, -s * lx + c * lz, wy)
 
 
 def base_state_from_odom(position, orientation, linear, angular):
@@ -46,11 +65,9 @@ def base_state_from_odom(position, orientation, linear, angular):
     link's axes, as a ``nav_msgs/Odometry`` carries them. The pitch comes back through
     ``2 atan2(q_y, q_w)`` (equal to the simulated one to round-off, not bit for bit).
     """
-    pitch = 2.0 * np.arctan2(orientation[1], orientation[3])
-    c, s = np.cos(pitch), np.sin(pitch)
-    xd = c * linear[0] + s * linear[2]
-    zd = -s * linear[0] + c * linear[2]
-    return np.array([position[0], position[2], pitch]), np.array([xd, zd, angular[1]])
+    qb, vb = _base_from_odom(position[0], position[2], orientation[1], orientation[3], linear[0], linear[2],
+                             angular[1])
+    return np.array(qb), np.array(vb)
 
 
 class PlanarBaseSystem(ArmSystem):
@@ -86,6 +103,11 @@ class PlanarBaseSystem(ArmSystem):
         specs += list(model.specs[3:])
         self.urdf_model = build_model(specs, gravity=model.gravity, name=model.name, root=root)
         self.initial_state_keys = ('com', 'com_velocity')
+        # outputs.wrenches: the planar root's (its pitch joint's row, at the base link) as the planar
+        # joint's, then every inner joint's: rows 2.. of the tree's joint wrenches
+        self._wrench_names = (self.planar_joint,) + tuple(model.joint_names[3:])
+        self._wrench_frames = tuple(model.link_names[2:model.nb])
+        self._wrench_index = {n: i for i, n in enumerate(self._wrench_names)}
 
     def rebuilt(self, backend):
         """The same system on another backend."""
@@ -138,14 +160,31 @@ class PlanarBaseSystem(ArmSystem):
 
     # -- outputs -------------------------------------------------------------------------------
     def outputs(self, t, y, u, wrenches=True):
-        """Inner joint states, odometry of the base link, joint wrenches (the planar root's as ``J``)."""
+        """Inner joint states, odometry of the base link, joint wrenches (the planar root's as ``J``;
+        computed when read, or per batch by a recorder, on the compiled backends)."""
         out = super().outputs(t, y, u, wrenches=wrenches)
-        q, v = out.position, out.velocity
-        out.odom = odom_of(q[0], q[1], q[2], v[0], v[1], v[2])
-        out.joint_names = list(self.joint_names)
-        out.position, out.velocity, out.effort = q[3:].copy(), v[3:].copy(), out.effort[3:].copy()
-        if wrenches:
-            jx, jz, jp = self.model.joint_names[:3]
+        q, v = out.position, out.velocity   # copies of the state's
+        out.odom = odom_of(*q[:3].tolist(), *v[:3].tolist())
+        out.position, out.velocity, out.effort = q[3:], v[3:], out.effort[3:]
+        if wrenches and not isinstance(out.wrenches, LazyWrenches):   # the numpy reference: every body's
             w = out.wrenches
-            out.wrenches = {self.planar_joint: w[jp], **{k: x for k, x in w.items() if k not in (jx, jz, jp)}}
+            out.wrenches = {n: w[j] for n, j in zip(self._wrench_names, self.model.joint_names[2:])}
         return out
+
+    def _wrenches_one(self, q, v, tau):
+        return super()._wrenches_one(q, v, tau)[2:]
+
+    def _wrenches_many(self, args):
+        # ArmSystem's: per state through _wrenches_one (rows 2.. already), or one batch kernel call (every row)
+        f = super()._wrenches_many(args)
+        return f[:, 2:] if f.ndim == 3 and f.shape[1] != len(self._wrench_names) else f
+
+    def published_state(self, y):
+        """``(q (nq,), v (nv,))`` as a subscriber rebuilds them from this state's ``joint_states``
+        and ``odom`` (:func:`robodyn_ros.pfl.state_from_outputs` of :meth:`outputs`, bit for bit):
+        the base pose and rates go through :func:`odom_of` and :func:`base_state_from_odom`."""
+        nq = self.nq
+        o = _odom_values(*y[:3].tolist(), *y[nq:nq + 3].tolist())
+        q, v = y[:nq].copy(), y[nq:nq + self.nv].copy()
+        q[:3], v[:3] = _base_from_odom(o[0], o[2], o[4], o[6], o[7], o[9], o[11])
+        return q, v
