@@ -302,7 +302,7 @@ def _system_pair(scene, formulation=None):
     from ..systems.augmented import AugmentedFreeFlyerSystem
     from ..systems.freeflyer import FreeFlyerSystem
     s = scene.system
-    if not hasattr(s, 'rebuilt'):
+    if not (hasattr(s, 'rebuilt') and hasattr(s, '_u_vec')):   # CompiledSystem kinds (the planar base is a tree)
         return None
     kw = {}
     if formulation is not None:
