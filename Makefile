@@ -26,7 +26,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 bench: $(STAMP)
-	$(PY) -m robodyn_ros.bench
+	$(PY) -m robodyn_ros.bench speed --out docs/bench_speed.md
 
 clean:
 	rm -rf $(VENV) build install log
