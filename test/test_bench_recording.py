@@ -9,7 +9,7 @@ from robodyn_ros.bench import speed
 
 #: README "## Speed", recording paragraph (stanford_arm, this machine): recorder per period,
 #: batched, and messages per period
-README_RECORDER_US = 24.0
+README_RECORDER_US = 22.0
 README_MESSAGES = 11
 
 
