@@ -193,7 +193,7 @@ class TfTree:
     def transform_values(self, joint_names, positions, odom_pose=None) -> np.ndarray:
         """:meth:`transforms` of many publications at once: ``(K, n_transforms, 7)`` array of
         ``(x, y, z, qx, qy, qz, qw)``, the same numbers as K calls (the same float operations in
-        the same order, compiled: :func:`robodyn_ros.kernels.outputs.tf_values_many`).
+        the same order, compiled: :func:`robodyn_ros.kernels.records.tf_values_many`).
 
         positions: (K, n) joint_states positions; odom_pose: (K, 7) odom position and
         orientation, or None when there is no odom entry.
@@ -208,7 +208,7 @@ class TfTree:
             return out
         src = np.asarray(self._source(joint_names), dtype=np.int64)
         if self._groups is None:   # the rows' constants as arrays, once
-            from .kernels.outputs import tf_values_many
+            from .kernels.records import tf_values_many
             r = self._rows
             self._groups = (tf_values_many, np.array([x[0] for x in r]), np.array([x[4] for x in r], dtype=float),
                             np.array([x[2] for x in r], dtype=float), np.array([x[3] for x in r], dtype=float),

@@ -247,3 +247,37 @@ def test_the_planner_asks_the_system_once_and_declines_for_spherical_joints(monk
     tries = []
     monkeypatch.setattr(S._BlockRunner, 'run', lambda self, *a: tries.append(a) or a[0])
     assert run_headless(sim, 0.05, 100.0, scene.script, []) == 5 and tries == []
+
+
+_WITHOUT_NUMBA = '''
+import sys, warnings
+sys.modules['numba'] = None   # as if numba were not installed (README: optional)
+from robodyn_ros import kernels
+assert not kernels.AVAILABLE
+from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink
+from robodyn_ros.scene import load_scene
+from robodyn_ros.simulation import Simulator, run_headless
+scene = load_scene(sys.argv[1])
+for batch, path in ((HEADLESS_BATCH, sys.argv[2]), (0, sys.argv[3])):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
+    sink = McapRunSink(path, scene, {}, batch=batch, diagnostics_period=0.05)
+    sink.writer.chunk_size = 3000
+    assert run_headless(sim, 0.3, 100.0, scene.script, [sink]) == 30
+    sink.close()
+'''
+
+
+@pytest.mark.parametrize('scene_name', ['stanford_arm', 'betancur_platform'])
+def test_recording_without_numba_batches_the_message_by_message_bytes(tmp_path, scene_name):
+    # the recorder's compiled loops (kernels/records.py: rows, record headers, message indexes,
+    # /tf) run as Python without numba: a batched recording is still the file the
+    # message-by-message path (batch=0, none of those loops) writes
+    import subprocess
+    import sys
+    a, b = tmp_path / 'batched.mcap', tmp_path / 'by_message.mcap'
+    r = subprocess.run([sys.executable, '-c', _WITHOUT_NUMBA, scene_name, str(a), str(b)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert a.stat().st_size > 30_000 and a.read_bytes() == b.read_bytes()

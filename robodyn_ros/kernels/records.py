@@ -4,11 +4,22 @@ A batch of periods is a few hundred messages; doing their record headers and the
 message index entries with numpy takes a few dozen array calls per batch, each of which costs
 more than the loop over the messages does compiled. The bytes are those of ``mcap.Writer``
 writing the messages one at a time (the recording tests compare files byte for byte).
+``tf_values_many`` does the same for the ``/tf`` numbers of a batch (:meth:`robodyn_ros.tf.TfTree.transform_values`).
+
+numba is optional (README, "Dependencies"): without it these loops run as plain Python (the
+same operations, so the same bytes, slower), so that a recording never needs it.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from numba import njit
+
+try:
+    from numba import njit
+except ImportError:   # recording without numba: the loops below as Python functions
+    def njit(**_):
+        return lambda f: f
 
 _JIT = dict(cache=True, nogil=True)
 
@@ -92,3 +103,34 @@ def fill_rows(template, bits, value_col, value_at, times, stamp_at, stamp_of, ou
             sec = t // 1_000_000_000
             _put(row, stamp_at[i], sec & 0xFFFFFFFF, 4)
             _put(row, stamp_at[i] + 4, t - sec * 1_000_000_000, 4)
+
+
+@njit(error_model='numpy', **_JIT)
+def tf_values_many(revolute, src, axis, p_tree, q_tree, R_tree, positions, out, first):
+    """``/tf`` of K publications: ``out[k, first + j] = (x, y, z, qx, qy, qz, qw)`` of moving joint j
+    at ``theta = positions[k, src[j]]``, by the float operations of ``TfTree.transforms`` in its
+    order: a revolute joint ``q_tree ⊗ (a sin θ/2, cos θ/2)`` at ``p_tree``, a prismatic one
+    ``p_tree + R_tree a d`` with ``q_tree`` (the recordings test compares the bytes with that path).
+    """
+    K = positions.shape[0]
+    for k in range(K):
+        for j in range(src.shape[0]):
+            th = positions[k, src[j]]
+            o = out[k, first + j]
+            if revolute[j]:
+                half = 0.5 * th
+                s = math.sin(half)
+                c = math.cos(half)
+                bx, by, bz = axis[j, 0] * s, axis[j, 1] * s, axis[j, 2] * s
+                qx, qy, qz, qw = q_tree[j, 0], q_tree[j, 1], q_tree[j, 2], q_tree[j, 3]
+                o[0], o[1], o[2] = p_tree[j, 0], p_tree[j, 1], p_tree[j, 2]
+                o[3] = qw * bx + c * qx + qy * bz - qz * by
+                o[4] = qw * by + c * qy + qz * bx - qx * bz
+                o[5] = qw * bz + c * qz + qx * by - qy * bx
+                o[6] = qw * c - qx * bx - qy * by - qz * bz
+            else:
+                dx, dy, dz = axis[j, 0] * th, axis[j, 1] * th, axis[j, 2] * th
+                for r in range(3):
+                    o[r] = p_tree[j, r] + R_tree[j, r, 0] * dx + R_tree[j, r, 1] * dy + R_tree[j, r, 2] * dz
+                for r in range(4):
+                    o[3 + r] = q_tree[j, r]
