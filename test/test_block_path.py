@@ -70,24 +70,30 @@ class _Count:
         monkeypatch.setattr(S._BlockRunner, '_commit', commit)
 
 
-def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None, record=True):
+def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None, record=True, rate=100.0,
+         diagnostics_periods=(0.05,), chunk_size=3000, refuse=None):
+    """refuse: (t_a, t_b), the first recorder refuses blocks whose first period ends in [t_a, t_b)."""
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         sim = Simulator(scene.system, scene.y0, integrator=integrator, dt=dt)
-    path = tmp_path / f'{tag}.mcap'
+    paths = [tmp_path / f'{tag}{i or ""}.mcap' for i in range(len(diagnostics_periods))]
     sinks = [McapRunSink(path, scene, {'integrator': integrator, 'dt': dt}, batch=HEADLESS_BATCH,
-                         diagnostics_period=0.05)] if record else []
-    if record:
-        sinks[0].writer.chunk_size = 3000   # chunk boundaries inside batches and blocks
+                         diagnostics_period=d) for path, d in zip(paths, diagnostics_periods)] if record else []
+    for s in sinks:
+        s.writer.chunk_size = chunk_size   # chunk boundaries inside batches and blocks
+    if refuse is not None:
+        takes = sinks[0].block_periods
+        sinks[0].block_periods = lambda t_out, *a: 0 if refuse[0] <= t_out[0] < refuse[1] else takes(t_out, *a)
     err = None
     try:
-        n = run_headless(sim, duration, 100.0, scene.script if script is None else script, sinks)
+        n = run_headless(sim, duration, rate, scene.script if script is None else script, sinks)
     except (CommandError, SimulationError) as e:
         n, err = None, e
     finally:
         for s in sinks:
             s.close()
-    return (path.read_bytes() if record else None), n, sim, err
+    data = b''.join(p.read_bytes() + b'|' for p in paths) if record else None
+    return data, n, sim, err
 
 
 def _both(tmp_path, monkeypatch, scene, duration, **kw):
@@ -281,3 +287,34 @@ def test_recording_without_numba_batches_the_message_by_message_bytes(tmp_path, 
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert a.stat().st_size > 30_000 and a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.parametrize('kw,periods,blocked_min', [
+    (dict(duration=0.0), 0, 0), (dict(duration=0.01), 1, 0), (dict(duration=0.02), 2, 0), (dict(duration=0.03), 3, 1),
+    (dict(duration=0.77, rate=30.0), 23, 21),           # another rate, a duration not a multiple of its period
+    (dict(duration=0.5013, rate=250.0), 125, 123),
+    (dict(duration=0.5, diagnostics_periods=(0.003,)), 50, 48),   # a diagnostics message every period
+    (dict(duration=1.5, diagnostics_periods=(2.0,)), 150, 148),   # one, at t0 (blocks of 64 in one piece)
+    (dict(duration=1.5, diagnostics_periods=(0.137,)), 150, 148),
+    (dict(duration=0.5, chunk_size=1), 50, 48),        # a chunk per message
+    (dict(duration=1.0, diagnostics_periods=(0.05, 0.13)), 100, 98),   # two recorders, pieces where either wants
+    (dict(duration=1.5, refuse=(0.3, 0.55)), 150, 100),   # a recorder refusing blocks for a while
+])
+def test_block_path_edge_cases_record_the_per_period_bytes(tmp_path, monkeypatch, kw, periods, blocked_min):
+    scene = _scene('stanford_arm', 'numba')
+    (fast, n, sim_f, err_f), (slow, n_s, sim_s, err_s), blocked = _both(tmp_path, monkeypatch, scene, **kw)
+    assert err_f is None and err_s is None and n == n_s == periods
+    assert blocked >= blocked_min and sim_f.diag.block_periods == blocked
+    if 'refuse' in kw:   # the periods refused ran on the per-period path, the others in blocks
+        assert blocked <= periods - 25
+    assert fast == slow
+    _same_simulator(sim_f, sim_s)
+
+
+def test_is_selection():
+    from robodyn_ros.systems.arm import _is_selection
+    assert _is_selection(np.eye(3)) and _is_selection(np.eye(4)[:, [2, 0]]) and _is_selection(np.zeros((3, 2)))
+    assert not _is_selection(2.0 * np.eye(3))                         # a gear ratio
+    assert not _is_selection(np.array([[1.0, 1.0], [0.0, 0.0]]))      # one torque from two inputs
+    assert not _is_selection(np.array([[1.0, 0.0], [1.0, 0.0]]))      # one input on two joints
+    assert not _is_selection(np.array([[-1.0, 0.0], [0.0, 1.0]]))     # a sign flip
