@@ -1184,8 +1184,8 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
     z: ``[q, v, W(, W_lim)]`` in place; u (n,) the command held before period 0. Returns
     ``(k, code)``: code 0 after all K periods; 1: the command of period k is non-finite (not
     applied: u and z are those of the end of period k − 1); 2: the state became non-finite in
-    period k (z is put back to its start). The caller redoes period k on the per-period path,
-    which raises with the diagnosis.
+    period k (z as the failed integration left it; ``Zs[k − 1]`` is the end of period k − 1).
+    The caller redoes period k on the per-period path, which raises with the diagnosis.
     """
     K = t_start.shape[0]
     nv = damping.shape[0]
@@ -1195,7 +1195,6 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
     zeros = np.zeros(nv)
     un = np.empty(nu)
     tau_app = np.empty(nv)
-    z0 = np.empty(n)
     dz = np.empty(n)
     tauv = np.empty(nv)
     zf = np.zeros((mi.shape[0], 6))
@@ -1212,11 +1211,7 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
             for i in range(nu):
                 acc += B[r, i] * u[i]
             tau_app[r] = acc
-        for a in range(n):
-            z0[a] = z[a]
         if integrate_arm(mi_r, mf_r, damping, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k]) >= 0:
-            for a in range(n):
-                z[a] = z0[a]
             return k, 2
         for a in range(n):
             Zs[k, a] = z[a]
