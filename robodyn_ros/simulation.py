@@ -558,12 +558,10 @@ class _BlockRunner:
         _, _, Zs, Us, outs, Fs, steps = res
         ny = sys_.ny
         z = Zs[b - 1]
-        n_steps = int(steps[a:b].sum())
-        evals = 4 if sim.settings['integrator'] == 'rk4' else 1
-        sim.integrator.stats.accumulate(IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps,
-                                                        advance_calls=b - a, projections=n_steps))
-        sim.diag.steps += n_steps
-        sim.diag.rhs_evals += evals * n_steps
+        st = IntegratorStats.of_fused_steps(sim.settings['integrator'], int(steps[a:b].sum()), b - a)
+        sim.integrator.stats.accumulate(st)
+        sim.diag.steps += st.steps
+        sim.diag.rhs_evals += st.rhs_evals
         sim.diag.block_periods += b - a
         sim.t, sim.y, sim.diag.work = float(t_out[b - 1]), z[:ny].copy(), float(z[ny])
         for j, name in enumerate(sim._work_parts):

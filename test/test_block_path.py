@@ -318,3 +318,17 @@ def test_is_selection():
     assert not _is_selection(np.array([[1.0, 1.0], [0.0, 0.0]]))      # one torque from two inputs
     assert not _is_selection(np.array([[1.0, 0.0], [1.0, 0.0]]))      # one input on two joints
     assert not _is_selection(np.array([[-1.0, 0.0], [0.0, 1.0]]))     # a sign flip
+
+
+def test_fused_periods_declines_where_fused_advance_does():
+    # a work state other than [y, W] / [y, W, W_lim], or a method the fused loop does not have
+    scene = _scene('stanford_arm', 'numba')
+    sys_ = scene.system
+    u = np.zeros(sys_.inputs['effort'].size)
+    t0, t1 = np.array([0.0]), np.array([0.01])
+    for z in (np.r_[scene.y0, 0.0], np.r_[scene.y0, 0.0, 0.0]):
+        assert sys_.fused_periods('rk4', 1e-3, z.copy(), t0, t1, u.copy()) is not None
+        assert sys_.fused_advance('rk4', 1e-3, 0.0, z.copy(), 0.01, {'effort': u}) is not None
+    for name, z in (('rk4', np.r_[scene.y0, 0.0, 0.0, 0.0]), ('rk4', scene.y0.copy()), ('midpoint', np.r_[scene.y0, 0.0])):
+        assert sys_.fused_advance(name, 1e-3, 0.0, z.copy(), 0.01, {'effort': u}) is None
+        assert sys_.fused_periods(name, 1e-3, z.copy(), t0, t1, u.copy()) is None, (name, z.shape)

@@ -228,11 +228,8 @@ class ArmSystem(System):
         :attr:`work_components` names it). Returns ``(z1, IntegratorStats)``; raises ``IntegrationError`` like the
         reference integrator when the state becomes non-finite.
         """
-        if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact() \
-                or self._has_friction:  # the fused loop has viscous damping only
-            return None
         z = np.array(z0, dtype=np.float64)
-        if z.shape not in ((self.ny + 1,), (self.ny + 2,)):   # [y, W] or [y, W, W_lim]
+        if not self._fuses(integrator_name, z):
             return None
         grid = self._grids.get(dt)
         if grid is None:
@@ -241,7 +238,6 @@ class ArmSystem(System):
         n_steps = n_full + (1 if h_last > 0.0 else 0)
         tau_app = np.ascontiguousarray(self.B @ u['effort'], dtype=np.float64)
         k = self._km.integrate_arm(integrator_name, z, tau_app, dt, n_full, h_last)
-        evals = 4 if integrator_name == 'rk4' else 1
         if k == 0 and not np.isfinite(z0).all():  # checked after the fact: the loop reports step 0
             raise IntegrationError(integrator_name, t0, 'initial state is non-finite at components '
                                    f'{np.flatnonzero(~np.isfinite(np.asarray(z0)))[:8].tolist()}')
@@ -252,7 +248,7 @@ class ArmSystem(System):
                 integrator_name, t + h,
                 f'state became non-finite (components {np.flatnonzero(~np.isfinite(z))[:8].tolist()}) in the '
                 f'step from t={t:.12g} s with h={h:.6g} s; reduce dt or check the model')
-        return z, IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=1, projections=n_steps)
+        return z, IntegratorStats.of_fused_steps(integrator_name, n_steps)
 
     def fused_periods(self, integrator_name, dt, z, t_start, t_end, u, program=None, wrenches=False):
         """Run K publication periods in one compiled call (``core.run_arm_periods``), or None to decline.
@@ -261,15 +257,14 @@ class ArmSystem(System):
         command at its start (program: a compiled command profile ``(kind, P, times, values, BT,
         Bq)`` from :mod:`robodyn_ros.scene`, None: u held), the fused integration of
         :meth:`fused_advance` over the same step grid, and the outputs at its end. z: ``[y, W(,
-        W_lim)]`` (modified in place); t_start, t_end (K,): the periods; u (n,): the command held
-        before the first period (updated in place). Declines where :meth:`fused_advance` does,
+        W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
+        the periods; u (n,): the command held before the first period (updated in place). Declines where :meth:`fused_advance` does,
         for joint_states that are not ``(q, v)`` as they are (spherical joints, a free root),
         and for input matrices that are not 0/1 selections. Returns ``(k, code, Zs, Us, (position,
         velocity, effort), Fs, steps)``: see ``core.run_arm_periods``; the joint_states arrays (K, ·)
         of each period's end, Fs None without wrenches, steps (K,) per period.
         """
-        if self._km is None or integrator_name not in kernels.FUSED_METHODS or not self._fused_exact() \
-                or self._has_friction or not self._simple or not self._B_is_selection:
+        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection:
             return None
         from ..kernels import core
         grid = self._grids.get(dt)
@@ -294,6 +289,13 @@ class ArmSystem(System):
         steps = n_full + (h_last > 0.0)
         outs = (Zs[:, :self.nq], Zs[:, self.nq:self.nq + self.nv], TAUs)   # joint_states of a simple arm
         return k, code, Zs, Us, outs, (Fs if wrenches else None), steps
+
+    def _fuses(self, integrator_name, z) -> bool:
+        """True when the fused loop computes what the Python path would for this integrator and
+        ``z``: compiled kernels, a method it implements, this class's dynamics (:meth:`_fused_exact`),
+        viscous damping only (no Coulomb friction), ``z = [y, W]`` or ``[y, W, W_lim]``."""
+        return self._km is not None and integrator_name in kernels.FUSED_METHODS and self._fused_exact() \
+            and not self._has_friction and z.shape in ((self.ny + 1,), (self.ny + 2,))
 
     def _fused_exact(self) -> bool:
         """True when this object computes dy/dt, power, projection and q̇ exactly as ArmSystem

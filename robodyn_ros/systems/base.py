@@ -146,8 +146,7 @@ def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_v
             integrator_name, t + h,
             f'state became non-finite (components {np.flatnonzero(~np.isfinite(z))[:8].tolist()}) in the '
             f'step from t={t:.12g} s with h={h:.6g} s; reduce dt or check the model')
-    evals = 4 if integrator_name == 'rk4' else 1
-    return z, IntegratorStats(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=1, projections=n_steps)
+    return z, IntegratorStats.of_fused_steps(integrator_name, n_steps)
 
 
 @dataclass(frozen=True)
