@@ -332,3 +332,26 @@ def test_fused_periods_declines_where_fused_advance_does():
     for name, z in (('rk4', np.r_[scene.y0, 0.0, 0.0, 0.0]), ('rk4', scene.y0.copy()), ('midpoint', np.r_[scene.y0, 0.0])):
         assert sys_.fused_advance(name, 1e-3, 0.0, z.copy(), 0.01, {'effort': u}) is None
         assert sys_.fused_periods(name, 1e-3, z.copy(), t0, t1, u.copy()) is None, (name, z.shape)
+
+
+def test_a_command_timeout_acts_as_on_the_per_period_path(tmp_path, monkeypatch):
+    # a command set before the run, no script: it times out after 0.05 s (the block path would
+    # hold it; the planner declines timeouts, so the run is the per-period one)
+    scene = _scene('stanford_arm', 'numba')
+    g = scene.script(0.0, scene.y0)['effort']
+
+    def run(tag):
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3, command_timeout=0.05)
+        sim.set_command('effort', g)
+        sink = McapRunSink(tmp_path / f'{tag}.mcap', scene, {}, batch=HEADLESS_BATCH, diagnostics_period=0.05)
+        assert run_headless(sim, 0.5, 100.0, None, [sink]) == 50
+        sink.close()
+        return (tmp_path / f'{tag}.mcap').read_bytes(), sim
+    fast, sim_f = run('block')
+    monkeypatch.setattr(S._BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    slow, sim_s = run('period')
+    assert sim_s.ports['effort'].timed_out and sim_f.ports['effort'].timed_out
+    assert fast == slow
+    _same_simulator(sim_f, sim_s)
