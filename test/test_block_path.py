@@ -355,3 +355,22 @@ def test_a_command_timeout_acts_as_on_the_per_period_path(tmp_path, monkeypatch)
     assert sim_s.ports['effort'].timed_out and sim_f.ports['effort'].timed_out
     assert fast == slow
     _same_simulator(sim_f, sim_s)
+
+
+def test_an_arm_whose_outputs_are_replaced_is_recorded_as_they_say(tmp_path, monkeypatch):
+    # the block path computes joint_states and wrenches in its compiled loop instead of calling
+    # outputs(): an arm whose outputs() is replaced (here on the instance: effort read by a
+    # sensor with an offset) runs per period, and the recording shows what outputs() says
+    scene = _scene('stanford_arm', 'numba')
+    sys_ = scene.system
+    orig = sys_.outputs
+
+    def outputs(t, y, u, wrenches=True):
+        out = orig(t, y, u, wrenches)
+        out.effort = out.effort + 0.25
+        return out
+    monkeypatch.setattr(sys_, 'outputs', outputs, raising=False)
+    (fast, n, sim_f, err_f), (slow, _, sim_s, _), blocked = _both(tmp_path, monkeypatch, scene, 0.3)
+    assert err_f is None and n == 30 and blocked == 0
+    assert fast == slow
+    _same_simulator(sim_f, sim_s)

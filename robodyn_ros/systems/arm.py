@@ -22,13 +22,15 @@ from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, make_integrator
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL, Model, bryan_angles, limit_table
 from .base import (BACKENDS, InputPort, LazyValues, LazyWrenches, System, SystemOutputs,  # noqa: F401
-                   default_backend, effort_actuation)
+                   default_backend, effort_actuation, keeps_methods)
 
 
 #: recorded states after which joint wrenches are batched in one compiled call (kernels.outputs)
 BATCH_KERNEL_AFTER = 10_000
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
+#: what fused_periods computes in its compiled loop instead of calling it (each period's outputs)
+_PERIOD_METHODS_OF = ('outputs', '_outputs', 'split', '_wrenches_one')
 
 
 
@@ -260,11 +262,13 @@ class ArmSystem(System):
         W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
         the periods; u (n,): the command held before the first period (updated in place). Declines where :meth:`fused_advance` does,
         for joint_states that are not ``(q, v)`` as they are (spherical joints, a free root),
-        and for input matrices that are not 0/1 selections. Returns ``(k, code, Zs, Us, (position,
+        for input matrices that are not 0/1 selections, and where :meth:`outputs` (or what it
+        calls for joint states and wrenches) is not ArmSystem's own. Returns ``(k, code, Zs, Us, (position,
         velocity, effort), Fs, steps)``: see ``core.run_arm_periods``; the joint_states arrays (K, ·)
         of each period's end, Fs None without wrenches, steps (K,) per period.
         """
-        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection:
+        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection \
+                or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         from ..kernels import core
         grid = self._grids.get(dt)
