@@ -63,8 +63,10 @@ class Diagnostics:
     with the state; work_parts: name -> the part of ``work`` done by one element, integrated
     with the state by the same quadrature (the system's ``work_components``, e.g. ``limit``:
     the joint-limit moments); steps, rhs_evals, rejected_steps: integrator statistics; wall: wall time
-    spent in advance() (s); sim_time: simulated time (s); velocity_limit_exceeded: published
-    joint-velocity samples above their joint's velocity limit (URDF ``<limit velocity>``);
+    spent in advance() (s; on run_headless's block path, in its compiled calls, which also evaluate
+    the scripted commands and compute the outputs); sim_time: simulated time (s);
+    velocity_limit_exceeded: published joint-velocity samples above their joint's velocity limit
+    (URDF ``<limit velocity>``);
     block_periods: periods run by :func:`run_headless`'s block path (many per compiled call;
     not published: a figure for benchmarks and tests).
     """
@@ -394,7 +396,8 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     command) rate in Hz; script: optional ``script(t, y) -> {port: values}`` evaluated at the
     start of each period and held (zero-order); sinks: objects with ``on_start(sim)``,
     ``on_command(t, port, values)``, ``on_output(t, outputs, sim)`` (a sink asks ``sim`` for
-    diagnostics only when it publishes them), ``close()``;
+    diagnostics only when it publishes them), ``close()``; a sink whose ``takes_blocks`` is true
+    may get many periods at once instead (``block_periods``, ``on_block``: :class:`_BlockRunner`);
     wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``);
     stop: optional ``stop(t, y) -> bool`` checked after every period's outputs (a scene's
     ``stop_when``): the run ends at the first period where it holds.

@@ -329,7 +329,8 @@ def test_fused_periods_declines_where_fused_advance_does():
     for z in (np.r_[scene.y0, 0.0], np.r_[scene.y0, 0.0, 0.0]):
         assert sys_.fused_periods('rk4', 1e-3, z.copy(), t0, t1, u.copy()) is not None
         assert sys_.fused_advance('rk4', 1e-3, 0.0, z.copy(), 0.01, {'effort': u}) is not None
-    for name, z in (('rk4', np.r_[scene.y0, 0.0, 0.0, 0.0]), ('rk4', scene.y0.copy()), ('midpoint', np.r_[scene.y0, 0.0])):
+    for name, z in (('rk4', np.r_[scene.y0, 0.0, 0.0, 0.0]), ('rk4', scene.y0.copy()),
+                    ('midpoint', np.r_[scene.y0, 0.0])):
         assert sys_.fused_advance(name, 1e-3, 0.0, z.copy(), 0.01, {'effort': u}) is None
         assert sys_.fused_periods(name, 1e-3, z.copy(), t0, t1, u.copy()) is None, (name, z.shape)
 

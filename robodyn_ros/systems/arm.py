@@ -260,12 +260,13 @@ class ArmSystem(System):
         Bq)`` from :mod:`robodyn_ros.scene`, None: u held), the fused integration of
         :meth:`fused_advance` over the same step grid, and the outputs at its end. z: ``[y, W(,
         W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
-        the periods; u (n,): the command held before the first period (updated in place). Declines where :meth:`fused_advance` does,
-        for joint_states that are not ``(q, v)`` as they are (spherical joints, a free root),
-        for input matrices that are not 0/1 selections, and where :meth:`outputs` (or what it
-        calls for joint states and wrenches) is not ArmSystem's own. Returns ``(k, code, Zs, Us, (position,
-        velocity, effort), Fs, steps)``: see ``core.run_arm_periods``; the joint_states arrays (K, ·)
-        of each period's end, Fs None without wrenches, steps (K,) per period.
+        the periods; u (n,): the command held before the first period (updated in place).
+        Declines where :meth:`fused_advance` does, for joint_states that are not ``(q, v)`` as
+        they are (spherical joints, a free root), for input matrices that are not 0/1 selections,
+        and where :meth:`outputs` (or what it calls for joint states and wrenches) is not
+        ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps)``: see
+        ``core.run_arm_periods``; the joint_states arrays (K, ·) of each period's end, Fs None
+        without wrenches, steps (K,) per period.
         """
         if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection \
                 or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
