@@ -375,3 +375,32 @@ def test_an_arm_whose_outputs_are_replaced_is_recorded_as_they_say(tmp_path, mon
     assert err_f is None and n == 30 and blocked == 0
     assert fast == slow
     _same_simulator(sim_f, sim_s)
+
+
+@pytest.mark.parametrize('record', [False, True])
+@pytest.mark.parametrize('kind', ['nan', 'diverge'])
+def test_a_failure_at_period_1_is_that_of_the_per_period_path(tmp_path, monkeypatch, record, kind):
+    # the first period a block can run: the compiled loop refuses at its first period (done = 0)
+    scene = _scene('stanford_arm', 'numba')
+    g = scene.script(0.0, scene.y0)['effort']
+    bad = g.copy()
+    bad[0] = np.nan if kind == 'nan' else 1e305
+    script = _piecewise_script(scene, [0.0, 0.01], [g, bad])
+    from robodyn_ros.systems.arm import ArmSystem
+    calls = []
+    fused = ArmSystem.fused_periods
+
+    def spy(self, *a, **k):
+        res = fused(self, *a, **k)
+        calls.append(None if res is None else (len(a[3]), res[0], res[1]))
+        return res
+    monkeypatch.setattr(ArmSystem, 'fused_periods', spy)
+    (fast, _, sim_f, err_f), (slow, _, sim_s, err_s), blocked = _both(tmp_path, monkeypatch, scene, 0.5,
+                                                                      script=script, record=record)
+    want = CommandError if kind == 'nan' else SimulationError
+    assert isinstance(err_f, want) and isinstance(err_s, want) and str(err_f) == str(err_s)
+    assert blocked == 0 and abs(sim_f.t - 0.01) < 1e-12 and np.all(np.isfinite(sim_f.y))
+    if not record:   # the compiled loop ran period 1 and refused it (a recorder takes periods 0 and 1 itself)
+        assert calls[-1] == (49, 0, 1 if kind == 'nan' else 2), calls
+    assert fast == slow
+    _same_simulator(sim_f, sim_s)
