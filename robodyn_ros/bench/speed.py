@@ -772,7 +772,7 @@ def section_recording(args, names) -> str:
             run_robodyn(name, 0.05, backend=backend, full=True)   # warm-up
             t_adv = best_run(lambda: run_robodyn(name, d, backend=backend, advance_only=True), n_rec)
             t_full = best_run(lambda: run_robodyn(name, d, backend=backend, full=True), n_rec)
-            blocks = run_robodyn(name, 1.0, backend=backend, full=True)[1].diag.block_periods / 100
+            blocks = run_robodyn(name, 1.0, backend=backend, full=True)[1].diag.block_periods / round(1.0 * RTF_RATE)
             t_none = best_run(lambda: run_robodyn(name, d, backend=backend, record=False), n_rec)
             sc = _load(name, backend)
             c_batch, info = _replay_cost(sc, backend, periods, HEADLESS_BATCH, 3)
