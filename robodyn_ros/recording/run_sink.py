@@ -349,13 +349,22 @@ class McapRunSink:
                                                      tf_layouts=self._tf_layouts):
             self._write_data(topic, type_name, data, t_ns)
         self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(*divmod(t_ns, 1_000_000_000)), t_ns)
-        if self._next_diag is not None and t >= self._next_diag - 1e-9:
+        if self._diag_due(t):
             self._write('diagnostics', M.TOPIC_TYPES['diagnostics'],
                         M.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,
                                              sim.diagnostics_values()), t_ns)
             self._next_diag += self.diagnostics_period
 
+    def _diag_due(self, t) -> bool:
+        """True when the publication at t (s) carries a diagnostics message (one per diagnostics_period)."""
+        return self._next_diag is not None and t >= self._next_diag - 1e-9
+
     # -- batches of periods --------------------------------------------------------------
+    def _batch_done(self, t_ns: int) -> bool:
+        """True when the periods held, the last one ending at t_ns, are to be written: ``batch`` of
+        them, or spanning :data:`BATCH_SPAN` s."""
+        return self._held == self.batch or t_ns - int(self._times[0, 1]) >= BATCH_SPAN_NS
+
     def _period_kind(self, cmd_kind, out) -> tuple:
         """What periods encoded together share: commands (port, size), joint_states names and
         sizes, odom or not, the wrenches' names, frames and how they are computed."""
@@ -405,10 +414,10 @@ class McapRunSink:
             self._held = h + m
             self._filled = True
             i += m
-            if i == K and self._next_diag is not None and blk.t_out[-1] >= self._next_diag - 1e-9:
+            if i == K and self._diag_due(blk.t_out[-1]):
                 self._diags[self._held - 1] = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
                 self._next_diag += self.diagnostics_period
-            if self._held == self.batch or int(t_out[i - 1]) - int(self._times[0, 1]) >= BATCH_SPAN_NS:
+            if self._batch_done(int(t_out[i - 1])):
                 self._write_held()
 
     def _hold(self, t, out, sim, level, message) -> bool:
@@ -421,7 +430,7 @@ class McapRunSink:
         kind = self._period_kind(tuple([(p, v.shape[0]) for _, p, v in cmds]), out)
         # the kind of the previous period (tuple equality, no hashing), else one seen before
         layout = self._layout if kind == self._kind else self._layouts.get(kind)
-        diag = self._next_diag is not None and t >= self._next_diag - 1e-9
+        diag = self._diag_due(t)
         if layout is None:
             self._write_held()
             if not self._layout_ready(kind, out):
@@ -452,7 +461,7 @@ class McapRunSink:
         if diag:
             self._diags[k] = _diagnostics_bytes(t_ns, sim, level, message)
             self._next_diag += self.diagnostics_period
-        if self._held == self.batch or t_ns - int(self._times[0, 1]) >= BATCH_SPAN_NS:
+        if self._batch_done(t_ns):
             self._write_held()
         return True
 
