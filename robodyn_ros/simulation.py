@@ -352,12 +352,16 @@ class Simulator:
             self._vlim_cache = (key, np.array([self._velocity_limit_of.get(n, np.inf) for n in key]))
         return self._vlim_cache[1]
 
-    def energy_report(self) -> dict:
-        """Total energy, work done by inputs/dissipation and the drift ``E − E0 − W`` (J)."""
-        E = self.system.total_energy(self.y)
-        drift = E - self.diag.energy0 - self.diag.work
-        scale = max(abs(self.diag.energy0), abs(E), abs(self.diag.work), 1e-12)
-        out = {'energy': E, 'energy0': self.diag.energy0, 'work': self.diag.work, 'drift': drift,
+    def energy_report(self, y=None, work=None) -> dict:
+        """Total energy, work done by inputs/dissipation and the drift ``E − E0 − W`` (J), now or
+        at another state y with its work (a period of a block, :class:`PeriodBlock`; the work parts
+        reported are the current ones)."""
+        if y is None:
+            y, work = self.y, self.diag.work
+        E = self.system.total_energy(y)
+        drift = E - self.diag.energy0 - work
+        scale = max(abs(self.diag.energy0), abs(E), abs(work), 1e-12)
+        out = {'energy': E, 'energy0': self.diag.energy0, 'work': work, 'drift': drift,
                'relative_drift': drift / scale}
         for name, w in self.diag.work_parts.items():   # e.g. limit_work: the joint-limit moments' part of work
             out[f'{name}_work'] = w
@@ -461,7 +465,9 @@ class PeriodBlock:
     then) and ends at ``t_out[k]``, where the system's outputs are ``position``, ``velocity``,
     ``effort`` (K, ·) and, when computed, the joint wrenches ``wrenches`` (K, n, 6) in the order
     of ``template.wrenches``. template: the SystemOutputs of one such period (names, frames, how
-    wrenches are computed), the same for all K. The Simulator is at the end of the last one.
+    wrenches are computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and
+    work quadrature ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the
+    last one.
     """
     t_cmd: np.ndarray
     t_out: np.ndarray
@@ -471,6 +477,7 @@ class PeriodBlock:
     effort: np.ndarray
     wrenches: np.ndarray | None
     template: SystemOutputs
+    z: np.ndarray
 
 
 class _BlockRunner:
@@ -581,6 +588,6 @@ class _BlockRunner:
         position, velocity, effort = outs
         block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
                             velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
-                            template=self.template)
+                            template=self.template, z=Zs[a:b])
         for s in self.sinks:
             s.on_block(block, sim)

@@ -539,10 +539,36 @@ class _Figures:
     def on_command(self, t, port, values):
         pass
 
-    def on_output(self, t, out, sim):
-        e = sim.energy_report()
+    #: run_headless may hand this sink many periods at once (:meth:`on_block`)
+    takes_blocks = True
+
+    def _energy(self, e):
         self.energy_drift = max(self.energy_drift, abs(e['drift']))
         self.energy_scale = max(self.energy_scale, abs(e['energy0']), abs(e['energy']), abs(e['work']))
+
+    def _wrench(self, w):
+        w = np.asarray(w, dtype=float)
+        self.torque = max(self.torque, float(np.linalg.norm(w[:3])))
+        self.force = max(self.force, float(np.linalg.norm(w[3:])))
+
+    def block_periods(self, t_out, template, cmd_kind) -> int:
+        """Any number of periods, unless the system reports extra values (constraint residuals,
+        momenta), which a block does not carry per period."""
+        return 0 if template.extra else len(t_out)
+
+    def on_block(self, blk, sim):
+        """The figures of each period of a block (:class:`robodyn_ros.simulation.PeriodBlock`):
+        the numbers :meth:`on_output` takes from each, the energy report's from its state and work."""
+        ny = sim.system.ny
+        for z in blk.z:
+            self._energy(sim.energy_report(z[:ny], float(z[ny])))
+        if self.wants_wrenches and blk.wrenches is not None:
+            for F in blk.wrenches:
+                for w in F:
+                    self._wrench(w)
+
+    def on_output(self, t, out, sim):
+        self._energy(sim.energy_report())
         ex = out.extra
         if 'constraint_residual' in ex:
             self.has_residual = True
@@ -554,9 +580,7 @@ class _Figures:
             self.p0 = p if self.p0 is None else self.p0
             self.momentum = max(self.momentum, float(np.max(np.abs(p - self.p0))))
         for _, w in out.wrenches.values():
-            w = np.asarray(w, dtype=float)
-            self.torque = max(self.torque, float(np.linalg.norm(w[:3])))
-            self.force = max(self.force, float(np.linalg.norm(w[3:])))
+            self._wrench(w)
 
     def close(self):
         pass
