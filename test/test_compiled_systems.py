@@ -208,3 +208,34 @@ def test_compiled_path_checks_subclasses_and_instances_at_every_call():
     assert s.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is None
     del s.solve
     assert s.fused_advance('rk4', 1e-3, 0.0, z0, 0.01, u) is not None
+
+
+def test_compiled_outputs_publish_an_overridden_contact_wrenches():
+    """``outputs`` on the compiled path computes the wrenches inside ``dd_outputs``; a subclass or an
+    instance that replaces ``contact_wrenches`` publishes its own, as the numpy method does, and a
+    subclass keeps the compiled integration (fused_advance) all the same."""
+    from robodyn_ros.systems.diffdrive import DiffDriveSystem
+    fast, ref, sc = _pair('mobile_manipulator')
+    u = {k: np.linspace(0.5, 2.0, p.size) for k, p in fast.inputs.items()}
+    y = sc.y0.copy()
+    plain = fast.outputs(0.0, y, u).wrenches
+
+    def doubled(obj):
+        return lambda y, u, a, lam: {k: (fr, 2.0 * w) for k, (fr, w) in
+                                     DiffDriveSystem.contact_wrenches(obj, y, u, a, lam).items()}
+
+    class Doubled(DiffDriveSystem):
+        def contact_wrenches(self, y, u, a, lam):
+            return doubled(self)(y, u, a, lam)
+
+    s = copy.copy(fast)
+    s.__class__ = Doubled
+    t = copy.copy(fast)
+    t.contact_wrenches = doubled(t)
+    assert np.abs(plain['left_wheel_contact'][1]).max() > 1e-3 and len(plain) >= 5
+    for obj in (s, t):
+        got = obj.outputs(0.0, y, u).wrenches
+        assert list(got) == list(plain)
+        for k in plain:
+            assert got[k][0] == plain[k][0] and close(got[k][1], 2.0 * plain[k][1], 1e-11), k
+    assert s.fused_advance('rk4', 1e-3, 0.0, np.append(y, 0.0), 0.01, u) is not None

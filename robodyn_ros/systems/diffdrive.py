@@ -196,6 +196,8 @@ class PlatformParams:
 #: the methods whose DiffDriveSystem versions the compiled kernels reproduce
 _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'electrical', 'generalized_forces', 'solve',
                      'mass_and_bias', 'constraint_jacobian', 'planar_mass_matrix', 'energies')
+#: the methods ``dd_outputs`` also stands in for in :meth:`DiffDriveSystem.outputs`
+_OUTPUTS_METHODS = _COMPILED_METHODS + ('contact_wrenches',)
 
 
 def _computed(f):
@@ -584,9 +586,8 @@ class DiffDriveSystem(System):
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states (wheels first), odometry, motor diagnostics and (optionally) wrenches."""
-        cs = self._compiled()
-        if cs is not None:
-            return self._compiled_outputs(cs, y, u, wrenches)
+        if self._cs is not None and keeps_methods(self, DiffDriveSystem, _OUTPUTS_METHODS):
+            return self._compiled_outputs(self._cs, y, u, wrenches)
         q, v = self.split(y)
         el = self.electrical(y, u)
         volts, i, tau = el
