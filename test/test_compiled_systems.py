@@ -106,6 +106,14 @@ def test_compiled_system_equals_reference(name, changes):
             assert close(fast.project(y.copy()), ref.project(y.copy()))
             for w in (False, True):
                 oa, ob = fast.outputs(t, y.copy(), u, wrenches=w), ref.outputs(t, y.copy(), u, wrenches=w)
+                assert list(oa.joint_names) == list(ob.joint_names)
+                for x, xr in ((oa.position, ob.position), (oa.velocity, ob.velocity), (oa.effort, ob.effort)):
+                    assert close(x, xr, 1e-11), (x, xr)
+                assert (oa.odom is None) == (ob.odom is None)
+                if ob.odom is not None:
+                    assert oa.odom.keys() == ob.odom.keys()
+                    for k in ob.odom:
+                        assert close(oa.odom[k], ob.odom[k], 1e-11), (k, oa.odom[k], ob.odom[k])
                 assert set(oa.wrenches) == set(ob.wrenches) and (ob.wrenches or not w), 'no wrenches to compare'
                 for k in ob.wrenches:
                     assert oa.wrenches[k][0] == ob.wrenches[k][0] and close(oa.wrenches[k][1], ob.wrenches[k][1], 1e-11)

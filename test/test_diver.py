@@ -365,7 +365,8 @@ def test_compiled_outputs_wrenches_and_the_state_a_subscriber_rebuilds(monkeypat
     ``many`` (per state, or in one batch kernel call once the system has asked for many states):
     every path gives the reference's wrenches (dynamics.joint_wrenches; the planar root's is the
     pitch body's, named after the planar joint). ``published_state`` (what the pfl profile uses) is
-    what state_from_outputs rebuilds from the published joint_states and odom, bit for bit."""
+    what state_from_outputs rebuilds from the published joint_states and odom, bit for bit. The
+    numpy backend's wrenches (a plain dict) are the reference's too."""
     from robodyn_ros.pfl import state_from_outputs
     from robodyn_ros.systems import arm
     sc = load_scene('diver_tuck')
@@ -391,6 +392,11 @@ def test_compiled_outputs_wrenches_and_the_state_a_subscriber_rebuilds(monkeypat
         q2, v2 = state_from_outputs(s, out.joint_names, out.position, out.velocity, out.odom)
         assert qs.tobytes() == q2.tobytes() and vs.tobytes() == v2.tobytes()
         assert np.allclose(np.cos(qs[2] - q[2]), 1.0) and np.allclose(vs, v, rtol=1e-12, atol=1e-12)
+        ref = s.rebuilt('numpy').outputs(0.25, y, u)   # the numpy backend's dict, the same names and rows
+        assert list(ref.wrenches) == names
+        for (frame, w), (frame0, w0) in zip(ref.wrenches.values(), want):
+            assert frame == frame0
+            worst = max(worst, np.abs(w - w0).max() / max(1.0, np.abs(w0).max()))
     assert worst <= 1e-9
     many = s.outputs(0.0, sc.y0, s.zero_inputs()).wrenches.many
     per_state = many([a for a, _ in args])
