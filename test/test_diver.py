@@ -461,3 +461,13 @@ def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend):
         scale = max(scale, np.abs(alpha).max())
     print(f'PFL ({backend} dynamics): inner accelerations off α by at most {worst:.2e} rad/s² (|α| up to {scale:.0f})')
     assert scale > 10.0 and worst <= 1e-9 * scale
+
+
+def test_a_pfl_scene_without_the_compiled_kernels_is_refused_at_load(monkeypatch):
+    """The PFL law exists only as compiled kernels: without numba a diver scene is refused at load
+    with the reason (the numpy backend runs the dynamics, not the controller)."""
+    monkeypatch.setattr(kernels, 'AVAILABLE', False)
+    monkeypatch.setattr(kernels, 'UNAVAILABLE_REASON', 'numba missing (test)')
+    monkeypatch.setenv('ROBODYN_BACKEND', 'numpy')
+    with pytest.raises(SceneError, match=r'compiled kernels \(numba\), unavailable here: numba missing'):
+        load_scene('diver_tuck')
