@@ -427,8 +427,8 @@ def test_pfl_at_a_non_finite_state_gives_nan_torques_that_the_simulator_refuses(
     assert np.isfinite(ctl.torques(0.1, *s.split(sc.y0))).all()
 
 
-@pytest.mark.parametrize('backend', ['numpy', 'numba'])
-def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend):
+@pytest.mark.parametrize('backend,law', [('numpy', 'numpy'), ('numpy', 'compiled'), ('numba', 'compiled')])
+def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend, law, monkeypatch):
     """What the law is for: with its torques applied, the system's forward dynamics (the Simulator's
     right-hand side: ABA on either backend, independent of the law's CRBA, RNEA and solve) gives
     the inner joints q̈ = α = q̈_d + K_d (q̇_d − q̇) + K_p (q_d − q), whatever the base does. With
@@ -447,6 +447,8 @@ def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend):
     rng = np.random.default_rng(23)
     n = s.nv - 3
     kp, kd = rng.uniform(50.0, 150.0, n), rng.uniform(5.0, 30.0, n)
+    if law == 'numpy':   # the formulation without the kernels (no numba, or ROBODYN_BACKEND=numpy)
+        monkeypatch.setattr(kernels, 'AVAILABLE', False)
     ctl = PFLController(s, path, kp, kd)
     t0, t1, t2, t3 = path.schedule
     worst, scale = 0.0, 0.0
@@ -459,18 +461,32 @@ def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend):
         acc = s.rhs(t, np.concatenate([q, v]), {'effort': tau})[s.nq + 3:]
         worst = max(worst, np.abs(acc - alpha).max())
         scale = max(scale, np.abs(alpha).max())
-    print(f'PFL ({backend} dynamics): inner accelerations off α by at most {worst:.2e} rad/s² (|α| up to {scale:.0f})')
+    print(f'PFL ({law} law, {backend} dynamics): inner accelerations off α by at most {worst:.2e} rad/s² (|α| up to {scale:.0f})')
     assert scale > 10.0 and worst <= 1e-9 * scale
 
 
-def test_a_pfl_scene_without_the_compiled_kernels_is_refused_at_load(monkeypatch):
-    """The PFL law exists only as compiled kernels: without numba a diver scene is refused at load
-    with the reason (the numpy backend runs the dynamics, not the controller)."""
+def test_a_pfl_scene_without_the_compiled_kernels_runs_the_numpy_formulation(monkeypatch):
+    """Without the kernels (no numba, or ROBODYN_BACKEND=numpy) the scene's controller computes the
+    law in numpy (the reference: dynamics.crba/rnea, numpy's solve): the same torques as the
+    compiled law to round-off, and the dive runs."""
+    compiled = load_scene('diver_tuck')
     monkeypatch.setattr(kernels, 'AVAILABLE', False)
-    monkeypatch.setattr(kernels, 'UNAVAILABLE_REASON', 'numba missing (test)')
+    monkeypatch.setattr(kernels, 'UNAVAILABLE_REASON', 'ROBODYN_BACKEND=numpy')
     monkeypatch.setenv('ROBODYN_BACKEND', 'numpy')
-    with pytest.raises(SceneError, match=r'compiled kernels \(numba\), unavailable here: numba missing'):
-        load_scene('diver_tuck')
+    sc = load_scene('diver_tuck')
+    s = sc.system
+    assert s.backend == 'numpy' and s._km is None
+    ctl, ref = sc.script.profiles['effort'].controller, compiled.script.profiles['effort'].controller
+    rng = np.random.default_rng(31)
+    for _ in range(20):
+        q, v = _random_state(s.model, rng)
+        t = rng.uniform(0.0, 2.0)
+        a, b = ctl.torques(t, q, v), ref.torques(t, q, v)
+        assert np.abs(a - b).max() <= 1e-9 * max(1.0, np.abs(b).max())
+    sim = Simulator(s, sc.y0, integrator='rk4', dt=1e-3)
+    n = run_headless(sim, 0.2, 100.0, sc.script, [])
+    assert n == 20 and np.isfinite(sim.y).all() and np.abs(sim.y[3:s.nq] - sc.y0[3:s.nq]).max() > 0.01
+
 
 
 def test_numbas_blas_gives_numpys_bits_for_the_products_of_the_pfl_law():

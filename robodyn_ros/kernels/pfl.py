@@ -9,9 +9,9 @@ BLAS matrix–vector products and ``M_bb⁻¹`` by LAPACK ``gesv``. numba's ``np
 ``np.linalg.solve`` call scipy's OpenBLAS (0.3.30 with scipy 1.17.1), numpy's ``@`` its own
 (0.3.31 with numpy 2.4.6; both pinned in constraints.txt): the torques equal the numpy
 formulation's only while the two libraries pick kernels of the same arithmetic (measured equal
-with their SkylakeX, Haswell, Zen and Sandybridge kernels; the golden recordings of the diver
-scenes compare it, no test does). Either way the bits follow the BLAS: the diver recordings made
-on a machine whose OpenBLAS picks other kernels differ in the last bits.
+with their SkylakeX, Haswell, Zen and Sandybridge kernels; test_diver checks the products and
+solve of these shapes). Either way the bits follow the BLAS: the diver recordings made on a
+machine whose OpenBLAS picks other kernels differ in the last bits.
 """
 from __future__ import annotations
 
