@@ -38,7 +38,7 @@ setup(
     # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels;
     # yourdfpy reads URDF files (robodyn_ros.urdf); dask + distributed run `robodyn sweep` (and the
     # precision ladder) on a local or remote cluster, pyarrow writes its Parquet table
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba',
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba', 'llvmlite',
                       'yourdfpy', 'dask', 'distributed', 'pyarrow'],
     extras_require={
         'plot': ['matplotlib'],

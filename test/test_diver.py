@@ -365,7 +365,8 @@ def test_compiled_outputs_wrenches_and_the_state_a_subscriber_rebuilds(monkeypat
     ``many`` (per state, or in one batch kernel call once the system has asked for many states):
     every path gives the reference's wrenches (dynamics.joint_wrenches; the planar root's is the
     pitch body's, named after the planar joint). ``published_state`` (what the pfl profile uses) is
-    what state_from_outputs rebuilds from the published joint_states and odom, bit for bit."""
+    what state_from_outputs rebuilds from the published joint_states and odom, bit for bit. The
+    numpy backend's wrenches (a plain dict) are the reference's too."""
     from robodyn_ros.pfl import state_from_outputs
     from robodyn_ros.systems import arm
     sc = load_scene('diver_tuck')
@@ -391,6 +392,11 @@ def test_compiled_outputs_wrenches_and_the_state_a_subscriber_rebuilds(monkeypat
         q2, v2 = state_from_outputs(s, out.joint_names, out.position, out.velocity, out.odom)
         assert qs.tobytes() == q2.tobytes() and vs.tobytes() == v2.tobytes()
         assert np.allclose(np.cos(qs[2] - q[2]), 1.0) and np.allclose(vs, v, rtol=1e-12, atol=1e-12)
+        ref = s.rebuilt('numpy').outputs(0.25, y, u)   # the numpy backend's dict, the same names and rows
+        assert list(ref.wrenches) == names
+        for (frame, w), (frame0, w0) in zip(ref.wrenches.values(), want):
+            assert frame == frame0
+            worst = max(worst, np.abs(w - w0).max() / max(1.0, np.abs(w0).max()))
     assert worst <= 1e-9
     many = s.outputs(0.0, sc.y0, s.zero_inputs()).wrenches.many
     per_state = many([a for a, _ in args])
@@ -419,3 +425,95 @@ def test_pfl_at_a_non_finite_state_gives_nan_torques_that_the_simulator_refuses(
                 sim.set_command('effort', tau)
     assert sim.ports['effort'].rejected == 4 and np.array_equal(sim.y, sc.y0)
     assert np.isfinite(ctl.torques(0.1, *s.split(sc.y0))).all()
+
+
+@pytest.mark.parametrize('backend,law', [('numpy', 'numpy'), ('numpy', 'compiled'), ('numba', 'compiled')])
+def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend, law, monkeypatch):
+    """What the law is for: with its torques applied, the system's forward dynamics (the Simulator's
+    right-hand side: ABA on either backend, independent of the law's CRBA, RNEA and solve) gives
+    the inner joints q̈ = α = q̈_d + K_d (q̇_d − q̇) + K_p (q_d − q), whatever the base does. With
+    viscous joint damping (the bundled divers have none), distinct gains per joint, and times
+    on the quintic ramps; α restated here from the path's (s, ṡ, s̈)."""
+    from dataclasses import replace
+
+    from robodyn_ros.pfl import PFLController
+    from robodyn_ros.systems.planar import PlanarBaseSystem
+    sc = load_scene('diver_tuck')
+    m = sc.system.model
+    path = sc.script.profiles['effort'].controller.path
+    damped = replace(m, damping=np.concatenate([np.zeros(3), np.linspace(0.5, 3.0, m.nv - 3)]))
+    s = PlanarBaseSystem(damped, backend=backend)
+    assert not s._lim.shape[0]   # no joint-limit moments (the law does not model them)
+    rng = np.random.default_rng(23)
+    n = s.nv - 3
+    kp, kd = rng.uniform(50.0, 150.0, n), rng.uniform(5.0, 30.0, n)
+    if law == 'numpy':   # the formulation without the kernels (no numba, or ROBODYN_BACKEND=numpy)
+        monkeypatch.setattr(kernels, 'AVAILABLE', False)
+    ctl = PFLController(s, path, kp, kd)
+    t0, t1, t2, t3 = path.schedule
+    worst, scale = 0.0, 0.0
+    for t in list(rng.uniform(t0, t1, 4)) + list(rng.uniform(t2, t3, 4)):
+        q, v = _random_state(m, rng)
+        sd, dd, ad = path.coefficients(t)
+        assert abs(dd) > 1e-3 and abs(ad) > 1e-3
+        alpha = ad * path.delta + kd * (dd * path.delta - v[3:]) + kp * (path.start + sd * path.delta - q[3:])
+        tau = ctl.torques(t, q, v)
+        acc = s.rhs(t, np.concatenate([q, v]), {'effort': tau})[s.nq + 3:]
+        worst = max(worst, np.abs(acc - alpha).max())
+        scale = max(scale, np.abs(alpha).max())
+    print(f'PFL ({law} law, {backend} dynamics): inner accelerations off α by at most {worst:.2e} rad/s² (|α| up to {scale:.0f})')
+    assert scale > 10.0 and worst <= 1e-9 * scale
+
+
+def test_a_pfl_scene_without_the_compiled_kernels_runs_the_numpy_formulation(monkeypatch):
+    """Without the kernels (no numba, or ROBODYN_BACKEND=numpy) the scene's controller computes the
+    law in numpy (the reference: dynamics.crba/rnea, numpy's solve): the same torques as the
+    compiled law to round-off, and the dive runs."""
+    compiled = load_scene('diver_tuck')
+    monkeypatch.setattr(kernels, 'AVAILABLE', False)
+    monkeypatch.setattr(kernels, 'UNAVAILABLE_REASON', 'ROBODYN_BACKEND=numpy')
+    monkeypatch.setenv('ROBODYN_BACKEND', 'numpy')
+    sc = load_scene('diver_tuck')
+    s = sc.system
+    assert s.backend == 'numpy' and s._km is None
+    ctl, ref = sc.script.profiles['effort'].controller, compiled.script.profiles['effort'].controller
+    rng = np.random.default_rng(31)
+    for _ in range(20):
+        q, v = _random_state(s.model, rng)
+        t = rng.uniform(0.0, 2.0)
+        a, b = ctl.torques(t, q, v), ref.torques(t, q, v)
+        assert np.abs(a - b).max() <= 1e-9 * max(1.0, np.abs(b).max())
+    sim = Simulator(s, sc.y0, integrator='rk4', dt=1e-3)
+    n = run_headless(sim, 0.2, 100.0, sc.script, [])
+    assert n == 20 and np.isfinite(sim.y).all() and np.abs(sim.y[3:s.nq] - sc.y0[3:s.nq]).max() > 0.01
+
+
+
+def test_numbas_blas_gives_numpys_bits_for_the_products_of_the_pfl_law():
+    """The compiled PFL law computes ``M_ba α``, ``M_ab q̈_b``, ``M_aa α`` with numba's ``np.dot`` and
+    ``M_bb⁻¹`` with its ``np.linalg.solve``: scipy's OpenBLAS. The numpy formulation it replaced
+    (whose torques the diver recordings hold) used numpy's ``@`` and ``solve`` on views: numpy's own
+    OpenBLAS, another build. The recordings keep their bytes only while the two give the same bits
+    for these shapes; checked here on random mass-matrix-like (SPD) matrices of the diver's size."""
+    from numba import njit
+
+    @njit
+    def law_products(M, alpha, h):
+        rhs = np.dot(np.ascontiguousarray(M[:3, 3:]), alpha)
+        for i in range(3):
+            rhs[i] = rhs[i] + h[i]
+        qdd_b = -np.linalg.solve(np.ascontiguousarray(M[:3, :3]), rhs)
+        return rhs, qdd_b, np.dot(np.ascontiguousarray(M[3:, :3]), qdd_b), np.dot(np.ascontiguousarray(M[3:, 3:]), alpha)
+
+    n = load_scene('diver_tuck').system.nv
+    rng = np.random.default_rng(29)
+    differ = 0
+    for _ in range(500):
+        A = rng.normal(size=(n, n))
+        M = A @ A.T + np.diag(rng.uniform(0.1, 5.0, n))
+        alpha, h = rng.normal(size=n - 3) * 50.0, rng.normal(size=n) * 100.0
+        rhs = M[:3, 3:] @ alpha + h[:3]
+        qdd_b = -np.linalg.solve(M[:3, :3], rhs)
+        want = (rhs, qdd_b, M[3:, :3] @ qdd_b, M[3:, 3:] @ alpha)
+        differ += any(x.tobytes() != y.tobytes() for x, y in zip(law_products(M, alpha, h), want))
+    assert differ == 0, f'{differ} of 500: numba\'s BLAS/LAPACK (scipy\'s) and numpy\'s give other bits here'

@@ -74,8 +74,11 @@ NINFO = 4
 
 @intrinsic
 def fma(typingctx, a, b, c):
-    """``a * b + c`` rounded once (IEEE 754 fused multiply-add, ``llvm.fma.f64``): the arithmetic
-    of OpenBLAS's dot and gemv kernels on processors with FMA, for results equal to numpy's ``@``."""
+    """``a * b + c`` rounded once (IEEE 754 fused multiply-add, ``llvm.fma.f64``: the instruction
+    where the processor has it, else the C library's ``fma``; the same bits everywhere). A chain of
+    them from +0.0 is how OpenBLAS's SkylakeX kernels (the ones this machine's OpenBLAS picks)
+    compute numpy's ``@`` of small vectors; its Haswell, Zen and older kernels round the products
+    separately (test_compiled_systems checks both, with ``OPENBLAS_CORETYPE``)."""
     sig = types.float64(types.float64, types.float64, types.float64)
 
     def codegen(context, builder, signature, args):
@@ -945,9 +948,12 @@ def dd_contact_wrenches(fp, mi, mf, q, v, a, lam, bodies, wheels, f):
     forces acting on the wheel bodies ``wheels`` (2,) as external forces.
 
     The force at a contact, ``F = F_long heading + F_lat left``, and ``r × F`` (r = contact point
-    minus wheel centre) are taken to the wheel frame with ``Rᵀ x`` as numpy's ``R.T @ x`` computes
-    it through OpenBLAS (Haswell and later kernels: a chain of fused multiply-adds from +0.0,
-    :func:`fma`; signed zeros included), so that the numbers equal the numpy method's to the bit.
+    minus wheel centre) are taken to the wheel frame with ``Rᵀ x`` as a chain of fused
+    multiply-adds from +0.0 (:func:`fma`; signed zeros included): numpy's ``R.T @ x`` as OpenBLAS's
+    SkylakeX kernels compute it, which the compiled path called before issue 15, so the recordings
+    made then keep their bytes. The numbers no longer depend on the BLAS; they equal the numpy
+    method's (``dynamics`` poses and RNEA, not these kernels) to round-off (tested to 1e-11), not
+    to the bit.
     """
     nb = mi.shape[0]
     W, R, p = frames_ws(mi, mf, q)
@@ -987,8 +993,10 @@ def dd_outputs(ip, fp, mi, mf, mi_r, mf_r, u, y, pub, wrenches, bodies, wheels, 
     also solve for the ground forces (:func:`dd_solve` with the exact rank) and compute the
     wrenches of :func:`dd_contact_wrenches` for ``bodies``. Returns OK or SINGULAR.
 
-    The values are those of the numpy method, computed in its order (the electrical power is
-    numpy's two-term ``@``: a fused multiply-add through OpenBLAS, see :func:`dd_contact_wrenches`).
+    The values are those the compiled path published before issue 15 (the kernels' report, then
+    the numpy method's operations in its order; its two-term ``volts @ i`` as OpenBLAS's SkylakeX
+    ddot computes it, an fma chain, see :func:`dd_contact_wrenches`): equal to the numpy method's
+    to round-off, and independent of the BLAS.
     """
     nv = ip[DD_NV]
     npub = pub.shape[0]

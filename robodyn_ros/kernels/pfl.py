@@ -5,9 +5,13 @@ tree (:func:`robodyn_ros.kernels.core.crba_ws`, :func:`~robodyn_ros.kernels.core
 the desired inner accelerations and the torques, with no array built in Python. The operations
 are those the numpy formulation of the law performed, in the same order, so the torques are the
 same to the last bit: element-wise sums as written; ``M_ba α``, ``M_ab q̈_b`` and ``M_aa α`` as
-BLAS matrix–vector products and ``M_bb⁻¹`` by LAPACK ``gesv`` (numba's ``np.dot`` and
-``np.linalg.solve`` call them; on this code's platforms they give numpy's bits, which the
-recordings test checks byte for byte).
+BLAS matrix–vector products and ``M_bb⁻¹`` by LAPACK ``gesv``. numba's ``np.dot`` and
+``np.linalg.solve`` call scipy's OpenBLAS (0.3.30 with scipy 1.17.1), numpy's ``@`` its own
+(0.3.31 with numpy 2.4.6; both pinned in constraints.txt): the torques equal the numpy
+formulation's only while the two libraries pick kernels of the same arithmetic (measured equal
+with their SkylakeX, Haswell, Zen and Sandybridge kernels; test_diver checks the products and
+solve of these shapes). Either way the bits follow the BLAS: the diver recordings made on a
+machine whose OpenBLAS picks other kernels differ in the last bits.
 """
 from __future__ import annotations
 
@@ -15,8 +19,7 @@ import numpy as np
 from numba import njit
 
 from . import core
-
-_JIT = dict(cache=True, nogil=True, error_model='numpy')
+from .core import _JIT
 
 
 @njit(**_JIT)

@@ -196,6 +196,8 @@ class PlatformParams:
 #: the methods whose DiffDriveSystem versions the compiled kernels reproduce
 _COMPILED_METHODS = ('rhs', 'input_power', 'project', 'config_rate', 'electrical', 'generalized_forces', 'solve',
                      'mass_and_bias', 'constraint_jacobian', 'planar_mass_matrix', 'energies')
+#: the methods ``dd_outputs`` also stands in for in :meth:`DiffDriveSystem.outputs`
+_OUTPUTS_METHODS = _COMPILED_METHODS + ('contact_wrenches',)
 
 
 def _computed(f):
@@ -219,8 +221,8 @@ class DiffDriveSystem(System):
     numba): :mod:`robodyn_ros.kernels.constrained` evaluates the right-hand side, projection and
     constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
     in one call and :meth:`outputs` is one call of ``dd_outputs`` (the numbers of the numpy
-    method, bit for bit where numpy's BLAS fuses multiply-adds, as OpenBLAS does on x86-64 with
-    FMA: see ``dd_contact_wrenches``); default
+    method to round-off; numpy's small BLAS products evaluated as OpenBLAS's SkylakeX kernels do,
+    on every machine: see ``dd_contact_wrenches``); default
     :func:`robodyn_ros.systems.base.default_backend`.
 
     State ``y = [q (nv), v (nv), i (n_L)]`` with q, v as in (D1) and one current per motor with
@@ -259,7 +261,7 @@ class DiffDriveSystem(System):
         #: names of the entries of q (and v): the planar pose, the wheels, the arm joints
         self.coordinate_names = ['x', 'y', 'yaw'] + self.joint_names
         self._arm_idx = np.array([m.v_idx[m.joint_names.index(n)] for n in self.arm_joint_names], dtype=int)
-        self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(int)
+        self._pub_idx = np.concatenate([[_IL, _IR], self._arm_idx]).astype(np.int64)
         actuated, self.B, effort_port = effort_actuation(m, self.arm_joint_names, arm_actuated, 'arm joints')
         self.actuated = actuated  # arm actuation: tau = B u['effort']
         self._has_effort = self.B.shape[1] > 0
@@ -289,9 +291,8 @@ class DiffDriveSystem(System):
                                     [m.link_names[i] for i in self._wrench_bodies])
         self._wheel_bodies = np.array(self._wheels, dtype=np.int64)
         self._wrench_index = {n: k for k, n in enumerate(self._wrench_names)}
-        self._pub = np.ascontiguousarray(self._pub_idx, dtype=np.int64)
         if compiled:   # where dd_outputs' blocks start in its output
-            c, n = kernels.constrained, len(self._pub)
+            c, n = kernels.constrained, len(self._pub_idx)
             self._out_blocks = (n, 3 * n, 3 * n + c.DO_ODOM, 3 * n + c.DO_ODOM + c.NDR,
                                 3 * n + c.DO_ODOM + c.NDR + c.DO_NEXTRA)
 
@@ -584,9 +585,8 @@ class DiffDriveSystem(System):
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states (wheels first), odometry, motor diagnostics and (optionally) wrenches."""
-        cs = self._compiled()
-        if cs is not None:
-            return self._compiled_outputs(cs, y, u, wrenches)
+        if self._cs is not None and keeps_methods(self, DiffDriveSystem, _OUTPUTS_METHODS):
+            return self._compiled_outputs(self._cs, y, u, wrenches)
         q, v = self.split(y)
         el = self.electrical(y, u)
         volts, i, tau = el
@@ -632,7 +632,7 @@ class DiffDriveSystem(System):
         nw = len(self._wrench_names) if wrenches else 0
         out = np.empty(w + 6 * nw)
         if kernels.constrained.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64),
-                                          self._pub, bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
+                                          self._pub_idx, bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
         ex = out[e:w].tolist()
         extra = dict(zip(self._EXTRA_NAMES, ex))
