@@ -72,6 +72,21 @@ def start_sim(domain: Domain, params: dict, log_path, namespace=None) -> Proc:
     return Proc(sim_command(params, namespace), domain.env(), log_path)
 
 
+def run_sim_to_end(params: dict, log_path, timeout=90) -> tuple:
+    """Run the sim node with ``params`` (a ``duration`` or ``stop_when`` ends it) in its own ROS
+    domain until it exits; returns ``(exit status, log text)``. The process is always cleaned up."""
+    dom = Domain()
+    try:
+        node = start_sim(dom, params, log_path)
+        try:
+            rc = node.wait(timeout=timeout)
+        finally:
+            node.cleanup()
+        return rc, node.output()
+    finally:
+        dom.release()
+
+
 def start_pd(domain: Domain, log_path, **kw) -> Proc:
     """Start the lockstep PD controller of this file in its own process (see :func:`pd_main`)."""
     cmd = [sys.executable, os.path.abspath(__file__), 'pd']

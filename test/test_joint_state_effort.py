@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
-from ros_helpers import Domain, start_sim
+from ros_helpers import run_sim_to_end
 
 from robodyn_ros.cli import main as robodyn
 from robodyn_ros.model import to_urdf
@@ -78,17 +78,9 @@ def test_headless_t0_effort_is_the_command_applied_from_t0(tmp_path):
 def test_node_scripted_t0_effort_is_the_first_scripted_command_and_equals_headless(tmp_path):
     """The node with scripted commands follows the same rule, and its joint_states equal a headless run's."""
     rec = tmp_path / 'node.mcap'
-    dom = Domain()
-    try:
-        node = start_sim(dom, {'scene': 'stanford_arm', 'mode': 'max', 'scripted_commands': True, 'duration': 0.1,
-                               'record': str(rec)}, tmp_path / 'node.log')
-        try:
-            rc = node.wait(timeout=90)
-        finally:
-            node.cleanup()
-        assert rc == 0, node.output()
-    finally:
-        dom.release()
+    rc, log = run_sim_to_end({'scene': 'stanford_arm', 'mode': 'max', 'scripted_commands': True, 'duration': 0.1,
+                              'record': str(rec)}, tmp_path / 'node.log')
+    assert rc == 0, log
     js, cmd = efforts_and_commands(rec)
     e0 = assert_effort_is_the_command_held_over_the_period_ending_at_its_stamp(js, cmd)
     assert cmd[0][0] == 0

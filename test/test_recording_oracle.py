@@ -197,19 +197,11 @@ def test_node_recording_closes_chunks_every_half_second_of_simulation(tmp_path):
     # betancur_pendulum writes about 0.5 KiB per period, so by size alone a 64 KiB chunk would
     # span over a second of simulation
     from mcap.reader import make_reader
-    from ros_helpers import Domain, start_sim
+    from ros_helpers import run_sim_to_end
     rec = tmp_path / 'node.mcap'
-    dom = Domain()
-    try:
-        node = start_sim(dom, {'scene': 'betancur_pendulum', 'mode': 'max', 'duration': 3.0, 'record': str(rec)},
-                         tmp_path / 'node.log')
-        try:
-            rc = node.wait(timeout=90)
-        finally:
-            node.cleanup()
-        assert rc == 0, node.output()
-    finally:
-        dom.release()
+    rc, log = run_sim_to_end({'scene': 'betancur_pendulum', 'mode': 'max', 'duration': 3.0, 'record': str(rec)},
+                             tmp_path / 'node.log')
+    assert rc == 0, log
     with open(rec, 'rb') as f:
         summary = make_reader(f).get_summary()
     chunks = summary.chunk_indexes
