@@ -513,14 +513,8 @@ def build_scene(scene_text: str, scene_file: str, params: dict, backend: str):
 
 def run_settings(scene, overrides: dict, duration: float) -> dict:
     """Integrator settings of one run: ``overrides`` over the scene's, resolved as ``robodyn run`` does."""
-    from types import SimpleNamespace
-
-    from .cli.run import resolve_settings
-    ns = SimpleNamespace(integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=duration)
-    for k in SETTINGS:
-        if k in overrides:
-            setattr(ns, k, overrides[k])
-    return resolve_settings(scene, ns)
+    from .runs import resolve_settings
+    return resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
 
 
 class _Figures:
@@ -688,7 +682,7 @@ def execute_run(task: dict) -> dict:
             from .recording.run_sink import HEADLESS_BATCH, McapRunSink
             fd, tmp = tempfile.mkstemp(suffix='.mcap')
             os.close(fd)
-            from .cli.run import DIAGNOSTICS_PERIOD
+            from .runs import DIAGNOSTICS_PERIOD
             sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
                                      diagnostics_period=DIAGNOSTICS_PERIOD,
                                      batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes

@@ -148,22 +148,19 @@ def resolve_config(p: dict, scene) -> Config:
     """Validate raw parameter values ``p`` (name -> value) against ``scene``; scene defaults fill gaps.
 
     Raises :class:`ConfigError` naming the parameter. The integrator settings are resolved like
-    ``robodyn run`` does (:func:`robodyn_ros.cli.run.resolve_settings`), so a node run and a
+    ``robodyn run`` does (:func:`robodyn_ros.runs.resolve_settings`), so a node run and a
     headless run of the same scene use the same defaults.
     """
-    from argparse import Namespace
-
-    from ..cli.run import resolve_settings
     from ..integrators import INTEGRATORS
+    from ..runs import resolve_settings
     if not isinstance(p['integrator'], str):
         raise ConfigError(f"parameter 'integrator' must be a string, got {p['integrator']!r}")
     if p['integrator'] and p['integrator'].lower() not in INTEGRATORS:
         raise ConfigError(f"parameter 'integrator': unknown integrator {p['integrator']!r}; "
                           f"valid names: {', '.join(INTEGRATORS)}")
     opt = {k: (_number(k, p[k], minimum=0.0) or None) for k in ('dt', 'rtol', 'atol', 'publish_rate')}
-    st = resolve_settings(scene, Namespace(integrator=p['integrator'].lower() or None, dt=opt['dt'],
-                                           rtol=opt['rtol'], atol=opt['atol'], rate=opt['publish_rate'],
-                                           duration=None))
+    st = resolve_settings(scene, p['integrator'].lower() or None, opt['dt'], opt['rtol'], opt['atol'],
+                          opt['publish_rate'])
     kind = INTEGRATORS[st['integrator']].kind
     dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
     mode = p['mode']
@@ -717,7 +714,7 @@ def make_node_class():
         # -- shutdown ---------------------------------------------------------------------------
         def close(self) -> str:
             """Finish the recording; return the run summary (``robodyn run`` format)."""
-            from ..cli.run import summary
+            from ..runs import summary
             for r in self.recorders:
                 r.close()
             now = time.monotonic()
