@@ -45,7 +45,7 @@ from . import dynamics as dyn
 from . import kernels
 
 __all__ = ['quintic', 'PosturePath', 'PFLController', 'state_from_outputs', 'controller_from_scene',
-           'pfl_profile', 'stamp_seconds']
+           'stamp_seconds']
 
 
 def quintic(t, t0, t1):
@@ -177,51 +177,6 @@ def state_from_outputs(system, names, position, velocity, odom):
 def stamp_seconds(t_ns: int) -> float:
     """Controller time (s) from a message stamp in integer nanoseconds (both paths use this)."""
     return t_ns * 1e-9
-
-
-def _params(ctx, params, path, system, start):
-    """Validated ``(PosturePath, kp, kd)`` from the profile's keys (see the module docstring)."""
-    from .scene import _key
-    ctx.mapping(params, path, required=('profile', 'target', 'schedule'), optional=('kp', 'kd'))
-    inner = list(system.inner_joint_names)
-    m = len(inner)
-
-    def gains(k, default):
-        v = params.get(k, default)
-        if isinstance(v, list):
-            return ctx.vector(v, _key(path, k), m, f'values (one per inner joint: {", ".join(inner)})', minimum=0.0)
-        return np.full(m, ctx.number(v, _key(path, k), positive=True))
-    kp, kd = gains('kp', 100.0), gains('kd', 20.0)
-    tpath = _key(path, 'target')
-    target = np.array(start, dtype=float)
-    for name, val in ctx.mapping(params['target'], tpath, optional=inner).items():
-        target[inner.index(name)] = ctx.number(val, _key(tpath, name))
-    sched = ctx.vector(params['schedule'], _key(path, 'schedule'), 4, 'times [t0, t1, t2, t3]', minimum=0.0)
-    if not np.all(np.diff(sched) > 0.0):
-        ctx.fail(_key(path, 'schedule'), f'times must increase strictly, got {sched.tolist()}')
-    return PosturePath(start, target, sched), kp, kd
-
-
-def pfl_profile(params, path, ctx, system, port):
-    """Command profile ``pfl``: ``f(t, y) -> effort`` of :class:`PFLController`, from the outputs
-    the system publishes at (t, y) (the values a node would receive)."""
-    from .messages import to_ns
-    from .scene import _key
-    if port != 'effort' or not hasattr(system, 'inner_joint_names'):
-        ctx.fail(_key(path, 'profile'), "pfl needs the 'effort' port of a tree on a planar root joint "
-                                        "(an arm part whose root link has type: planar)")
-    start = np.asarray(system.split(ctx.y0)[0][3:], dtype=float)
-    pathf, kp, kd = _params(ctx, params, path, system, start)
-    try:
-        ctl = PFLController(system, pathf, kp, kd)
-    except ValueError as e:
-        ctx.fail(path, str(e))
-
-    def f(t, y):
-        q, v = system.published_state(y)   # = state_from_outputs of system.outputs(t, y, ...)
-        return ctl.torques(stamp_seconds(to_ns(t)), q, v)
-    f.controller = ctl
-    return f
 
 
 def controller_from_scene(scene) -> PFLController:

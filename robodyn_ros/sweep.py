@@ -283,9 +283,9 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
     also builds the scene for every grid point with its first draw, so a parameter the scene
     refuses is reported here (with the scene's own reason) and not by every run.
     """
-    from .scene import SceneError, _Loader, find_scene
+    from .scene import SceneError, SceneLoader, find_scene
     try:
-        data = yaml.load(text, Loader=_Loader)
+        data = yaml.load(text, Loader=SceneLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, 'problem_mark', None)
         where = f'line {mark.line + 1}, column {mark.column + 1}' if mark is not None else 'YAML'
@@ -308,7 +308,7 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
         scene_text = scene_path.read_text(encoding='utf-8')
     except (SceneError, OSError) as e:
         _fail(file, 'scene', f'unknown scene {scene_ref!r}: {e}')
-    scene_data = yaml.load(scene_text, Loader=_Loader)
+    scene_data = yaml.load(scene_text, Loader=SceneLoader)
 
     def count(key, default, minimum):
         v = data.get(key, default)
@@ -469,8 +469,8 @@ def expand(spec: Spec, indices=None) -> list:
     Each has ``index``, ``grid_point``, ``sample``, ``params`` (path -> value, grid values then
     draws) and what :func:`execute_run` needs (scene text, settings, figures, reference).
     """
-    from .scene import _Loader
-    scene_data = yaml.load(spec.scene_text, Loader=_Loader)
+    from .scene import SceneLoader
+    scene_data = yaml.load(spec.scene_text, Loader=SceneLoader)
     sizes = [len(v) for _, v in spec.grid]
     points = list(itertools.product(*[range(n) for n in sizes])) if spec.grid else [()]
     out = []
@@ -496,12 +496,12 @@ def _version() -> str:
 
 def build_scene(scene_text: str, scene_file: str, params: dict, backend: str):
     """The scene with the parameters' scene keys set (run settings are left to the caller)."""
-    from .scene import _Loader, parse_scene
+    from .scene import SceneLoader, parse_scene
     from .systems.base import backend_scope
     keys = {k: v for k, v in params.items() if k not in SETTINGS}
     text = scene_text
     if keys:
-        data = yaml.load(scene_text, Loader=_Loader)
+        data = yaml.load(scene_text, Loader=SceneLoader)
         for k, v in keys.items():
             _assign(data, k, v)
         text = yaml.safe_dump(data, sort_keys=False)

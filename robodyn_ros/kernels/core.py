@@ -1118,14 +1118,14 @@ def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_la
 # ----------------------------------------------------------------------------------------------
 # many publication periods in one call: scripted commands, integration, outputs (issue 15)
 # ----------------------------------------------------------------------------------------------
-#: compiled command profiles (scene.py ``COMMAND_PROFILES`` -> ``f.program``): kind codes
+#: compiled command profiles (profiles.py ``COMMAND_PROFILES`` -> ``f.program``): kind codes
 CMD_NONE, CMD_ZERO, CMD_CONSTANT, CMD_PIECEWISE, CMD_SINE, CMD_GRAVITY_SINE = -1, 0, 1, 2, 3, 4
 
 
 @njit(**_JIT)
 def command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t, z, g, zeros, u):
     """u (n,) = a scene's command profile at time t and state z (``[q, v, ...]``), with the
-    arithmetic of its Python form in :mod:`robodyn_ros.scene`, operation by operation:
+    arithmetic of its Python form in :mod:`robodyn_ros.profiles`, operation by operation:
 
     - ``CMD_ZERO``: 0; ``CMD_CONSTANT``: ``P[0]``;
     - ``CMD_PIECEWISE``: ``values[j]`` with ``j = searchsorted(times, t, 'right') - 1`` (0 before

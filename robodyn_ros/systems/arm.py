@@ -257,7 +257,7 @@ class ArmSystem(System):
 
         The block path of :func:`robodyn_ros.simulation.run_headless`: per period the scripted
         command at its start (program: a compiled command profile ``(kind, P, times, values, BT,
-        Bq)`` from :mod:`robodyn_ros.scene`, None: u held), the fused integration of
+        Bq)`` from :mod:`robodyn_ros.profiles`, None: u held), the fused integration of
         :meth:`fused_advance` over the same step grid, and the outputs at its end. z: ``[y, W(,
         W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
         the periods; u (n,): the command held before the first period (updated in place).
