@@ -43,7 +43,7 @@ scene). The measurements are also stored for ``robodyn advise`` (:mod:`robodyn_r
 
 ``--quick`` uses the short ladder ``robodyn advise`` runs when it has no measurements.
 ``--workers N`` / ``--scheduler ADDRESS`` run every scene's reference and each method's ladder as
-tasks on Dask (:class:`robodyn_ros.sweep.Pool`, the machinery of ``robodyn sweep``), side by side;
+tasks on Dask (:class:`robodyn_ros.pool.Pool`, the machinery of ``robodyn sweep``), side by side;
 the tables are the same apart from the timing columns. The default (0) runs them one after the
 other in this process, so that no timed run shares the CPU with another.
 """
@@ -393,7 +393,7 @@ def run_scene(name, mode='full', horizon=None, budget=None, integrators=None, fo
     (default ``HORIZONS[mode]``); budget: wall seconds per run (default ``BUDGETS[mode]``);
     integrators: restrict to these names; formulations_only: restrict to these formulations;
     progress: a :class:`Progress` (counted once per run and once for the reference); pool: a
-    :class:`robodyn_ros.sweep.Pool` to run on (default: this process).
+    :class:`robodyn_ros.pool.Pool` to run on (default: this process).
     """
     return next(measure_scenes([name], mode, horizon, budget, integrators, formulations_only, progress, pool))
 
@@ -434,7 +434,7 @@ def measure_scenes(names, mode='full', horizon=None, budget=None, integrators=No
     (default: this process), so on a Dask pool they run side by side; each result is put
     together as :func:`run_scene` always did (errors against the reference, runs in ladder order).
     """
-    from ..sweep import Pool
+    from ..pool import Pool
     horizon = HORIZONS[mode] if horizon is None else float(horizon)
     budget = BUDGETS[mode] if budget is None else float(budget)
     keep = None if not formulations_only else set(formulations_only) | {''}
@@ -732,7 +732,7 @@ def main(args) -> int:
         return 2
     progress = Progress(total, quiet=args.quiet)
     results, unplotted = [], []
-    from ..sweep import Pool
+    from ..pool import Pool
     pool = Pool(args.workers, args.scheduler)
     for res in measure_scenes(names, mode, args.horizon, args.budget, args.integrators, args.formulations, progress,
                               pool):
