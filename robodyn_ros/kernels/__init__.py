@@ -62,17 +62,17 @@ try:
     import numba  # noqa: F401
     if CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
         numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
-    from . import constrained, core
+    from . import constrained, tree
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
 except ImportError as _e:  # numba missing: the numpy reference is used
-    core = constrained = None
+    tree = constrained = None
     AVAILABLE = False
     UNAVAILABLE_REASON = str(_e)
 
 __all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_model', 'FUSED_METHODS', 'warmup']
 
-#: integrator names the fused loop implements -> method code in :mod:`.core`
+#: integrator names the fused loop implements -> method code in :mod:`.tree`
 FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2}
 
 
@@ -115,7 +115,7 @@ def merge_fixed(model: Model) -> dict:
 def pack_model(model: Model, merge: bool = False):
     """The model as two arrays for the kernels: ``(mi (nb, 5) int64, mf (nb + 1, NF) float64)``.
 
-    Column layout in :mod:`robodyn_ros.kernels.core`: per body parent, joint type, q and v
+    Column layout in :mod:`robodyn_ros.kernels.tree`: per body parent, joint type, q and v
     index, +z-axis flag; axis, Xtree as (E, r), mass, m·com, rotational inertia about the body
     origin; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
     (:func:`merge_fixed`).
@@ -185,46 +185,46 @@ class CompiledModel:
             if self.gen is not None:
                 self.gen.aba(q, v, tau, qdd)
             else:
-                core.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
+                tree.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
         else:
-            core.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
+            tree.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
         return qdd
 
     def rnea(self, q, v, a, f_ext=None):
         """Inverse dynamics ``tau = M a + h`` (nv,)."""
         if f_ext is None:
             tau = np.empty(self.nv)
-            core.rnea_into(self.mi_r, self.mf_r, q, v, a, tau)
+            tree.rnea_into(self.mi_r, self.mf_r, q, v, a, tau)
             return tau
-        return core.rnea(self.mi, self.mf, q, v, a, np.ascontiguousarray(f_ext, dtype=float), True)[0]
+        return tree.rnea(self.mi, self.mf, q, v, a, np.ascontiguousarray(f_ext, dtype=float), True)[0]
 
     def rnea_wrenches(self, q, v, a, f_ext=None):
         """``(tau (nv,), f (nb, 6))``: inverse dynamics and the joint wrenches (parent on child)."""
         fe, has = (self._zf, False) if f_ext is None else (np.ascontiguousarray(f_ext, dtype=float), True)
-        return core.rnea(self.mi, self.mf, q, v, a, fe, has)
+        return tree.rnea(self.mi, self.mf, q, v, a, fe, has)
 
     def crba(self, q):
         """Joint-space inertia matrix ``M(q)`` (nv, nv)."""
         H = np.zeros((self.nv, self.nv))
-        core.crba_into(self.mi_r, self.mf_r, q, H)
+        tree.crba_into(self.mi_r, self.mf_r, q, H)
         return H
 
     def joint_wrenches(self, q, v, tau, f_ext=None):
         """``(qdd (nv,), f (nb, 6))`` under applied forces tau (see ``dynamics.joint_wrenches``)."""
         fe, has = (self._zf, False) if f_ext is None else (np.ascontiguousarray(f_ext, dtype=float), True)
-        return core.joint_wrenches(self.mi, self.mf, q, v, tau, fe, has)
+        return tree.joint_wrenches(self.mi, self.mf, q, v, tau, fe, has)
 
     def energies(self, q, v):
         """``(kinetic, potential)`` energy (J)."""
-        return core.energies(self.mi_r, self.mf_r, q, v)
+        return tree.energies(self.mi_r, self.mf_r, q, v)
 
     def kinetic_energy(self, q, v):
         """Kinetic energy (J)."""
-        return core.energies(self.mi_r, self.mf_r, q, v)[0]
+        return tree.energies(self.mi_r, self.mf_r, q, v)[0]
 
     def potential_energy(self, q):
         """Gravitational potential energy (J), zero at the root origin."""
-        return core.energies(self.mi_r, self.mf_r, q, np.zeros(self.nv))[1]
+        return tree.energies(self.mi_r, self.mf_r, q, np.zeros(self.nv))[1]
 
     def body_poses(self, q):
         """World poses of the body frames ``(R (nb, 3, 3), p (nb, 3))`` (``dynamics.body_poses``)."""
@@ -237,28 +237,28 @@ class CompiledModel:
                                     np.ascontiguousarray(v, dtype=float))
 
     def limit_forces(self, q, v):
-        """Joint-limit generalised forces (nv,) of Huston eq. (20.2.1) at (q, v) (``core.limit_forces_add``)."""
-        return core.limit_forces(self.lim, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+        """Joint-limit generalised forces (nv,) of Huston eq. (20.2.1) at (q, v) (``tree.limit_forces_add``)."""
+        return tree.limit_forces(self.lim, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
                                  self.nv)
 
     def qdot(self, q, v):
         """Configuration rate ``dq/dt`` (nq,) (quaternion-aware)."""
-        return core.qdot(self.mi, q, v)
+        return tree.qdot(self.mi, q, v)
 
     def normalize(self, q):
         """q with free- and spherical-joint quaternions renormalised (a new array)."""
         q = np.array(q, dtype=float)
-        core.normalize_into(self.mi, q)
+        tree.normalize_into(self.mi, q)
         return q
 
     def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last) -> int:
-        """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``core.integrate_arm``).
+        """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``tree.integrate_arm``).
 
         method: a key of :data:`FUSED_METHODS`; z (nq + nv + 1,) float64, modified in place;
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid. Returns the
         index of the first non-finite step or -1.
         """
-        run = core.integrate_arm if self.gen is None else self.gen.integrate_arm
+        run = tree.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
                    z, float(dt), int(n_full), float(h_last))
 

@@ -5,7 +5,7 @@ The reference implementations are the numpy methods of the system classes
 solvers of :mod:`robodyn_ros.constraints`; this module computes the same quantities with the same
 algorithms in numba (tested equal to 1e-12 relative), so that a system can evaluate its
 right-hand side in a few microseconds and run a whole publication period of fixed steps in one
-call (:func:`integrate`), like the arm's :func:`robodyn_ros.kernels.core.integrate_arm`.
+call (:func:`integrate`), like the arm's :func:`robodyn_ros.kernels.tree.integrate_arm`.
 
 One calling convention for every system::
 
@@ -58,7 +58,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL
-from .core import (_JIT, E_, M_RK4, M_SEMI_IMPLICIT_EULER, P_, R_, AX, HV, IB, JTYPE, MASS, PARENT, VIDX,
+from .tree import (_JIT, E_, M_RK4, M_SEMI_IMPLICIT_EULER, P_, R_, AX, HV, IB, JTYPE, MASS, PARENT, VIDX,
                    aba_fext_into, crba_into, crba_ws, energies, normalize_into, qdot_into, rnea_ws, transforms,
                    workspace)
 
@@ -92,7 +92,7 @@ def fma(typingctx, a, b, c):
 def flag(b):
     """``b`` as a plain (non-constant) bool. numba compiles a jitted callee once per *constant*
     argument it is called with; passing flags through this keeps a single compiled version of the
-    large solvers below (and of ``core.rnea_ws``), which matters for the first-run compile time."""
+    large solvers below (and of ``tree.rnea_ws``), which matters for the first-run compile time."""
     return b != 0
 
 
@@ -533,7 +533,7 @@ def cross(a, b, out):
 @njit(**_JIT)
 def body_frames(mi, mf, q, W, R, p):
     """World orientation R (nb, 3, 3) and origin p (nb, 3) of every body (``dynamics.body_poses``);
-    W must hold the transforms (:func:`robodyn_ros.kernels.core.transforms`)."""
+    W must hold the transforms (:func:`robodyn_ros.kernels.tree.transforms`)."""
     nb = mi.shape[0]
     E0 = np.empty((nb, 9))
     for i in range(nb):

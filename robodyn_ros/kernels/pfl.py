@@ -1,7 +1,7 @@
 """The partial feedback linearisation law of :mod:`robodyn_ros.pfl`, compiled (numba).
 
 One call per controller update (:func:`torques_into`): the joint-space inertia and bias of the
-tree (:func:`robodyn_ros.kernels.core.crba_ws`, :func:`~robodyn_ros.kernels.core.rnea_ws` on one workspace),
+tree (:func:`robodyn_ros.kernels.tree.crba_ws`, :func:`~robodyn_ros.kernels.tree.rnea_ws` on one workspace),
 the desired inner accelerations and the torques, with no array built in Python. The operations
 are those the numpy formulation of the law performed, in the same order, so the torques are the
 same to the last bit: element-wise sums as written; ``M_ba α``, ``M_ab q̈_b`` and ``M_aa α`` as
@@ -18,18 +18,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import core
-from .core import _JIT
+from . import tree
+from .tree import _JIT
 
 
 @njit(**_JIT)
 def mass_and_bias_into(mi, mf, damping, q, v, M, h):
     """``M (nv, nv)`` (zeroed by the caller) and ``h = C v + g + D v`` (nv,) at (q, v);
     mi, mf: the tree packed with fixed bodies welded (``CompiledModel.mi_r, mf_r``)."""
-    W = core.workspace(mi.shape[0])    # the joint transforms once, for both (crba_into, rnea_into)
-    core.transforms(mi, mf, q, W)
-    core.crba_ws(mi, mf, M, W)
-    core.rnea_ws(mi, mf, q, v, np.zeros(v.shape[0]), W, False, h, W)
+    W = tree.workspace(mi.shape[0])    # the joint transforms once, for both (crba_into, rnea_into)
+    tree.transforms(mi, mf, q, W)
+    tree.crba_ws(mi, mf, M, W)
+    tree.rnea_ws(mi, mf, q, v, np.zeros(v.shape[0]), W, False, h, W)
     for k in range(h.shape[0]):
         h[k] = h[k] + damping[k] * v[k]
 

@@ -51,7 +51,7 @@ linearisation to a posture and back, :mod:`robodyn_ros.pfl`) drives such a tree.
 
 Joint-limit moments: the mapping form ``limits: {lower, upper, stiffness, damping, return}``
 adds the joint-limit moments of
-Huston eq. (20.2.1) (:func:`robodyn_ros.kernels.core.limit_moment`): zero inside, beyond a limit
+Huston eq. (20.2.1) (:func:`robodyn_ros.kernels.tree.limit_moment`): zero inside, beyond a limit
 ``-k (θ - θlim) - c θ̇`` while moving outward; moving back ``return: spring`` (default: the spring
 without its damper) or ``none`` (the equation as printed: no moment at all — a joint that stops
 beyond its range stays there, and error-controlled integrators crawl through the switching). stiffness k (N·m/rad or
