@@ -9,7 +9,7 @@ registers ``COMMAND_PROFILES[name] = builder``. :func:`build_script` puts the po
 together into the scene's ``script(t, y) -> {port: array}``.
 
 Profiles that the compiled block path can run carry their compiled form ``f.program``
-(:func:`robodyn_ros.kernels.tree.command_eval`).
+(:func:`robodyn_ros.kernels.profiles.command_eval`).
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ __all__ = ['COMMAND_PROFILES', 'build_script']
 
 
 def _compiled(f, kind: str, P=None, times=None, values=None, BT=None, Bq=None):
-    """f with ``f.program``: the profile as :func:`robodyn_ros.kernels.tree.command_eval` evaluates
+    """f with ``f.program``: the profile as :func:`robodyn_ros.kernels.profiles.command_eval` evaluates
     it (``(kind code, P, times, values, BT, Bq)``, C-contiguous float64), which the Simulator's
     block path runs inside its compiled loop with the same arithmetic (the recordings test
     compares both paths byte for byte). Without the compiled kernels f is returned as it is."""
@@ -35,7 +35,7 @@ def _compiled(f, kind: str, P=None, times=None, values=None, BT=None, Bq=None):
     if kernels.AVAILABLE:
         e2 = np.zeros((0, 0))
         c = np.ascontiguousarray
-        f.program = (int(getattr(kernels.tree, kind)), e2 if P is None else c(P, dtype=float),
+        f.program = (int(getattr(kernels.profiles, kind)), e2 if P is None else c(P, dtype=float),
                      np.zeros(0) if times is None else c(times, dtype=float),
                      e2 if values is None else c(values, dtype=float),
                      e2 if BT is None else c(BT, dtype=float), e2 if Bq is None else c(Bq, dtype=float))

@@ -18,7 +18,7 @@ import pytest
 
 from robodyn_ros import simulation as S
 from robodyn_ros.bench import speed
-from robodyn_ros.kernels import tree
+from robodyn_ros.kernels import profiles as kprofiles
 from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink
 from robodyn_ros.scene import find_scene, load_scene, parse_scene
 from robodyn_ros.simulation import CommandError, SimulationError, Simulator, run_headless
@@ -163,7 +163,7 @@ def _piecewise_script(scene, times, values):
     def script(t, y):
         return {'effort': f(t, y)}
     e = np.zeros((0, 0))
-    script.programs = {'effort': (tree.CMD_PIECEWISE, e, times, values, e, e)}
+    script.programs = {'effort': (kprofiles.CMD_PIECEWISE, e, times, values, e, e)}
     return script
 
 
@@ -211,7 +211,7 @@ def test_compiled_profiles_equal_the_python_ones_bit_for_bit(case):
         y = scene.y0 + np.r_[rng.normal(0, 0.3, sys_.nq), rng.normal(0, 1, nv)]
         want = np.asarray(f(t, y), dtype=float)
         got = np.empty(want.shape[0])
-        tree.command_eval(kind, P, times, values, BT, Bq, km.mi_r, km.mf_r, sys_.nq, float(t), y,
+        kprofiles.command_eval(kind, P, times, values, BT, Bq, km.mi_r, km.mf_r, sys_.nq, float(t), y,
                           np.zeros(nv), np.zeros(nv), got)
         assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want)), (t, got - want)
         checked += 1

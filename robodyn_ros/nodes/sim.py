@@ -38,7 +38,7 @@ from .. import messages as M
 from ..recording import cdr
 from ..recording.run_sink import output_records
 from ..simulation import CommandError, SimulationError, Simulator
-from .config import MODES, PARAMETERS, Config, ConfigError, check_backend, check_number, resolve_config  # noqa: F401
+from .config import PARAMETERS, ConfigError, check_backend, check_number, resolve_config
 from .ports import command_topics, command_values
 
 NODE_NAME = 'robodyn_sim'
