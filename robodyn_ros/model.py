@@ -39,6 +39,9 @@ SPHERICAL_AXES = ('_x', '_y', '_z')
 
 #: joint-name suffixes of the three joints of a planar composite, in q order
 PLANAR_SUFFIXES = ('_x', '_z', '_pitch')
+#: regularisation speed (rad/s or m/s) of Coulomb friction ``-f tanh(q̇ / v_s)``: the DC motor's
+#: default (at the motor shaft) and the URDF joints' (``LinkSpec.friction``)
+COULOMB_VELOCITY = 0.05
 
 
 class ModelError(ValueError):
