@@ -23,14 +23,15 @@ quintic (zero velocity and acceleration at both ends) between ``schedule[0]`` an
 ``schedule[1]``, held, and back to the initial posture between ``schedule[2]`` and
 ``schedule[3]`` (before the entry into the water).
 
-The same :class:`PFLController` runs in the ``pfl`` command profile of a scene (headless
-``robodyn run``, scripted commands of the sim node) and in the ``diver_controller`` node, and
+The same :class:`PFLController` runs in the ``pfl`` command profile of a scene
+(:mod:`robodyn_ros.profiles`; headless ``robodyn run``, scripted commands of the sim node) and
+in the ``diver_controller`` node, and
 both compute it from the same published values (``joint_states`` + ``odom``: the node through
 :func:`state_from_outputs`, the profile through ``PlanarBaseSystem.published_state``, the same
 numbers without building the outputs; time from the integer stamp), so a lockstep node run equals
-the headless run byte for byte. The law itself is one compiled call per update
-(:mod:`robodyn_ros.kernels.pfl`), numpy without the kernels. Scene keys
-(``commands: {effort: {profile: pfl, ...}}``)::
+the headless run byte for byte. The law itself is one call per update into
+:mod:`robodyn_ros.kernels.pfl`, its one implementation (compiled; plain Python without numba).
+Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
 
     kp: 100.0            # 1/s², scalar or one per inner joint
     kd: 20.0             # 1/s, scalar or one per inner joint
@@ -40,9 +41,6 @@ the headless run byte for byte. The law itself is one compiled call per update
 from __future__ import annotations
 
 import numpy as np
-
-from . import dynamics as dyn
-from . import kernels
 
 __all__ = ['quintic', 'PosturePath', 'PFLController', 'state_from_outputs', 'controller_from_scene',
            'stamp_seconds']
@@ -83,10 +81,8 @@ class PosturePath:
 
 
 class PFLController:
-    """The control law above for a planar-base system, computed by the compiled kernels
-    (:mod:`robodyn_ros.kernels.pfl`, one call per update) or, without them (no numba, or
-    ``ROBODYN_BACKEND=numpy``), by the numpy formulation (the reference: ``dynamics`` CRBA and
-    RNEA, numpy's products and solve; the same operations in the same order).
+    """The control law above for a planar-base system, computed by :mod:`robodyn_ros.kernels.pfl`
+    (one call per update; compiled, or plain Python on a machine without numba).
 
     system: a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem` whose inner joints are all
     actuated; path: a :class:`PosturePath` over the inner joints; kp, kd: (m,) gains.
@@ -94,6 +90,7 @@ class PFLController:
     """
 
     def __init__(self, system, path: PosturePath, kp, kd):
+        from .kernels import pack_model
         model = system.model
         self.model = model
         self.nv = model.nv
@@ -106,30 +103,20 @@ class PFLController:
         self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (m,)).copy()
         self.path = path
         self.damping = np.ascontiguousarray(model.damping, dtype=float)
-        self._k = None   # the numpy formulation
-        if kernels.AVAILABLE:
-            # the system's compiled model when it has one (its crba and rnea do not depend on the
-            # backend's specialisation), else one of our own
-            km = getattr(system, '_km', None)
-            if km is None:
-                km = kernels.CompiledModel(model)
-            self._mi, self._mf = km.mi_r, km.mf_r
-            self._k = _kpfl()
+        # the tree packed with fixed bodies welded: the system's compiled model's when it has one
+        km = getattr(system, '_km', None)
+        self._mi, self._mf = (km.mi_r, km.mf_r) if km is not None else pack_model(model, merge=True)
+        self._k = _kpfl()
 
     def mass_and_bias(self, q, v):
         """``(M (n, n), h (n,))`` with h = C v + g + D v (CRBA and RNEA)."""
-        q, v = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float)
-        if self._k is None:
-            return dyn.crba(self.model, q), dyn.rnea(self.model, q, v, np.zeros(self.nv)) + self.damping * v
         M, h = np.zeros((self.nv, self.nv)), np.empty(self.nv)
-        self._k.mass_and_bias_into(self._mi, self._mf, self.damping, q, v, M, h)
+        self._k.mass_and_bias_into(self._mi, self._mf, self.damping, np.ascontiguousarray(q, dtype=float),
+                                   np.ascontiguousarray(v, dtype=float), M, h)
         return M, h
 
     def desired_accelerations(self, t, q, v):
         """``α = q̈_d + K_d (q̇_d − q̇_a) + K_p (q_d − q_a)`` (m,) of the inner joints."""
-        if self._k is None:
-            qd, vd, ad = self.path(t)
-            return ad + self.kd * (vd - v[3:]) + self.kp * (qd - q[3:])
         alpha = np.empty(self.nv - 3)
         self._k.accelerations_into(self.path.start, self.path.delta, *self.path.coefficients(t), self.kp, self.kd,
                                    np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float), alpha)
@@ -137,11 +124,6 @@ class PFLController:
 
     def torques(self, t, q, v):
         """Inner joint torques (m,) at time t (s), coordinates q (n,), velocities v (n,)."""
-        if self._k is None:
-            M, h = self.mass_and_bias(q, v)
-            alpha = self.desired_accelerations(t, q, v)
-            qdd_b = -np.linalg.solve(M[:3, :3], M[:3, 3:] @ alpha + h[:3])
-            return M[3:, :3] @ qdd_b + M[3:, 3:] @ alpha + h[3:]
         tau = np.empty(self.nv - 3)
         s, d, a = self.path.coefficients(t)
         self._k.torques_into(self._mi, self._mf, self.damping, self.path.start, self.path.delta, s, d, a,
@@ -151,7 +133,7 @@ class PFLController:
 
 
 def _kpfl():
-    """:mod:`robodyn_ros.kernels.pfl` (imported when first needed: it needs numba)."""
+    """:mod:`robodyn_ros.kernels.pfl`, the law's one implementation."""
     from .kernels import pfl
     return pfl
 

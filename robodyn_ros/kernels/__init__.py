@@ -64,17 +64,23 @@ def _cache_dir() -> str:
 #: directory holding the compiled kernels' cache (see the module docstring)
 CACHE_DIR = _cache_dir()
 
+from .jit import NUMBA
+
+if NUMBA and CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
+    import numba
+    numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
+
 try:
     if os.environ.get('ROBODYN_BACKEND', '').lower() == 'numpy':
         raise ImportError('ROBODYN_BACKEND=numpy')
-    import numba  # noqa: F401
-    if CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
-        numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
-    from . import arm, augmented, diffdrive, fixed_step, frames, freeflyer, linalg, prescribed, profiles, tree
+    if not NUMBA:
+        raise ImportError("No module named 'numba'")
+    from . import arm, augmented, diffdrive, fixed_step, frames, freeflyer, linalg, prescribed, profiles, tree  # noqa: F401
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
-except ImportError as _e:  # numba missing: the numpy reference is used
-    tree = arm = frames = linalg = fixed_step = diffdrive = freeflyer = augmented = prescribed = profiles = None
+except ImportError as _e:  # the compiled path is off: the systems use the numpy reference
+    # (the kernels that must run anyway -- tree algorithms for the PFL law, command profiles,
+    # the recorder's loops -- import on their own, compiled when numba is there, else plain Python)
     AVAILABLE = False
     UNAVAILABLE_REASON = str(_e)
 

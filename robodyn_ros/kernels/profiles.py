@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
+from .jit import njit
 from .tree import _JIT, rnea_into
 
 

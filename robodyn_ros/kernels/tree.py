@@ -43,9 +43,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
+from .jit import njit
 
 # columns of mi
 PARENT, JTYPE, QIDX, VIDX, AXK = 0, 1, 2, 3, 4
