@@ -8,8 +8,8 @@ and key path) and returns the command as a function of time t (s) and state y. A
 registers ``COMMAND_PROFILES[name] = builder``. :func:`build_script` puts the ports' profiles
 together into the scene's ``script(t, y) -> {port: array}``.
 
-Profiles that the compiled block path can run carry their compiled form ``f.program``
-(:func:`robodyn_ros.kernels.profiles.command_eval`).
+Every profile but ``pfl`` is evaluated by :func:`robodyn_ros.kernels.profiles.command_eval` (its
+one implementation); those the compiled block path can run carry their program ``f.program``.
 """
 from __future__ import annotations
 
@@ -26,27 +26,43 @@ from .validation import key_path as _key
 __all__ = ['COMMAND_PROFILES', 'build_script']
 
 
-def _compiled(f, kind: str, P=None, times=None, values=None, BT=None, Bq=None):
-    """f with ``f.program``: the profile as :func:`robodyn_ros.kernels.profiles.command_eval` evaluates
-    it (``(kind code, P, times, values, BT, Bq)``, C-contiguous float64), which the Simulator's
-    block path runs inside its compiled loop with the same arithmetic (the recordings test
-    compares both paths byte for byte). Without the compiled kernels f is returned as it is."""
+def _profile(kind: str, n: int, P=None, times=None, values=None, BT=None, Bq=None, state=None, gravity=None,
+             block: bool = True):
+    """The profile ``f(t, y) -> u (n,)``: :func:`robodyn_ros.kernels.profiles.command_eval` of its
+    program ``(kind code, P, times, values, BT, Bq)`` (C-contiguous float64), the profiles' one
+    implementation. For ``CMD_GRAVITY_SINE``, ``state(y)`` gives q (nq,) and ``gravity(q)`` the
+    gravity torques (nv,) by the system's own RNEA.
+
+    With the compiled kernels and ``block``, f also carries ``f.program``, which the Simulator's
+    block path runs inside the arm's compiled loop (it computes the gravity torques there with the
+    arm's compiled RNEA, the numbers of ``CompiledModel.rnea``).
+    """
     from . import kernels
-    if kernels.AVAILABLE:
-        e2 = np.zeros((0, 0))
-        c = np.ascontiguousarray
-        f.program = (int(getattr(kernels.profiles, kind)), e2 if P is None else c(P, dtype=float),
-                     np.zeros(0) if times is None else c(times, dtype=float),
-                     e2 if values is None else c(values, dtype=float),
-                     e2 if BT is None else c(BT, dtype=float), e2 if Bq is None else c(Bq, dtype=float))
+    from .kernels import profiles as kp
+    e2 = np.zeros((0, 0))
+    c = np.ascontiguousarray
+    program = (int(getattr(kp, kind)), e2 if P is None else c(P, dtype=float),
+               np.zeros(0) if times is None else c(times, dtype=float), e2 if values is None else c(values, dtype=float),
+               e2 if BT is None else c(BT, dtype=float), e2 if Bq is None else c(Bq, dtype=float))
+    run, none = kp.command_eval, np.zeros(0)
+
+    def f(t, y):
+        u = np.empty(n)
+        if gravity is None:
+            run(*program, none, none, float(t), u)
+        else:
+            q = c(state(y), dtype=float)
+            run(*program, q, c(gravity(q), dtype=float), float(t), u)
+        return u
+    if kernels.AVAILABLE and block:
+        f.program = program
     return f
 
 
 def _zero_profile(params, path, ctx, system, port):
     """``zero``: no parameters; u = 0."""
     ctx.mapping(params, path, required=('profile',))
-    u = np.zeros(system.inputs[port].size)
-    return _compiled(lambda t, y: u.copy(), 'CMD_ZERO')
+    return _profile('CMD_ZERO', system.inputs[port].size)
 
 
 def _constant_profile(params, path, ctx, system, port):
@@ -54,7 +70,7 @@ def _constant_profile(params, path, ctx, system, port):
     ctx.mapping(params, path, required=('profile', 'value'))
     n = system.inputs[port].size
     u = ctx.vector(params['value'], _key(path, 'value'), n, f'values (one per {port} input)')
-    return _compiled(lambda t, y: u.copy(), 'CMD_CONSTANT', P=u[None, :])
+    return _profile('CMD_CONSTANT', n, P=u[None, :])
 
 
 def _piecewise_constant_profile(params, path, ctx, system, port):
@@ -74,12 +90,7 @@ def _piecewise_constant_profile(params, path, ctx, system, port):
     rows = ctx.sequence(params['values'], vpath, times.size, 'rows (one per switching time)')
     values = np.array([ctx.vector(r, _key(vpath, i), n, f'values (one per {port} input)')
                        for i, r in enumerate(rows)])
-    zero = np.zeros(n)
-
-    def f(t, y):
-        j = int(np.searchsorted(times, t, side='right')) - 1
-        return (zero if j < 0 else values[j]).copy()
-    return _compiled(f, 'CMD_PIECEWISE', times=times, values=values)
+    return _profile('CMD_PIECEWISE', n, times=times, values=values)
 
 
 def _sine_parts(params, path, ctx, n, port):
@@ -96,7 +107,7 @@ def _sine_profile(params, path, ctx, system, port):
     n = system.inputs[port].size
     A, w, phase = _sine_parts(params, path, ctx, n, port)
     offset = ctx.vector(params['offset'], _key(path, 'offset'), n) if 'offset' in params else np.zeros(n)
-    return _compiled(lambda t, y: offset + A * np.sin(w * t + phase), 'CMD_SINE', P=np.array([offset, A, w, phase]))
+    return _profile('CMD_SINE', n, P=np.array([offset, A, w, phase]))
 
 
 def _gravity_compensation_sine_profile(params, path, ctx, system, port):
@@ -130,6 +141,9 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
     zeros = np.zeros(model.nv)
     BT = system.B.T
     Bq = getattr(system, 'Bq', BT)  # actuated joint positions = Bq q (= Bᵀ q when q and v share indices)
+    if BT.shape != (n, model.nv) or Bq.shape != (n, model.nq):
+        ctx.fail(_key(path, 'profile'), f'gravity_compensation_sine: the port maps {BT.shape[1]} velocities and '
+                                        f'{Bq.shape[1]} positions, the tree has {model.nv} and {model.nq}')
     minimal = getattr(system, 'minimal', None)
     # the arm's own backend (compiled kernels when available, == reference to 1e-12); a free base
     # on a compiled backend gets the compiled RNEA of its tree as well
@@ -145,14 +159,16 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
         def rnea(q, v, a):
             return dyn.rnea(model, q, v, a)
 
-    def f(t, y):
-        q = minimal(y)[0] if minimal is not None else system.split(y)[0]
-        return BT @ rnea(q, zeros, zeros) + K * (center - Bq @ q) + A * np.sin(w * t + phase)
-    # compiled form: an arm's own compiled RNEA (CompiledModel.rnea) with 0/1 selection matrices
-    if minimal is None and getattr(system, '_km', None) is not None and rnea == system.inverse_dynamics \
-            and getattr(system, '_B_is_selection', False) and Bq is BT:
-        return _compiled(f, 'CMD_GRAVITY_SINE', P=np.array([A, w, phase, K, center]), BT=BT, Bq=BT)
-    return f
+    def state(y):
+        return minimal(y)[0] if minimal is not None else system.split(y)[0]
+
+    def gravity(q):
+        return rnea(q, zeros, zeros)
+    # the block path: an arm's own compiled RNEA (CompiledModel.rnea) with 0/1 selection matrices
+    block = minimal is None and getattr(system, '_km', None) is not None and rnea == system.inverse_dynamics \
+        and getattr(system, '_B_is_selection', False) and Bq is BT
+    return _profile('CMD_GRAVITY_SINE', n, P=np.array([A, w, phase, K, center]), BT=BT, Bq=Bq, state=state,
+                    gravity=gravity, block=block)
 
 
 #: command profile name -> builder(params, path, ctx, system, port) -> f(t, y)

@@ -14,8 +14,9 @@ import numpy as np
 from numba import njit
 
 from .fixed_step import M_RK4, M_SEMI_IMPLICIT_EULER
-from .profiles import CMD_NONE, command_eval
-from .tree import _JIT, aba_ws, joint_wrenches, limit_forces_add, normalize_into, qdot_into, transforms, workspace
+from .profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval
+from .tree import (_JIT, aba_ws, joint_wrenches, limit_forces_add, normalize_into, qdot_into, rnea_into, transforms,
+                   workspace)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -158,7 +159,9 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
     zf = np.zeros((mi.shape[0], 6))
     for k in range(K):
         if kind != CMD_NONE:
-            command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t_start[k], z, g, zeros, un)
+            if kind == CMD_GRAVITY_SINE:   # the gravity torques RNEA(q, 0, 0), as CompiledModel.rnea
+                rnea_into(mi_r, mf_r, z[:nq], zeros, zeros, g)
+            command_eval(kind, P, times, values, BT, Bq, z[:nq], g, t_start[k], un)
             for i in range(nu):
                 if not math.isfinite(un[i]):
                     return k, 1

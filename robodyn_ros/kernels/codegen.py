@@ -337,9 +337,9 @@ def module_source(model) -> str | None:
             'import math\n\nimport numpy as np\nfrom numba import njit\n\n'
             'from robodyn_ros.kernels.arm import arm_forces  # noqa: F401\n'
             'from robodyn_ros.kernels.fixed_step import M_RK4, M_SEMI_IMPLICIT_EULER  # noqa: F401\n'
-            'from robodyn_ros.kernels.profiles import CMD_NONE, command_eval  # noqa: F401\n'
+            'from robodyn_ros.kernels.profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval  # noqa: F401\n'
             'from robodyn_ros.kernels.tree import (_JIT, joint_wrenches, limit_forces_add,  # noqa: F401\n'
-            '                                      normalize_into, qdot_into, workspace)\n\n\n')
+            '                                      normalize_into, qdot_into, rnea_into, workspace)\n\n\n')
     # the fused loops are arm.py's source, compiled here against the generated aba / integrate_arm
     return head + body + _RHS + inspect.getsource(arm.integrate_arm) + '\n\n' + inspect.getsource(arm.run_arm_periods)
 

@@ -1,37 +1,35 @@
-"""The command profiles of :mod:`robodyn_ros.profiles`, compiled: :func:`command_eval` evaluates a
-profile from its program ``(kind code, P, times, values, BT, Bq)`` (``f.program`` of a profile),
-inside the arm's many-period loop (:func:`robodyn_ros.kernels.arm.run_arm_periods`).
+"""The command profiles of :mod:`robodyn_ros.profiles`: :func:`command_eval`, their one
+implementation, evaluates a profile from its program ``(kind code, P, times, values, BT, Bq)``.
+A profile's Python form ``f(t, y)`` calls it, and the arm's many-period loop
+(:func:`robodyn_ros.kernels.arm.run_arm_periods`) runs it inside its compiled loop. Compiled by
+numba; without numba the same source runs as plain Python (:mod:`.jit`).
 """
 from __future__ import annotations
 
 import math
 
 from .jit import njit
-from .tree import _JIT, rnea_into
+from .tree import _JIT
 
-
-# ----------------------------------------------------------------------------------------------
-# many publication periods in one call: scripted commands, integration, outputs (issue 15)
-# ----------------------------------------------------------------------------------------------
-#: compiled command profiles (profiles.py ``COMMAND_PROFILES`` -> ``f.program``): kind codes
+#: command profile kind codes (profiles.py ``COMMAND_PROFILES`` -> ``f.program``)
 CMD_NONE, CMD_ZERO, CMD_CONSTANT, CMD_PIECEWISE, CMD_SINE, CMD_GRAVITY_SINE = -1, 0, 1, 2, 3, 4
 
 
 @njit(**_JIT)
-def command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t, z, g, zeros, u):
-    """u (n,) = a scene's command profile at time t and state z (``[q, v, ...]``), with the
-    arithmetic of its Python form in :mod:`robodyn_ros.profiles`, operation by operation:
+def command_eval(kind, P, times, values, BT, Bq, q, g, t, u):
+    """u (n,) = a scene's command profile at time t (s) and configuration q (nq,):
 
     - ``CMD_ZERO``: 0; ``CMD_CONSTANT``: ``P[0]``;
     - ``CMD_PIECEWISE``: ``values[j]`` with ``j = searchsorted(times, t, 'right') - 1`` (0 before
       ``times[0]``);
     - ``CMD_SINE`` (P rows offset, A, ω, φ): ``offset + A sin(ω t + φ)``;
-    - ``CMD_GRAVITY_SINE`` (P rows A, ω, φ, K, center): ``Bᵀ g(q) + K (center − B_q q) + A sin(ω t + φ)``
-      with ``g = RNEA(q, 0, 0)`` (:func:`rnea_into` on the merged tree, as ``CompiledModel.rnea``).
+    - ``CMD_GRAVITY_SINE`` (P rows A, ω, φ, K, center): ``Bᵀ g + K (center − B_q q) + A sin(ω t + φ)``
+      with g (nv,) the gravity torques ``RNEA(q, 0, 0)`` the caller computed (the system's own
+      RNEA; :func:`robodyn_ros.kernels.tree.rnea_into` on the merged tree in the arm's loop).
 
-    The products ``Bᵀ g`` and ``B_q q`` are sums from +0.0 (numpy's matmul) over 0/1 selection
-    matrices, whose every summation order gives the same bits; the caller only compiles
-    profiles whose matrices are such selections. g (nv,) and zeros (nv,) are scratch.
+    ``Bᵀ g`` and ``B_q q`` are sums from +0.0 in index order; over the 0/1 selection matrices of
+    the bundled scenes every summation order gives the same bits. q and g are read by
+    ``CMD_GRAVITY_SINE`` only.
     """
     n = u.shape[0]
     if kind == CMD_ZERO:
@@ -53,9 +51,8 @@ def command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t, z, g, zeros,
         for i in range(n):
             u[i] = P[0, i] + P[1, i] * math.sin(P[2, i] * t + P[3, i])
     else:
-        q = z[:nq]
-        rnea_into(mi_r, mf_r, q, zeros, zeros, g)
         nv = g.shape[0]
+        nq = q.shape[0]
         for i in range(n):
             gi = 0.0
             for j in range(nv):
