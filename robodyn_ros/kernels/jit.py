@@ -1,11 +1,11 @@
-"""``njit`` for the kernels that must also run without numba: numba's when it can be imported, else
-a decorator that leaves the function as it is, so the same source runs as plain Python (slower,
-the same operations).
+"""``njit`` for the kernels that must run even without numba: numba's when it can be imported,
+else a decorator that returns the function unchanged, so the same source runs as plain Python
+(slower, the same operations).
 
-The tree algorithms (:mod:`.tree`), the PFL law (:mod:`.pfl`), the command profiles
-(:mod:`.profiles`) and the recorder's loops (:mod:`.records`) are written once, here in the
-kernels; the Python code that needs them without the compiled path (``ROBODYN_BACKEND=numpy``
-keeps numba's compiled versions; a machine without numba runs these plain) calls them the same way.
+Used by the tree algorithms (:mod:`.tree`), the PFL law (:mod:`.pfl`), the command profiles
+(:mod:`.profiles`) and the recorder's loops (:mod:`.records`): each is the one implementation of
+its physics, which the Python side calls whether or not the compiled systems are in use
+(``ROBODYN_BACKEND=numpy`` turns those off; these stay compiled while numba is installed).
 """
 from __future__ import annotations
 
