@@ -2,134 +2,30 @@
 
 The answer comes from measurements, not from a formula: the work-precision runs of
 :mod:`robodyn_ros.bench.precision` (final-state error against a reference, CPU and wall time per
-simulated second, rhs evaluations) for that scene on this machine. They are cached, one JSON
-file per scene and machine::
-
-    $XDG_CACHE_HOME/robodyn_ros/precision/<scene>-<key>.json    (~/.cache/robodyn_ros/... by default)
-    key = sha256(scene name, sha256 of the scene's YAML text, machine id, package version)[:20]
-    machine id = platform.node() + '-' + cpu count
-
-so an edited scene, another machine or another release of the package never reuses old figures
-(the old file simply stops being found). ``robodyn bench precision`` stores its measurements there
-too; with no cache entry, :func:`advise` runs the quick ladder (``bench precision --quick``,
-about a minute per scene) and stores it. A full-ladder entry is never replaced by a quick one.
+simulated second, rhs evaluations) for that scene on this machine, kept in the measurement store
+(:mod:`robodyn_ros.measurements`, one JSON file per scene and machine). ``robodyn bench
+precision`` stores its measurements there too; with no entry, :func:`advise` runs the quick
+ladder (``bench precision --quick``, about a minute per scene) and stores it.
 
 The choice (:func:`choose`): among successful runs whose error is at most the tolerance, the one
-with the least CPU time per simulated second (``bench.precision.cost_key``; ties: fewer rhs
+with the least CPU time per simulated second (``measurements.cost_key``; ties: fewer rhs
 evaluations per simulated second).
 Only measured settings are offered (no interpolation between ladder points), and the error is
 the measure the benchmark uses (``bench.precision.state_error`` over its horizon).
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import os
-import platform
-import re
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ['CACHE_FORMAT', 'cache_dir', 'machine_id', 'scene_hash', 'cache_key', 'cache_path', 'store', 'load',
-           'choose', 'Advice', 'advise', 'format_advice', 'run_command']
+from .measurements import cost_key, load, runs, scene_of, store
 
-#: bump when the cached JSON layout or the meaning of its figures changes
-CACHE_FORMAT = 2
-
-
-def cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/robodyn_ros/precision`` (``~/.cache/robodyn_ros/precision`` when unset)."""
-    base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
-    return Path(base) / 'robodyn_ros' / 'precision'
-
-
-def machine_id() -> str:
-    """This machine for cache purposes: host name and CPU count."""
-    return f'{platform.node() or "unknown"}-{os.cpu_count() or 0}'
-
-
-def scene_hash(text: str) -> str:
-    """sha256 (hex) of a scene's YAML text."""
-    return hashlib.sha256(text.encode('utf-8')).hexdigest()
-
-
-def _version() -> str:
-    from .version import __version__
-    return __version__
-
-
-def cache_key(name: str, text: str, machine: str | None = None, version: str | None = None) -> str:
-    """The cache key of a scene's measurements (module docstring)."""
-    parts = [CACHE_FORMAT, name, scene_hash(text), machine or machine_id(), version or _version()]
-    return hashlib.sha256(json.dumps(parts).encode('utf-8')).hexdigest()[:20]
-
-
-def cache_path(name: str, text: str, directory: Path | None = None) -> Path:
-    """File holding the measurements of scene ``name`` with YAML ``text`` on this machine."""
-    safe = re.sub(r'[^A-Za-z0-9_.-]', '_', name)
-    return Path(directory or cache_dir()) / f'{safe}-{cache_key(name, text)}.json'
-
-
-def _scene(name_or_scene):
-    if hasattr(name_or_scene, 'text'):
-        return name_or_scene
-    from .bench.precision import _load
-    return _load(name_or_scene)
-
-
-def store(name_or_scene, result, directory: Path | None = None) -> Path:
-    """Cache a :class:`~robodyn_ros.bench.precision.SceneResult` for its scene; returns the file.
-
-    A full-ladder entry is kept when a quick one arrives. The write is atomic (temp + rename).
-    """
-    scene = _scene(name_or_scene)
-    path = cache_path(scene.name, scene.text, directory)
-    old = load(scene, directory)
-    if old is not None and old.get('mode') == 'full' and result.mode != 'full':
-        return path
-    data = {'format': CACHE_FORMAT, 'scene': scene.name, 'scene_sha256': scene_hash(scene.text),
-            'machine': machine_id(), 'version': _version(), 'created': time.strftime('%Y-%m-%d %H:%M:%S'),
-            'mode': result.mode, 'horizon': result.horizon, 'rate': result.rate,
-            'own_formulation': result.own_formulation,
-            'reference': {'kind': result.reference.kind, 'error_estimate': result.reference.error_estimate,
-                          'check': result.reference.check},
-            'runs': [_jsonable(r.row()) for r in result.runs]}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f'.tmp{os.getpid()}')
-    tmp.write_text(json.dumps(data, indent=1, allow_nan=True))
-    os.replace(tmp, path)
-    return path
-
-
-def _jsonable(row: dict) -> dict:
-    out = {}
-    for k, v in row.items():
-        if hasattr(v, 'item'):
-            v = v.item()
-        out[k] = v
-    return out
-
-
-def load(name_or_scene, directory: Path | None = None) -> dict | None:
-    """The cached measurements of a scene on this machine (None when absent or unreadable)."""
-    scene = _scene(name_or_scene)
-    path = cache_path(scene.name, scene.text, directory)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    if data.get('format') != CACHE_FORMAT or data.get('scene_sha256') != scene_hash(scene.text):
-        return None
-    data['path'] = str(path)
-    return data
-
+__all__ = ['choose', 'Advice', 'advise', 'format_advice', 'run_command']
 
 def choose(runs, tolerance: float):
     """``(best, others)``: the cheapest run with error <= tolerance, and the other qualifying runs
     cheapest first (one per integrator and formulation). ``best`` is None when none qualifies."""
-    from .bench.precision import cost_key
     ok = [r for r in runs if r.status == 'ok' and math.isfinite(r.error) and r.error <= tolerance]
     ok.sort(key=cost_key)
     if not ok:
@@ -157,22 +53,17 @@ class Advice:
     meta: dict = field(default_factory=dict)
 
 
-def _runs(data: dict) -> list:
-    from .bench.precision import Run
-    return [Run.from_row(d) for d in data['runs']]
-
-
 def advise(scene_name, tolerance: float, refresh: bool = False, directory: Path | None = None,
            measure=None, progress=None) -> Advice:
     """Advice for ``scene_name`` at final-state error ``tolerance`` (see the module docstring).
 
-    refresh: measure again even if cached; directory: cache directory (default :func:`cache_dir`);
+    refresh: measure again even if cached; directory: cache directory (default :func:`robodyn_ros.measurements.cache_dir`);
     measure: ``measure(scene_name) -> SceneResult`` (default the quick ladder of
     :func:`robodyn_ros.bench.precision.run_scene`); progress: a bench Progress for that run.
     """
     if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f'tolerance must be a finite number > 0, got {tolerance!r}')
-    scene = _scene(scene_name)
+    scene = scene_of(scene_name)
     data = None if refresh else load(scene, directory)
     source = 'cache'
     if data is None:
@@ -187,9 +78,9 @@ def advise(scene_name, tolerance: float, refresh: bool = False, directory: Path 
         source = 'measured now'
         if data is None:  # a full entry that a quick one must not replace is impossible here; be safe
             raise RuntimeError(f'could not cache the measurements of {scene.name}')
-    runs = _runs(data)
-    best, others = choose(runs, tolerance)
-    ok = [r for r in runs if r.status == 'ok' and math.isfinite(r.error)]
+    measured = runs(data)
+    best, others = choose(measured, tolerance)
+    ok = [r for r in measured if r.status == 'ok' and math.isfinite(r.error)]
     most = min(ok, key=lambda r: r.error) if ok else None
     return Advice(scene=scene.name, tolerance=float(tolerance), best=best, others=others, most_accurate=most,
                   source=source, meta={k: v for k, v in data.items() if k != 'runs'})

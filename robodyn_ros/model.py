@@ -39,6 +39,9 @@ SPHERICAL_AXES = ('_x', '_y', '_z')
 
 #: joint-name suffixes of the three joints of a planar composite, in q order
 PLANAR_SUFFIXES = ('_x', '_z', '_pitch')
+#: regularisation speed (rad/s or m/s) of Coulomb friction ``-f tanh(q̇ / v_s)``: the DC motor's
+#: default (at the motor shaft) and the URDF joints' (``LinkSpec.friction``)
+COULOMB_VELOCITY = 0.05
 
 
 class ModelError(ValueError):
@@ -265,7 +268,7 @@ def _check_inertia(spec: LinkSpec, where: str):
                          '(no physical body has them)')
 
 
-#: ``limit_return`` values -> mode codes of :func:`limit_table` (kernels.core.limit_moment)
+#: ``limit_return`` values -> mode codes of :func:`limit_table` (kernels.tree.limit_moment)
 LIMIT_RETURNS = {'none': 1, 'spring': 2}
 
 
@@ -294,7 +297,7 @@ def _check_limits(s: LinkSpec, jt: int, where: str):
 
 def limit_table(model) -> np.ndarray:
     """The joints with limit moments as rows ``[jtype, q index, v index, mode, lo0, hi0, lo1, hi1, lo2, hi2,
-    k, c]`` (float (nl, 12)) for :func:`robodyn_ros.kernels.core.limit_forces_add`; a 1-DOF joint uses
+    k, c]`` (float (nl, 12)) for :func:`robodyn_ros.kernels.tree.limit_forces_add`; a 1-DOF joint uses
     pair 0, a spherical joint its three rotation-vector components. Joints whose limits have neither
     stiffness nor damping are left out (reported only)."""
     rows = []

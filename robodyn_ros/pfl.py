@@ -23,14 +23,15 @@ quintic (zero velocity and acceleration at both ends) between ``schedule[0]`` an
 ``schedule[1]``, held, and back to the initial posture between ``schedule[2]`` and
 ``schedule[3]`` (before the entry into the water).
 
-The same :class:`PFLController` runs in the ``pfl`` command profile of a scene (headless
-``robodyn run``, scripted commands of the sim node) and in the ``diver_controller`` node, and
+The same :class:`PFLController` runs in the ``pfl`` command profile of a scene
+(:mod:`robodyn_ros.profiles`; headless ``robodyn run``, scripted commands of the sim node) and
+in the ``diver_controller`` node, and
 both compute it from the same published values (``joint_states`` + ``odom``: the node through
 :func:`state_from_outputs`, the profile through ``PlanarBaseSystem.published_state``, the same
 numbers without building the outputs; time from the integer stamp), so a lockstep node run equals
-the headless run byte for byte. The law itself is one compiled call per update
-(:mod:`robodyn_ros.kernels.pfl`), numpy without the kernels. Scene keys
-(``commands: {effort: {profile: pfl, ...}}``)::
+the headless run byte for byte. The law itself is one call per update into
+:mod:`robodyn_ros.kernels.pfl`, its one implementation (compiled; plain Python without numba).
+Scene keys (``commands: {effort: {profile: pfl, ...}}``)::
 
     kp: 100.0            # 1/s², scalar or one per inner joint
     kd: 20.0             # 1/s, scalar or one per inner joint
@@ -41,11 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import dynamics as dyn
-from . import kernels
-
 __all__ = ['quintic', 'PosturePath', 'PFLController', 'state_from_outputs', 'controller_from_scene',
-           'pfl_profile', 'stamp_seconds']
+           'stamp_seconds']
 
 
 def quintic(t, t0, t1):
@@ -83,10 +81,8 @@ class PosturePath:
 
 
 class PFLController:
-    """The control law above for a planar-base system, computed by the compiled kernels
-    (:mod:`robodyn_ros.kernels.pfl`, one call per update) or, without them (no numba, or
-    ``ROBODYN_BACKEND=numpy``), by the numpy formulation (the reference: ``dynamics`` CRBA and
-    RNEA, numpy's products and solve; the same operations in the same order).
+    """The control law above for a planar-base system, computed by :mod:`robodyn_ros.kernels.pfl`
+    (one call per update; compiled, or plain Python on a machine without numba).
 
     system: a :class:`~robodyn_ros.systems.planar.PlanarBaseSystem` whose inner joints are all
     actuated; path: a :class:`PosturePath` over the inner joints; kp, kd: (m,) gains.
@@ -94,6 +90,7 @@ class PFLController:
     """
 
     def __init__(self, system, path: PosturePath, kp, kd):
+        from .kernels import pack_model
         model = system.model
         self.model = model
         self.nv = model.nv
@@ -106,30 +103,20 @@ class PFLController:
         self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (m,)).copy()
         self.path = path
         self.damping = np.ascontiguousarray(model.damping, dtype=float)
-        self._k = None   # the numpy formulation
-        if kernels.AVAILABLE:
-            # the system's compiled model when it has one (its crba and rnea do not depend on the
-            # backend's specialisation), else one of our own
-            km = getattr(system, '_km', None)
-            if km is None:
-                km = kernels.CompiledModel(model)
-            self._mi, self._mf = km.mi_r, km.mf_r
-            self._k = _kpfl()
+        # the tree packed with fixed bodies welded: the system's compiled model's when it has one
+        km = getattr(system, '_km', None)
+        self._mi, self._mf = (km.mi_r, km.mf_r) if km is not None else pack_model(model, merge=True)
+        self._k = _kpfl()
 
     def mass_and_bias(self, q, v):
         """``(M (n, n), h (n,))`` with h = C v + g + D v (CRBA and RNEA)."""
-        q, v = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float)
-        if self._k is None:
-            return dyn.crba(self.model, q), dyn.rnea(self.model, q, v, np.zeros(self.nv)) + self.damping * v
         M, h = np.zeros((self.nv, self.nv)), np.empty(self.nv)
-        self._k.mass_and_bias_into(self._mi, self._mf, self.damping, q, v, M, h)
+        self._k.mass_and_bias_into(self._mi, self._mf, self.damping, np.ascontiguousarray(q, dtype=float),
+                                   np.ascontiguousarray(v, dtype=float), M, h)
         return M, h
 
     def desired_accelerations(self, t, q, v):
         """``α = q̈_d + K_d (q̇_d − q̇_a) + K_p (q_d − q_a)`` (m,) of the inner joints."""
-        if self._k is None:
-            qd, vd, ad = self.path(t)
-            return ad + self.kd * (vd - v[3:]) + self.kp * (qd - q[3:])
         alpha = np.empty(self.nv - 3)
         self._k.accelerations_into(self.path.start, self.path.delta, *self.path.coefficients(t), self.kp, self.kd,
                                    np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float), alpha)
@@ -137,11 +124,6 @@ class PFLController:
 
     def torques(self, t, q, v):
         """Inner joint torques (m,) at time t (s), coordinates q (n,), velocities v (n,)."""
-        if self._k is None:
-            M, h = self.mass_and_bias(q, v)
-            alpha = self.desired_accelerations(t, q, v)
-            qdd_b = -np.linalg.solve(M[:3, :3], M[:3, 3:] @ alpha + h[:3])
-            return M[3:, :3] @ qdd_b + M[3:, 3:] @ alpha + h[3:]
         tau = np.empty(self.nv - 3)
         s, d, a = self.path.coefficients(t)
         self._k.torques_into(self._mi, self._mf, self.damping, self.path.start, self.path.delta, s, d, a,
@@ -151,7 +133,7 @@ class PFLController:
 
 
 def _kpfl():
-    """:mod:`robodyn_ros.kernels.pfl` (imported when first needed: it needs numba)."""
+    """:mod:`robodyn_ros.kernels.pfl`, the law's one implementation."""
     from .kernels import pfl
     return pfl
 
@@ -177,51 +159,6 @@ def state_from_outputs(system, names, position, velocity, odom):
 def stamp_seconds(t_ns: int) -> float:
     """Controller time (s) from a message stamp in integer nanoseconds (both paths use this)."""
     return t_ns * 1e-9
-
-
-def _params(ctx, params, path, system, start):
-    """Validated ``(PosturePath, kp, kd)`` from the profile's keys (see the module docstring)."""
-    from .scene import _key
-    ctx.mapping(params, path, required=('profile', 'target', 'schedule'), optional=('kp', 'kd'))
-    inner = list(system.inner_joint_names)
-    m = len(inner)
-
-    def gains(k, default):
-        v = params.get(k, default)
-        if isinstance(v, list):
-            return ctx.vector(v, _key(path, k), m, f'values (one per inner joint: {", ".join(inner)})', minimum=0.0)
-        return np.full(m, ctx.number(v, _key(path, k), positive=True))
-    kp, kd = gains('kp', 100.0), gains('kd', 20.0)
-    tpath = _key(path, 'target')
-    target = np.array(start, dtype=float)
-    for name, val in ctx.mapping(params['target'], tpath, optional=inner).items():
-        target[inner.index(name)] = ctx.number(val, _key(tpath, name))
-    sched = ctx.vector(params['schedule'], _key(path, 'schedule'), 4, 'times [t0, t1, t2, t3]', minimum=0.0)
-    if not np.all(np.diff(sched) > 0.0):
-        ctx.fail(_key(path, 'schedule'), f'times must increase strictly, got {sched.tolist()}')
-    return PosturePath(start, target, sched), kp, kd
-
-
-def pfl_profile(params, path, ctx, system, port):
-    """Command profile ``pfl``: ``f(t, y) -> effort`` of :class:`PFLController`, from the outputs
-    the system publishes at (t, y) (the values a node would receive)."""
-    from .messages import to_ns
-    from .scene import _key
-    if port != 'effort' or not hasattr(system, 'inner_joint_names'):
-        ctx.fail(_key(path, 'profile'), "pfl needs the 'effort' port of a tree on a planar root joint "
-                                        "(an arm part whose root link has type: planar)")
-    start = np.asarray(system.split(ctx.y0)[0][3:], dtype=float)
-    pathf, kp, kd = _params(ctx, params, path, system, start)
-    try:
-        ctl = PFLController(system, pathf, kp, kd)
-    except ValueError as e:
-        ctx.fail(path, str(e))
-
-    def f(t, y):
-        q, v = system.published_state(y)   # = state_from_outputs of system.outputs(t, y, ...)
-        return ctl.torques(stamp_seconds(to_ns(t)), q, v)
-    f.controller = ctl
-    return f
 
 
 def controller_from_scene(scene) -> PFLController:

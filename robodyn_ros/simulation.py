@@ -485,7 +485,7 @@ class _BlockRunner:
 
     Taken when the system runs periods in compiled code (``system.fused_periods``: the arms),
     the integrator is fixed-step, the scripted commands have compiled forms (``script.programs``,
-    :mod:`robodyn_ros.scene`) and every sink takes blocks (``sink.takes_blocks``: it has
+    :mod:`robodyn_ros.profiles`) and every sink takes blocks (``sink.takes_blocks``: it has
     ``block_periods`` and ``on_block``, see ``McapRunSink``); not with a
     ``stop`` condition, a command timeout, effort or velocity limits (counted per period). The
     numbers are those of the per-period path (same compiled functions, same arithmetic; the

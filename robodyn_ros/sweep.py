@@ -62,465 +62,46 @@ in index order) and ``DIR/summary.png``.
 
 **Cluster.** ``dask.distributed.LocalCluster`` (one process per worker, one thread each) unless a
 scheduler address is given; remote workers need the same robodyn_ros version (checked). The
-engine (:class:`Pool`) also runs the ladder of ``robodyn bench precision``.
+engine (:class:`robodyn_ros.pool.Pool`) also runs the ladder of ``robodyn bench precision``.
+
+Layout: the spec, its validation and the runs it expands to are :mod:`robodyn_ros.sweep_spec`; the
+engine is :mod:`robodyn_ros.pool`; this module runs a run (:func:`execute_run`) and the sweep
+(resume, rows on disk, the table).
 """
 from __future__ import annotations
 
 import hashlib
-import itertools
 import json
 import math
 import os
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-import yaml
 
 from .measures import Progress, state_error  # noqa: F401  (Progress: part of this module's API)
+from .pool import ClusterError, Pool, chunk_size
+from .sweep_spec import (FIGURES, FORMAT, SETTINGS, Spec, SweepError, build_scene, expand,  # noqa: F401
+                         load_spec, parse_spec)
+from .version import __version__
 
 __all__ = ['SweepError', 'ClusterError', 'Spec', 'parse_spec', 'load_spec', 'expand', 'execute_run', 'Pool', 'Progress',
            'run_sweep', 'read_table', 'TIMING_COLUMNS', 'FIGURES']
 
-#: figures a spec may ask for (status, message, steps, rhs_evals, y_final and timings always come)
-FIGURES = ('final_error', 'energy_drift', 'momentum_drift', 'constraint_residual', 'max_joint_wrench')
 #: columns that depend on the machine and the schedule (not compared between worker counts)
 TIMING_COLUMNS = ('cpu_time', 'wall_time', 'worker')
-#: run settings a parameter path may name (everything else is a scene key)
-SETTINGS = ('integrator', 'dt', 'rtol', 'atol')
-DISTRIBUTIONS = ('uniform', 'normal', 'choice')
-DEFAULT_REFERENCE = {'integrator': 'dop853', 'rtol': 1e-10, 'atol': 1e-10}
-_SPEC_REQUIRED = ('scene',)
-_SPEC_OPTIONAL = ('seed', 'samples', 'duration', 'backend', 'grid', 'random', 'reference', 'figures', 'record',
-                  'description')
-#: the table layout; bump when the meaning of a column changes (a DIR of another format is refused)
-FORMAT = 1
-#: Dask tasks per worker thread a sweep aims at, and the most runs one task carries (a task costs
-#: the scheduler, the worker and the client a few ms, more than a tenth of a short run on a busy
-#: machine: ``robodyn bench sweep``)
-TASKS_PER_THREAD, MAX_CHUNK = 4, 8
-#: seconds a sweep on a remote scheduler waits for its first worker
-WORKER_WAIT = 60.0
 #: env var naming a directory where every task execution leaves a file (tests count executions)
 TRACE_ENV = 'ROBODYN_SWEEP_TRACE'
-
-
-class SweepError(ValueError):
-    """A sweep spec that cannot be run; the message is ``<file>: <key path>: <reason>``."""
-
-
-class ClusterError(RuntimeError):
-    """The Dask cluster cannot run the sweep (unreachable scheduler, no worker, another version)."""
-
-
-# ---------------------------------------------------------------------------------------------
-# the spec
-# ---------------------------------------------------------------------------------------------
-@dataclass
-class Spec:
-    """A validated sweep spec (see the module docstring).
-
-    file: where it came from; text: its YAML; scene_file: the scene's path; scene_text: the
-    scene's YAML; grid: ``[(path, values)]``; random: ``[(path, distribution mapping)]``;
-    settings: the scene's run settings with ``duration`` resolved; reference: settings of the
-    reference run (None without final_error).
-    """
-
-    file: str
-    text: str
-    scene_name: str
-    scene_file: str
-    scene_text: str
-    seed: int | None
-    samples: int
-    duration: float
-    backend: str
-    grid: list
-    random: list
-    reference: dict | None
-    figures: tuple
-    record: bool
-    settings: dict = field(default_factory=dict)
-
-    @property
-    def n_grid(self) -> int:
-        """Number of grid points (1 without a grid)."""
-        return math.prod(len(v) for _, v in self.grid)
-
-    @property
-    def n_runs(self) -> int:
-        """Number of runs."""
-        return self.n_grid * self.samples
-
-    @property
-    def digest(self) -> str:
-        """sha256 of everything that decides the rows (the spec and the scene's text)."""
-        return hashlib.sha256(json.dumps([FORMAT, self.text, self.scene_text]).encode()).hexdigest()
-
-
-def _fail(file, path, reason):
-    raise SweepError(f'{file}: {path or "(top level)"}: {reason}')
-
-
-def _split(path: str) -> list:
-    """``'parts.0.dh.links.2.mass'`` -> ``['parts', 0, 'dh', 'links', 2, 'mass']``."""
-    return [int(p) if p.isdigit() else p for p in path.split('.')]
-
-
-def _lookup(data, path: str):
-    """``(exists, value, reason)`` of a dotted path in the scene mapping (the last mapping key may
-    be absent: the scene loader then decides whether it is allowed there)."""
-    node = data
-    keys = _split(path)
-    for k, key in enumerate(keys):
-        last = k == len(keys) - 1
-        where = '.'.join(str(x) for x in keys[:k]) or 'the scene'
-        if isinstance(node, list):
-            if not isinstance(key, int):
-                return False, None, f'{where} is a list: expected an index 0..{len(node) - 1}, got {key!r}'
-            if not 0 <= key < len(node):
-                return False, None, f'{where} has {len(node)} entries, no index {key}'
-            node = node[key]
-        elif isinstance(node, dict):
-            if key not in node:
-                if last:
-                    return True, None, ''
-                import difflib
-                keys_here = ', '.join(str(x) for x in node)
-                near = difflib.get_close_matches(str(key), [str(x) for x in node], n=1)
-                hint = f'; did you mean {near[0]!r}?' if near else ''
-                return False, None, f'{where} has no key {key!r} (keys: {keys_here}){hint}'
-            node = node[key]
-        else:
-            return False, None, f'{where} is a value ({node!r}), it has no key {key!r}'
-    return True, node, ''
-
-
-def _assign(data, path: str, value):
-    """Set a dotted path in the nested scene mapping (the path exists: checked by :func:`_lookup`)."""
-    keys = _split(path)
-    node = data
-    for key in keys[:-1]:
-        node = node[key]
-    node[keys[-1]] = value
-
-
-def _number_or_list(file, path, v, what='a number or a list of numbers'):
-    if isinstance(v, bool) or not (isinstance(v, (int, float)) or
-                                   (isinstance(v, list) and v and all(isinstance(x, (int, float)) and
-                                                                      not isinstance(x, bool) for x in v))):
-        _fail(file, path, f'expected {what}, got {v!r}')
-    arr = np.asarray(v, dtype=float)
-    if not np.all(np.isfinite(arr)):
-        _fail(file, path, f'expected finite numbers, got {v!r}')
-    return arr
-
-
-def _check_setting(file, path, key, value):
-    """A value for a run setting: a known integrator name or a positive number."""
-    if key == 'integrator':
-        from .integrators import INTEGRATORS
-        if not isinstance(value, str) or value not in INTEGRATORS:
-            _fail(file, path, f'unknown integrator {value!r}; known: {", ".join(INTEGRATORS)}')
-    elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not math.isfinite(value):
-        _fail(file, path, f'expected a positive number of {"seconds" if key == "dt" else "relative units"}, '
-                          f'got {value!r}')
-
-
-def _check_distribution(file, path, dist, key, current):
-    """Validate one ``random`` entry (its distribution and the shape of what it draws)."""
-    if not isinstance(dist, dict):
-        _fail(file, path, f'expected a mapping with one of {", ".join(DISTRIBUTIONS)}, got {dist!r}')
-    kinds = [k for k in dist if k in DISTRIBUTIONS]
-    for k in dist:
-        if k not in DISTRIBUTIONS + ('add', 'scale'):
-            _fail(file, f'{path}.{k}', f'unknown key {k!r}; allowed keys here: {", ".join(DISTRIBUTIONS)}, add, scale')
-    if len(kinds) != 1:
-        _fail(file, path, f'expected exactly one of {", ".join(DISTRIBUTIONS)}, got {sorted(dist) or "none"}')
-    kind = kinds[0]
-    for flag in ('add', 'scale'):
-        if flag in dist and not isinstance(dist[flag], bool):
-            _fail(file, f'{path}.{flag}', f'expected true or false, got {dist[flag]!r}')
-    relative = dist.get('add') or dist.get('scale')
-    if dist.get('add') and dist.get('scale'):
-        _fail(file, path, 'add and scale exclude each other')
-    v = dist[kind]
-    if kind == 'choice':
-        if not isinstance(v, list) or not v:
-            _fail(file, f'{path}.choice', f'expected a non-empty list of values, got {v!r}')
-        if relative:
-            _fail(file, path, 'add/scale apply to uniform and normal draws, not to choice')
-        if key in SETTINGS:
-            for j, x in enumerate(v):
-                _check_setting(file, f'{path}.choice.{j}', key, x)
-        return
-    if not isinstance(v, list) or len(v) != 2:
-        _fail(file, f'{path}.{kind}', f'expected [{"lo, hi" if kind == "uniform" else "mean, std"}], got {v!r}')
-    a = _number_or_list(file, f'{path}.{kind}.0', v[0])
-    b = _number_or_list(file, f'{path}.{kind}.1', v[1])
-    if key == 'integrator':
-        _fail(file, path, 'the integrator is drawn with choice: [...]')
-    if kind == 'uniform' and np.any(b < a):
-        _fail(file, f'{path}.uniform', f'lower bound {v[0]!r} is above the upper bound {v[1]!r}')
-    if kind == 'normal' and np.any(b < 0):
-        _fail(file, f'{path}.normal.1', f'standard deviation must be >= 0, got {v[1]!r}')
-    n = None if current is None or not isinstance(current, list) else len(current)
-    for j, arr in enumerate((a, b)):
-        if arr.ndim == 1 and arr.size != (n or 0) and not (n is None and arr.size == 1):
-            _fail(file, f'{path}.{kind}.{j}', f'expected a number or {n} numbers (the length of the scene value), '
-                                              f'got {arr.size}' if n else
-                  'expected a number: the scene value here is a single number')
-    if relative and current is None:
-        _fail(file, path, 'add/scale need a value in the scene to start from; this key is not set there')
-
-
-def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -> Spec:
-    """Validate sweep-spec YAML and resolve its scene.
-
-    text: the YAML; file: name in error messages; base_dir: directory a relative scene path is
-    taken from (default: the spec's). Raises :class:`SweepError` ``<file>: <key path>: <reason>``;
-    also builds the scene for every grid point with its first draw, so a parameter the scene
-    refuses is reported here (with the scene's own reason) and not by every run.
-    """
-    from .scene import SceneError, _Loader, find_scene
-    try:
-        data = yaml.load(text, Loader=_Loader)
-    except yaml.YAMLError as e:
-        mark = getattr(e, 'problem_mark', None)
-        where = f'line {mark.line + 1}, column {mark.column + 1}' if mark is not None else 'YAML'
-        _fail(file, where, f'YAML syntax error: {getattr(e, "problem", None) or e}')
-    if not isinstance(data, dict):
-        _fail(file, '', f'expected a mapping, got {type(data).__name__}')
-    for k in data:
-        if k not in _SPEC_REQUIRED + _SPEC_OPTIONAL:
-            _fail(file, k, f'unknown key {k!r}; allowed keys here: {", ".join(_SPEC_REQUIRED + _SPEC_OPTIONAL)}')
-    for k in _SPEC_REQUIRED:
-        if k not in data:
-            _fail(file, k, 'missing required key')
-    scene_ref = data['scene']
-    if not isinstance(scene_ref, str) or not scene_ref:
-        _fail(file, 'scene', f'expected a scene name or file, got {scene_ref!r}')
-    base = base_dir if base_dir is not None else os.path.dirname(os.path.abspath(file))
-    cand = scene_ref if os.path.isabs(scene_ref) else os.path.join(base, scene_ref)
-    try:
-        scene_path = find_scene(cand if os.path.isfile(cand) else scene_ref)
-        scene_text = scene_path.read_text(encoding='utf-8')
-    except (SceneError, OSError) as e:
-        _fail(file, 'scene', f'unknown scene {scene_ref!r}: {e}')
-    scene_data = yaml.load(scene_text, Loader=_Loader)
-
-    def count(key, default, minimum):
-        v = data.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int):
-            _fail(file, key, f'expected a whole number, got {v!r}')
-        if v < minimum:
-            _fail(file, key, f'must be >= {minimum}, got {v}')
-        return v
-
-    samples = count('samples', 1, 1)
-    seed = count('seed', 0, 0) if 'seed' in data else None
-    grid, random = [], []
-    for section in ('grid', 'random'):
-        sec = data.get(section, {}) or {}
-        if not isinstance(sec, dict):
-            _fail(file, section, f'expected a mapping of parameter paths, got {sec!r}')
-        for key, v in sec.items():
-            path = f'{section}.{key}'
-            key = str(key)
-            if key in SETTINGS:
-                current = None
-            else:
-                ok, current, why = _lookup(scene_data, key)
-                if not ok:
-                    _fail(file, path, f'no such parameter in scene {scene_ref!r}: {why}')
-            if section == 'grid':
-                if not isinstance(v, list) or not v:
-                    _fail(file, path, f'expected a non-empty list of values, got {v!r}')
-                for j, x in enumerate(v):
-                    if key in SETTINGS:
-                        _check_setting(file, f'{path}.{j}', key, x)
-                grid.append((key, list(v)))
-            else:
-                _check_distribution(file, path, v, key, current)
-                random.append((key, v))
-    both = {k for k, _ in grid} & {k for k, _ in random}
-    if both:
-        _fail(file, f'random.{sorted(both)[0]}', 'this parameter is also in grid; vary it in one of them')
-    if random and seed is None:
-        _fail(file, 'seed', 'missing required key: random draws need a seed (a whole number >= 0)')
-    figures = data.get('figures', list(FIGURES))
-    if not isinstance(figures, list):
-        _fail(file, 'figures', f'expected a list of {", ".join(FIGURES)}, got {figures!r}')
-    for j, f in enumerate(figures):
-        if f not in FIGURES:
-            _fail(file, f'figures.{j}', f'unknown figure {f!r}; known: {", ".join(FIGURES)}')
-    reference = None
-    if 'final_error' in figures:
-        reference = dict(DEFAULT_REFERENCE)
-        ref = data.get('reference', {})
-        if not isinstance(ref, dict):
-            _fail(file, 'reference', f'expected a mapping of run settings, got {ref!r}')
-        for k, v in ref.items():
-            if k not in SETTINGS:
-                _fail(file, f'reference.{k}', f'unknown key {k!r}; allowed keys here: {", ".join(SETTINGS)}')
-            _check_setting(file, f'reference.{k}', k, v)
-            reference[k] = v
-    elif 'reference' in data:
-        _fail(file, 'reference', 'a reference run is used by final_error only, which figures does not list')
-    record = data.get('record', False)
-    if not isinstance(record, bool):
-        _fail(file, 'record', f'expected true or false, got {record!r}')
-    from .systems.base import BACKENDS
-    backend = data.get('backend', 'numba')
-    if backend not in BACKENDS:
-        _fail(file, 'backend', f'unknown backend {backend!r}; valid: {", ".join(BACKENDS)}')
-    if 'description' in data and not isinstance(data['description'], str):
-        _fail(file, 'description', f'expected a string, got {data["description"]!r}')
-    duration = data.get('duration')
-    if duration is not None and (isinstance(duration, bool) or not isinstance(duration, (int, float))
-                                 or not duration > 0 or not math.isfinite(duration)):
-        _fail(file, 'duration', f'must be a positive number of seconds, got {duration!r}')
-    spec = Spec(file=file, text=text, scene_name=str(scene_data.get('name', scene_ref)) if isinstance(scene_data, dict)
-                else scene_ref, scene_file=str(scene_path), scene_text=scene_text, seed=seed, samples=samples,
-                duration=0.0, backend=backend, grid=grid, random=random, reference=reference,
-                figures=tuple(f for f in FIGURES if f in figures), record=record)
-    # every grid point must make a valid scene (the scene loader's own reasons); random draws of
-    # keys the scene has are checked per run (an unlucky draw is an 'invalid' row, not a bad
-    # spec), those of keys it lacks here with the first draw (the scene may not allow that key)
-    absent = {k for k, _ in random if k not in SETTINGS and _lookup(scene_data, k)[1] is None}
-    seen = set()
-    for g, task in enumerate(expand(spec, [j * spec.samples for j in range(spec.n_grid)])):
-        params = {k: v for k, v in task['params'].items() if k not in SETTINGS and (k in absent or
-                                                                                    k not in dict(random))}
-        if json.dumps(params) in seen:
-            continue
-        seen.add(json.dumps(params))
-        try:
-            scene = build_scene(spec.scene_text, spec.scene_file, params, spec.backend)
-        except SceneError as e:
-            _blame(spec, params, e)
-        if g == 0:
-            spec.settings = dict(scene.settings)
-    spec.duration = float(duration) if duration is not None else float(spec.settings.get('duration', 10.0))
-    return spec
-
-
-def _blame(spec: Spec, params: dict, err):
-    """Raise SweepError for a scene that refused ``params``: at the one parameter that the scene
-    refuses on its own (``grid.<path>`` or ``random.<path>``), else at the section."""
-    from .scene import SceneError
-    section = {k: 'grid' for k, _ in spec.grid} | {k: 'random' for k, _ in spec.random}
-    for k, v in params.items():
-        if k in SETTINGS:
-            continue
-        try:
-            build_scene(spec.scene_text, spec.scene_file, {k: v}, spec.backend)
-        except SceneError as e1:
-            _fail(spec.file, f'{section[k]}.{k}', f'the scene refuses {k} = {_short(v)}: {e1}')
-    where = 'grid' if spec.grid else 'random'
-    shown = ', '.join(f'{k}={_short(v)}' for k, v in params.items() if k not in SETTINGS)
-    _fail(spec.file, where, f'the scene refuses these parameters together ({shown}): {err}')
-
-
-def _short(v) -> str:
-    if isinstance(v, list):
-        return '[' + ', '.join(f'{x:.4g}' if isinstance(x, float) else str(x) for x in v) + ']'
-    return f'{v:.6g}' if isinstance(v, float) else str(v)
-
-
-def load_spec(path) -> Spec:
-    """Read and validate a sweep spec file (:func:`parse_spec`)."""
-    try:
-        with open(path, encoding='utf-8') as f:
-            text = f.read()
-    except (OSError, UnicodeDecodeError) as e:
-        raise SweepError(f'{path}: (file): cannot read: {e}') from None
-    return parse_spec(text, file=str(path))
 
 
 # ---------------------------------------------------------------------------------------------
 # runs
 # ---------------------------------------------------------------------------------------------
-def _draw(rng, dist, current):
-    """One draw of a ``random`` entry (the scene's ``current`` value for add/scale and shape)."""
-    if 'choice' in dist:
-        values = dist['choice']
-        return values[int(rng.integers(len(values)))]
-    kind = 'uniform' if 'uniform' in dist else 'normal'
-    a, b = (np.asarray(x, dtype=float) for x in dist[kind])
-    shape = (len(current),) if isinstance(current, list) else ()
-    x = rng.uniform(a, b, size=shape) if kind == 'uniform' else rng.normal(a, b, size=shape)
-    if dist.get('add'):
-        x = np.asarray(current, dtype=float) + x
-    elif dist.get('scale'):
-        x = np.asarray(current, dtype=float) * x
-    return x.tolist() if shape else float(x)
-
-
-def run_seed(seed: int, index: int) -> np.random.SeedSequence:
-    """The seed sequence of run ``index``: ``SeedSequence(seed).spawn(n)[index]`` for any n > index."""
-    return np.random.SeedSequence(seed, spawn_key=(index,))
-
-
-def expand(spec: Spec, indices=None) -> list:
-    """The tasks of runs ``indices`` (default all): dicts of plain values, the same on any machine.
-
-    Each has ``index``, ``grid_point``, ``sample``, ``params`` (path -> value, grid values then
-    draws) and what :func:`execute_run` needs (scene text, settings, figures, reference).
-    """
-    from .scene import _Loader
-    scene_data = yaml.load(spec.scene_text, Loader=_Loader)
-    sizes = [len(v) for _, v in spec.grid]
-    points = list(itertools.product(*[range(n) for n in sizes])) if spec.grid else [()]
-    out = []
-    for i in (range(spec.n_runs) if indices is None else indices):
-        g, s = divmod(int(i), spec.samples)
-        params = {path: values[k] for (path, values), k in zip(spec.grid, points[g])}
-        if spec.random:
-            rng = np.random.default_rng(run_seed(spec.seed, int(i)))
-            for path, dist in spec.random:
-                current = None if path in SETTINGS else _lookup(scene_data, path)[1]
-                params[path] = _draw(rng, dist, current)
-        out.append({'index': int(i), 'grid_point': g, 'sample': s, 'params': params, 'version': _version(),
-                    'scene_text': spec.scene_text, 'scene_file': spec.scene_file, 'backend': spec.backend,
-                    'duration': spec.duration, 'figures': spec.figures, 'reference': spec.reference,
-                    'record': spec.record})
-    return out
-
-
-def _version() -> str:
-    from .version import __version__
-    return __version__
-
-
-def build_scene(scene_text: str, scene_file: str, params: dict, backend: str):
-    """The scene with the parameters' scene keys set (run settings are left to the caller)."""
-    from .scene import _Loader, parse_scene
-    from .systems.base import backend_scope
-    keys = {k: v for k, v in params.items() if k not in SETTINGS}
-    text = scene_text
-    if keys:
-        data = yaml.load(scene_text, Loader=_Loader)
-        for k, v in keys.items():
-            _assign(data, k, v)
-        text = yaml.safe_dump(data, sort_keys=False)
-    import warnings
-    with warnings.catch_warnings(), backend_scope(backend):
-        warnings.simplefilter('ignore')  # a stretched-arm warning belongs to the run's message
-        return parse_scene(text, file=scene_file, path=scene_file)
-
-
 def run_settings(scene, overrides: dict, duration: float) -> dict:
     """Integrator settings of one run: ``overrides`` over the scene's, resolved as ``robodyn run`` does."""
-    from types import SimpleNamespace
-
-    from .cli.run import resolve_settings
-    ns = SimpleNamespace(integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=duration)
-    for k in SETTINGS:
-        if k in overrides:
-            setattr(ns, k, overrides[k])
-    return resolve_settings(scene, ns)
+    from .runs import resolve_settings
+    return resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
 
 
 class _Figures:
@@ -650,8 +231,8 @@ def execute_run(task: dict) -> dict:
 
     Never raises for a run that goes wrong: the row's status and message say what happened.
     """
-    if task.get('version', _version()) != _version():  # a worker that joined after the client's check
-        raise ClusterError(f'this worker runs robodyn_ros {_version()}, the client {task["version"]}; install the '
+    if task.get('version', __version__) != __version__:  # a worker that joined after the client's check
+        raise ClusterError(f'this worker runs robodyn_ros {__version__}, the client {task["version"]}; install the '
                            'same version on every worker')
     trace = os.environ.get(TRACE_ENV)
     if trace:  # tests count executions
@@ -688,7 +269,7 @@ def execute_run(task: dict) -> dict:
             from .recording.run_sink import HEADLESS_BATCH, McapRunSink
             fd, tmp = tempfile.mkstemp(suffix='.mcap')
             os.close(fd)
-            from .cli.run import DIAGNOSTICS_PERIOD
+            from .runs import DIAGNOSTICS_PERIOD
             sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
                                      diagnostics_period=DIAGNOSTICS_PERIOD,
                                      batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes
@@ -729,148 +310,6 @@ def execute_run(task: dict) -> dict:
     return {'row': row, 'mcap': mcap}
 
 
-def _run_guarded(fn, task):
-    """``fn(task)``; an exception becomes ``{'error': 'Type: message'}`` so one broken run does not
-    stop a sweep (the caller turns it into a row with status 'error')."""
-    try:
-        return fn(task)
-    except Exception as e:  # noqa: BLE001 — recorded in the row, with its type; the sweep goes on
-        import traceback
-        where = traceback.extract_tb(e.__traceback__)[-1]
-        return {'error': f'{type(e).__name__}: {e} (at {os.path.basename(where.filename)}:{where.lineno})'}
-
-
-# ---------------------------------------------------------------------------------------------
-# the engine: Dask or in-process
-# ---------------------------------------------------------------------------------------------
-class Pool:
-    """Where tasks run: a Dask ``LocalCluster`` of ``workers`` processes (one thread each), a
-    remote scheduler (``scheduler='tcp://host:8786'``), or this process (``workers=0``).
-
-    Use as a context manager; :meth:`run` yields ``(key, result)`` as tasks finish.
-    """
-
-    def __init__(self, workers: int | None = None, scheduler: str | None = None, check_version: bool = True):
-        self.workers = (os.cpu_count() or 1) if workers is None else int(workers)
-        if self.workers < 0:
-            raise ValueError(f'workers must be >= 0, got {workers}')
-        self.scheduler = scheduler
-        self.check_version = check_version
-        self.client = self.cluster = None
-
-    @property
-    def inline(self) -> bool:
-        """True when tasks run in this process (no Dask)."""
-        return self.scheduler is None and self.workers == 0
-
-    def __enter__(self):
-        if self.inline:
-            return self
-        import logging
-
-        from dask.distributed import Client, LocalCluster
-        if self.scheduler:
-            try:
-                self.client = Client(self.scheduler, timeout='30s')
-            except OSError as e:
-                raise ClusterError(f'cannot reach the Dask scheduler {self.scheduler}: {e}') from None
-            try:
-                self.client.wait_for_workers(1, timeout=WORKER_WAIT)
-            except TimeoutError:
-                self.client.close()
-                raise ClusterError(f'no Dask worker has joined the scheduler {self.scheduler} within {WORKER_WAIT:g} s '
-                                   f'(start some: dask worker {self.scheduler} --nthreads 1)') from None
-        else:
-            # preload: dask_setup below runs in every worker process (restarted ones too)
-            self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.ERROR,
-                                        preload=[__name__])
-            self.client = Client(self.cluster)
-        if self.check_version:
-            self._check_versions()
-        return self
-
-    def _check_versions(self):
-        seen = self.client.run(_version)
-        bad = {w: v for w, v in seen.items() if v != _version()}
-        if bad:
-            self.__exit__(None, None, None)
-            raise ClusterError(f'Dask workers run another robodyn_ros version than this client ({_version()}): '
-                               + ', '.join(f'{w}: {v}' for w, v in sorted(bad.items()))
-                               + '; install the same version on every worker')
-
-    def __exit__(self, *exc):
-        if self.client is not None:
-            self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
-        self.client = self.cluster = None
-        return False
-
-    def threads(self) -> int:
-        """Worker threads that run tasks now (1 in process)."""
-        if self.inline:
-            return 1
-        return max(1, sum(w.get('nthreads', 1) for w in self.client.scheduler_info()['workers'].values()))
-
-    def run(self, fn, items, name='task', chunk: int = 1):
-        """Run ``fn(arg)`` for every ``(key, arg)`` of ``items``; yield ``(key, result)`` as each
-        finishes (an exception inside fn is returned as ``{'error': ...}``, see :func:`_run_guarded`).
-
-        chunk: items per Dask task (consecutive items; their results arrive together), so that
-        the scheduling cost of a task is shared by several short runs. Dask reruns the task of a
-        worker that died (fn must be idempotent); the caller keeps the first result of each key.
-        """
-        items = list(items)
-        if self.inline:
-            for key, arg in items:
-                yield key, _run_guarded(fn, arg)
-            return
-        from dask.distributed import as_completed
-        token = os.urandom(4).hex()
-        chunk = max(1, int(chunk))
-        futures = {}
-        for k in range(0, len(items), chunk):
-            batch = items[k:k + chunk]
-            fut = self.client.submit(_run_batch, fn, [arg for _, arg in batch], key=f'{name}-{batch[0][0]}-{token}',
-                                     pure=False)
-            futures[fut] = [key for key, _ in batch]
-        try:
-            for fut in as_completed(futures):
-                keys = futures[fut]
-                try:
-                    results = fut.result()
-                except Exception as e:  # noqa: BLE001 — a task lost beyond Dask's retries (KilledWorker): rows say so
-                    results = [{'error': f'{type(e).__name__}: {e}'}] * len(keys)
-                yield from zip(keys, results)
-                fut.release()
-        finally:
-            for fut in futures:
-                if not fut.done():
-                    fut.cancel()
-
-
-def dask_setup(worker):
-    """Worker preload of the local cluster: Ctrl-C in a terminal reaches every process of the
-    group; the workers ignore it and the client, which keeps the finished rows, shuts them down
-    (instead of a KeyboardInterrupt traceback from each worker)."""
-    import signal
-    import threading
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _run_batch(fn, args) -> list:
-    """One Dask task: ``fn`` over several arguments, guarded one by one."""
-    return [_run_guarded(fn, a) for a in args]
-
-
-def chunk_size(runs: int, threads: int) -> int:
-    """Runs per Dask task: about ``TASKS_PER_THREAD`` tasks per worker thread (load balance), at
-    most ``MAX_CHUNK`` runs each (a lost task is rerun whole, and rows arrive a task at a time)."""
-    return max(1, min(MAX_CHUNK, runs // (TASKS_PER_THREAD * max(1, threads))))
-
-
 # ---------------------------------------------------------------------------------------------
 # the sweep: resume, rows on disk, the table
 # ---------------------------------------------------------------------------------------------
@@ -895,7 +334,7 @@ def _prepare(spec: Spec, out: str) -> set:
     os.makedirs(os.path.join(out, 'runs'), exist_ok=True)
     meta_path = os.path.join(out, 'sweep.json')
     meta = {'format': FORMAT, 'digest': spec.digest, 'runs': spec.n_runs, 'spec_file': os.path.abspath(spec.file),
-            'scene': spec.scene_name, 'version': _version(), 'spec': spec.text}
+            'scene': spec.scene_name, 'version': __version__, 'spec': spec.text}
     if os.path.exists(meta_path):
         with open(meta_path, encoding='utf-8') as f:
             old = json.load(f)

@@ -30,7 +30,6 @@ angle θ is ``(R_tree Rot(a, θ), p_tree)``, a prismatic joint at d is ``(R_tree
 """
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -161,39 +160,23 @@ class TfTree:
         ``odom -> odom_child`` first (when ``odom`` is given), then every moving joint in model order.
 
         joint_names, position: as in ``joint_states``; odom: the outputs' odom dict or None.
-        Plain float arithmetic: a few microseconds per joint, it runs at every publication.
+        The numbers are :meth:`transform_values` of this one publication.
         """
-        out = []
-        if odom is not None:
-            out.append((ODOM_FRAME, self.odom_child, tuple(float(x) for x in odom['position']),
-                        tuple(float(x) for x in odom['orientation'])))
-        if not self._rows:
-            return out
-        pos = position.tolist() if isinstance(position, np.ndarray) else list(position)
-        for (parent, child), k, (rev, _, p, q, a, R) in zip(self.moving, self._source(joint_names), self._rows):
-            th = float(pos[k])
-            if rev:   # q_tree ⊗ (a sin θ/2, cos θ/2)
-                s, c = math.sin(0.5 * th), math.cos(0.5 * th)
-                bx, by, bz = a[0] * s, a[1] * s, a[2] * s
-                qx, qy, qz, qw = q
-                q = (qw * bx + c * qx + qy * bz - qz * by,
-                     qw * by + c * qy + qz * bx - qx * bz,
-                     qw * bz + c * qz + qx * by - qy * bx,
-                     qw * c - qx * bx - qy * by - qz * bz)
-            else:     # p_tree + R_tree a d
-                dx, dy, dz = a[0] * th, a[1] * th, a[2] * th
-                p = tuple(p[r] + R[r][0] * dx + R[r][1] * dy + R[r][2] * dz for r in range(3))
-            out.append((parent, child, p, q))
-        return out
+        pose = None if odom is None else np.concatenate([odom['position'], odom['orientation']])[None]
+        values = self.transform_values(joint_names, np.asarray(position, dtype=np.float64)[None], pose)[0]
+        return [(parent, child, tuple(v[:3].tolist()), tuple(v[3:].tolist()))
+                for (parent, child), v in zip(self.frames(odom is not None), values)]
 
     def frames(self, odom: bool) -> list:
         """``[(parent, child)]`` of the transforms :meth:`transforms` gives (with or without odom)."""
         return ([(ODOM_FRAME, self.odom_child)] if odom else []) + list(self.moving)
 
     def transform_values(self, joint_names, positions, odom_pose=None) -> np.ndarray:
-        """:meth:`transforms` of many publications at once: ``(K, n_transforms, 7)`` array of
-        ``(x, y, z, qx, qy, qz, qw)``, the same numbers as K calls (the same float operations in
-        the same order, compiled: :func:`robodyn_ros.kernels.records.tf_values_many`).
+        """The transforms of many publications at once: ``(K, n_transforms, 7)`` array of
+        ``(x, y, z, qx, qy, qz, qw)`` in the order of :meth:`frames`, computed by
+        :func:`robodyn_ros.kernels.records.tf_values_many` (compiled; plain Python without numba):
+        a revolute joint ``q_tree ⊗ (a sin θ/2, cos θ/2)`` at ``p_tree``, a prismatic one
+        ``p_tree + R_tree a d`` with ``q_tree``.
 
         positions: (K, n) joint_states positions; odom_pose: (K, 7) odom position and
         orientation, or None when there is no odom entry.

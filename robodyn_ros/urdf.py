@@ -46,14 +46,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import LinkSpec, ModelError, _check_inertia, build_model
+from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model
 from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis
-from .systems.motor import COULOMB_VELOCITY as _MOTOR_COULOMB_VELOCITY
 
 __all__ = ['UrdfError', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
 
-#: regularisation speed (rad/s or m/s) of the URDF Coulomb friction tanh: the DC motor's default
-COULOMB_VELOCITY = _MOTOR_COULOMB_VELOCITY
 _MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic'}
 
 

@@ -2,11 +2,14 @@
 
 Every module under ``robodyn_ros/`` is parsed with :mod:`ast` (no import is executed), each
 ``import``/``from ... import`` — at module level or inside a function — is resolved to an absolute
-module name, and the rules are checked on those names.
+module name, and the rules are checked on those names: the floors listed in README (no import
+from a higher floor, no circle between rooms), the top floor's benchmarks, and rclpy only in the
+ROS adapters.
 """
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -107,3 +110,132 @@ def test_the_runtime_checks_sit_low_in_the_house():
     path = PACKAGE / 'stability.py'
     own = {t for _, t in imported_modules(path.read_text(), 'robodyn_ros.stability') if t.startswith('robodyn_ros')}
     assert own and own <= {'robodyn_ros', 'robodyn_ros.model', 'robodyn_ros.model.FREE', 'robodyn_ros.dynamics'}, own
+
+
+# ---------------------------------------------------------------------------------------------
+# floors: README "Architecture" lists them, one line a floor; every import stays level or goes down
+# ---------------------------------------------------------------------------------------------
+README = PACKAGE.parent / 'README.md'
+_FLOOR_LINE = re.compile(r'^(\d+)\. [^:`]+: (`[A-Za-z_]+`(?:, `[A-Za-z_]+`)*)\s*$')
+
+
+def readme_floors(text: str) -> dict:
+    """``{room: floor}`` from the numbered list of README's ``## Architecture`` section: each line
+    ``N. title: `a`, `b`, ...`` puts the rooms a, b (top-level modules or packages of
+    robodyn_ros) on floor N, 1 the ground."""
+    m = re.search(r'^## Architecture\n(.*?)(?=^## |\Z)', text, re.M | re.S)
+    assert m, 'README.md has no "## Architecture" section'
+    floors = {}
+    for line in m.group(1).splitlines():
+        hit = _FLOOR_LINE.match(line)
+        if hit:
+            for room in re.findall(r'`([A-Za-z_]+)`', hit.group(2)):
+                assert room not in floors, f'{room} is listed on two floors'
+                floors[room] = int(hit.group(1))
+    return floors
+
+
+def room(module: str) -> str | None:
+    """The room of ``robodyn_ros.a.b``: ``a`` (None for the package ``robodyn_ros`` itself)."""
+    parts = module.split('.')
+    return parts[1] if len(parts) > 1 else None
+
+
+def floor_violations(module: str, source: str, floors: dict, is_package: bool = False) -> list[str]:
+    """Imports of ``module`` that reach a higher floor than its own, as ``module:line: reason``."""
+    own = floors[room(module)]
+    bad = []
+    for line, target in imported_modules(source, module, is_package):
+        r = room(target) if target.split('.')[0] == 'robodyn_ros' else None
+        if r is not None and r in floors and floors[r] > own:
+            bad.append(f'{module}:{line}: imports {target} (floor {floors[r]}) from floor {own}')
+    return bad
+
+
+def room_imports() -> dict:
+    """``{room: {rooms it imports}}`` over every module of the package (same-room imports left out)."""
+    out = {}
+    for path in all_modules():
+        name = module_name(path)
+        r = room(name)
+        if r is None:
+            continue
+        targets = {room(t) for _, t in imported_modules(path.read_text(), name, path.name == '__init__.py')
+                   if t.split('.')[0] == 'robodyn_ros'}
+        out.setdefault(r, set()).update(t for t in targets if t not in (None, r))
+    return out
+
+
+def circles(graph: dict) -> list[list[str]]:
+    """The strongly connected components of more than one room (Tarjan), each sorted."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_readme_lists_the_floors_of_every_room():
+    """README's Architecture list names seven floors, and every module of the package stands in a
+    room it names (a new module or package must be given its floor there)."""
+    floors = readme_floors(README.read_text(encoding='utf-8'))
+    assert sorted(set(floors.values())) == list(range(1, 8)), floors
+    rooms = {room(module_name(p)) for p in all_modules()} - {None}
+    assert rooms - set(floors) == set(), 'rooms missing from README "Architecture"'
+    assert set(floors) - rooms == set(), 'README "Architecture" names rooms that do not exist'
+    assert (PACKAGE / '__init__.py').read_text().strip() == ''   # the package itself holds nothing
+
+
+def test_the_floor_checker_sees_a_violation():
+    """The floor rule can fail: an import up from a lower floor, relative, absolute or lazy; level
+    and downward imports pass."""
+    floors = {'model': 1, 'kernels': 2, 'systems': 3, 'scene': 4, 'nodes': 6, 'cli': 7}
+    for src in ('from ..scene import load_scene\n', 'from .. import scene\n', 'import robodyn_ros.scene.arm\n',
+                'def f():\n    from ..systems.arm import ArmSystem\n'):
+        assert floor_violations('robodyn_ros.kernels.tree', src, floors), src
+    assert floor_violations('robodyn_ros.kernels', 'from ..cli import main\n', floors, is_package=True)
+    assert floor_violations('robodyn_ros.systems.arm', 'def f():\n    from ..nodes import sim\n', floors)
+    assert not floor_violations('robodyn_ros.kernels.tree', 'from ..model import FREE\nfrom . import linalg\n', floors)
+    assert not floor_violations('robodyn_ros.nodes.sim', 'from ..scene import load_scene\n', floors)
+    assert not floor_violations('robodyn_ros.scene.arm', 'from ..systems.arm import ArmSystem\n', floors)
+    assert circles({'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': {'a'}}) == [['a', 'b', 'c']]
+    assert circles({'a': {'b'}, 'b': set()}) == []
+
+
+def test_no_import_climbs_a_floor():
+    """No module imports a room on a higher floor than its own (README "Architecture")."""
+    floors = readme_floors(README.read_text(encoding='utf-8'))
+    bad = []
+    for path in all_modules():
+        name = module_name(path)
+        if room(name) is not None:
+            bad += floor_violations(name, path.read_text(), floors, path.name == '__init__.py')
+    assert bad == []
+
+
+def test_no_import_circle_between_rooms():
+    """No two rooms import each other, directly or around a circle (level imports included)."""
+    graph = room_imports()
+    assert len(graph) > 20 and graph['scene'] and graph['cli']
+    assert circles(graph) == []

@@ -16,9 +16,10 @@ import warnings
 import numpy as np
 import pytest
 
+from robodyn_ros import dynamics as dyn
 from robodyn_ros import simulation as S
 from robodyn_ros.bench import speed
-from robodyn_ros.kernels import core
+from robodyn_ros.kernels import profiles as kprofiles
 from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink
 from robodyn_ros.scene import find_scene, load_scene, parse_scene
 from robodyn_ros.simulation import CommandError, SimulationError, Simulator, run_headless
@@ -163,7 +164,7 @@ def _piecewise_script(scene, times, values):
     def script(t, y):
         return {'effort': f(t, y)}
     e = np.zeros((0, 0))
-    script.programs = {'effort': (core.CMD_PIECEWISE, e, times, values, e, e)}
+    script.programs = {'effort': (kprofiles.CMD_PIECEWISE, e, times, values, e, e)}
     return script
 
 
@@ -196,26 +197,52 @@ def test_a_diverging_state_fails_at_the_same_period_keeping_the_last_good_state(
     _same_simulator(sim_f, sim_s)
 
 
+def _formula(params: dict, model, t, q):
+    """A profile's command written out from its scene keys (the README's formulas), numpy; the
+    gravity torques by the numpy reference RNEA (``dynamics.rnea``, not the compiled tree kernels)."""
+    n = model.nv
+    get = lambda k, default=0.0: np.asarray(params.get(k, np.full(n, default)), dtype=float)  # noqa: E731
+    kind = params['profile']
+    if kind == 'zero':
+        return np.zeros(n)
+    if kind == 'constant':
+        return get('value')
+    if kind == 'piecewise_constant':
+        times, values = np.asarray(params['times'], float), np.asarray(params['values'], float)
+        return np.zeros(n) if t < times[0] else values[np.searchsorted(times, t, side='right') - 1]
+    sine = get('amplitude') * np.sin(2.0 * np.pi * get('frequency_hz') * t + get('phase'))
+    if kind == 'sine':
+        return get('offset') + sine
+    assert kind == 'gravity_compensation_sine'
+    z = np.zeros(n)
+    return dyn.rnea(model, q, z, z) + get('stiffness') * (get('center') - q) + sine
+
+
 @pytest.mark.parametrize('case', ['sine', 'piecewise_constant', 'constant', 'zero', 'stanford_arm', 'huston_p19_4_1'])
-def test_compiled_profiles_equal_the_python_ones_bit_for_bit(case):
-    # command_eval against the profile's Python form at random times and states, signs of zero included
+def test_profiles_give_the_commands_their_formulas_say(case):
+    """Each profile's f(t, y) -- :func:`kernels.profiles.command_eval`, the profiles' one
+    implementation, which the block path also runs -- against its formula from the scene's keys at
+    random times and states: exactly for the piecewise, constant and zero profiles (signs of zero
+    included), to 1e-12 for the sines (the sum's order) and the gravity compensation (another RNEA)."""
     scene = _scene(case, 'numba')
+    params = scene.data['commands']['effort']
     f = scene.script.profiles['effort']
-    kind, P, times, values, BT, Bq = scene.script.programs['effort']
+    assert scene.script.programs['effort'] is not None   # the block path runs it too
     sys_ = scene.system
-    km = sys_._km
+    model = sys_.model
+    assert sys_._B_is_selection and list(sys_.actuated) == list(model.dof_joint_names)   # B = 1
     rng = np.random.default_rng(15)
-    nv = sys_.nv
-    checked = 0
-    for t in np.r_[0.0, 0.1, 0.35, 0.6, rng.uniform(0, 20, 40)]:
-        y = scene.y0 + np.r_[rng.normal(0, 0.3, sys_.nq), rng.normal(0, 1, nv)]
-        want = np.asarray(f(t, y), dtype=float)
-        got = np.empty(want.shape[0])
-        core.command_eval(kind, P, times, values, BT, Bq, km.mi_r, km.mf_r, sys_.nq, float(t), y,
-                          np.zeros(nv), np.zeros(nv), got)
-        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want)), (t, got - want)
-        checked += 1
-    assert checked == 44
+    worst = 0.0
+    times = np.r_[0.0, 0.1, 0.35, 0.6, rng.uniform(0, 20, 40)]
+    for t in times:
+        y = scene.y0 + np.r_[rng.normal(0, 0.3, sys_.nq), rng.normal(0, 1, sys_.nv)]
+        got = f(t, y)
+        want = _formula(params, model, t, y[:sys_.nq])
+        if params['profile'] in ('zero', 'constant', 'piecewise_constant'):
+            assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want)), (t, got - want)
+        worst = max(worst, float(np.abs(got - want).max() / max(1.0, np.abs(want).max())))
+    print(f'{case}: profile vs its formula, largest relative difference {worst:.1e}')
+    assert worst <= 1e-12 and len(times) == 44
 
 
 def test_the_planner_declines_what_it_cannot_run_in_blocks():

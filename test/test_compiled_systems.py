@@ -1,9 +1,9 @@
 """Compiled constrained and floating-base systems ≡ their numpy reference (1e-12), fused loops included.
 
-:mod:`robodyn_ros.kernels.constrained` re-implements the right-hand sides, projections and solves
-of the differential drive (alone and as a mobile manipulator), the free-flying base in minimal
-and augmented coordinates (orbit and air-bearing table, each stabilisation) and the prescribed
-end-point path (both formulations, circle and line, near-singular). Each is compared with the
+The kernels of each system (:mod:`robodyn_ros.kernels.diffdrive`, ``freeflyer``, ``augmented``,
+``prescribed``) re-implement the right-hand sides, projections and solves of the differential
+drive (alone and as a mobile manipulator), the free-flying base in minimal and augmented
+coordinates (orbit and air-bearing table, each stabilisation) and the prescribed end-point path (both formulations, circle and line, near-singular). Each is compared with the
 numpy methods of the same class (``backend='numpy'``) at random states, then the fused loop that
 the Simulator takes (``fused_advance``) against the Simulator's reference path over 0.1 s with
 30 Hz periods (so every period ends with a partial step). No timings are asserted.
@@ -251,14 +251,14 @@ def test_compiled_outputs_publish_an_overridden_contact_wrenches():
 
 
 def test_fma_rounds_once_and_keeps_the_sign_of_zero():
-    """``kernels.constrained.fma`` (llvm.fma: the instruction, or the C library's fma without it) is
+    """``kernels.linalg.fma`` (llvm.fma: the instruction, or the C library's fma without it) is
     ``a b + c`` rounded once: against exact rational arithmetic on random triples (half of them
     with c ≈ −a b, where one rounding or two differ), and the signed zeros of a chain from +0.0."""
     from fractions import Fraction
 
     from numba import njit
 
-    from robodyn_ros.kernels.constrained import fma
+    from robodyn_ros.kernels.linalg import fma
 
     @njit
     def f(a, b, c):
@@ -293,7 +293,7 @@ import numpy as np
 sys.path.insert(0, 'test')
 from test_compiled_systems import _pair
 from numba import njit
-from robodyn_ros.kernels.constrained import fma
+from robodyn_ros.kernels.linalg import fma
 
 @njit
 def chain(R, x):

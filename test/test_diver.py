@@ -5,6 +5,8 @@ parabola, the solution of ë + K_d ė + K_p e = 0), conservation of angular mome
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -427,8 +429,8 @@ def test_pfl_at_a_non_finite_state_gives_nan_torques_that_the_simulator_refuses(
     assert np.isfinite(ctl.torques(0.1, *s.split(sc.y0))).all()
 
 
-@pytest.mark.parametrize('backend,law', [('numpy', 'numpy'), ('numpy', 'compiled'), ('numba', 'compiled')])
-def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend, law, monkeypatch):
+@pytest.mark.parametrize('backend', ['numpy', 'numba'])
+def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend):
     """What the law is for: with its torques applied, the system's forward dynamics (the Simulator's
     right-hand side: ABA on either backend, independent of the law's CRBA, RNEA and solve) gives
     the inner joints q̈ = α = q̈_d + K_d (q̇_d − q̇) + K_p (q_d − q), whatever the base does. With
@@ -447,8 +449,6 @@ def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend, la
     rng = np.random.default_rng(23)
     n = s.nv - 3
     kp, kd = rng.uniform(50.0, 150.0, n), rng.uniform(5.0, 30.0, n)
-    if law == 'numpy':   # the formulation without the kernels (no numba, or ROBODYN_BACKEND=numpy)
-        monkeypatch.setattr(kernels, 'AVAILABLE', False)
     ctl = PFLController(s, path, kp, kd)
     t0, t1, t2, t3 = path.schedule
     worst, scale = 0.0, 0.0
@@ -461,32 +461,46 @@ def test_pfl_torques_give_the_inner_joints_the_desired_accelerations(backend, la
         acc = s.rhs(t, np.concatenate([q, v]), {'effort': tau})[s.nq + 3:]
         worst = max(worst, np.abs(acc - alpha).max())
         scale = max(scale, np.abs(alpha).max())
-    print(f'PFL ({law} law, {backend} dynamics): inner accelerations off α by at most {worst:.2e} rad/s² (|α| up to {scale:.0f})')
+    print(f'PFL law, {backend} dynamics: inner accelerations off α by at most {worst:.2e} rad/s² (|α| up to {scale:.0f})')
     assert scale > 10.0 and worst <= 1e-9 * scale
 
 
-def test_a_pfl_scene_without_the_compiled_kernels_runs_the_numpy_formulation(monkeypatch):
-    """Without the kernels (no numba, or ROBODYN_BACKEND=numpy) the scene's controller computes the
-    law in numpy (the reference: dynamics.crba/rnea, numpy's solve): the same torques as the
-    compiled law to round-off, and the dive runs."""
-    compiled = load_scene('diver_tuck')
-    monkeypatch.setattr(kernels, 'AVAILABLE', False)
-    monkeypatch.setattr(kernels, 'UNAVAILABLE_REASON', 'ROBODYN_BACKEND=numpy')
-    monkeypatch.setenv('ROBODYN_BACKEND', 'numpy')
-    sc = load_scene('diver_tuck')
-    s = sc.system
-    assert s.backend == 'numpy' and s._km is None
-    ctl, ref = sc.script.profiles['effort'].controller, compiled.script.profiles['effort'].controller
+def test_a_pfl_scene_without_numba_runs_the_same_law_as_plain_python(tmp_path):
+    """numba is optional: in a process where it cannot be imported (and ROBODYN_BACKEND=numpy), the
+    scene's controller runs the law's one implementation (:mod:`robodyn_ros.kernels.pfl` and the
+    tree algorithms under it) as plain Python, and the dive runs. Its torques equal the compiled
+    law's to round-off (numpy's BLAS in place of scipy's)."""
+    import json
+    import subprocess
+    import sys
     rng = np.random.default_rng(31)
-    for _ in range(20):
-        q, v = _random_state(s.model, rng)
-        t = rng.uniform(0.0, 2.0)
-        a, b = ctl.torques(t, q, v), ref.torques(t, q, v)
-        assert np.abs(a - b).max() <= 1e-9 * max(1.0, np.abs(b).max())
-    sim = Simulator(s, sc.y0, integrator='rk4', dt=1e-3)
-    n = run_headless(sim, 0.2, 100.0, sc.script, [])
-    assert n == 20 and np.isfinite(sim.y).all() and np.abs(sim.y[3:s.nq] - sc.y0[3:s.nq]).max() > 0.01
-
+    s = load_scene('diver_tuck').system
+    states = [(float(rng.uniform(0.0, 2.0)), *(x.tolist() for x in _random_state(s.model, rng))) for _ in range(8)]
+    code = (
+        'import json, sys\n'
+        'sys.modules["numba"] = None\n'   # import numba fails from here on
+        'import numpy as np\n'
+        'from robodyn_ros import kernels\n'
+        'from robodyn_ros.scene import load_scene\n'
+        'from robodyn_ros.simulation import Simulator, run_headless\n'
+        'assert not kernels.AVAILABLE and not kernels.jit.NUMBA\n'
+        'sc = load_scene("diver_tuck")\n'
+        'ctl = sc.script.profiles["effort"].controller\n'
+        'taus = [ctl.torques(t, np.array(q), np.array(v)).tolist() for t, q, v in json.loads(sys.argv[1])]\n'
+        'sim = Simulator(sc.system, sc.y0, integrator="rk4", dt=1e-3)\n'
+        'n = run_headless(sim, 0.2, 100.0, sc.script, [])\n'
+        'moved = float(np.abs(sim.y[3:sc.system.nq] - sc.y0[3:sc.system.nq]).max())\n'
+        'print(json.dumps({"taus": taus, "periods": n, "finite": bool(np.isfinite(sim.y).all()), "moved": moved}))\n')
+    env = dict(os.environ, ROBODYN_BACKEND='numpy')
+    r = subprocess.run([sys.executable, '-c', code, json.dumps(states)], env=env, capture_output=True, text=True,
+                       timeout=300, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    ctl = load_scene('diver_tuck').script.profiles['effort'].controller   # compiled (numba here)
+    for (t, q, v), tau in zip(states, got['taus']):
+        want = ctl.torques(t, np.array(q), np.array(v))
+        assert np.abs(np.array(tau) - want).max() <= 1e-9 * max(1.0, np.abs(want).max())
+    assert got['periods'] == 20 and got['finite'] and got['moved'] > 0.01
 
 
 def test_numbas_blas_gives_numpys_bits_for_the_products_of_the_pfl_law():

@@ -341,7 +341,7 @@ def test_limit_work_is_integrated_as_its_own_part(integrator):
     assert vals['limit_work'] == rep['limit_work']
     from types import SimpleNamespace
 
-    from robodyn_ros.cli.run import summary
+    from robodyn_ros.runs import summary
     text = summary(SimpleNamespace(name='stop', system=sys_), sim, {'integrator': integrator, 'dt': 1e-4}, 1.0, None,
                    [])
     assert f'; joint-limit work {rep["limit_work"]:.6g} J' in text, text

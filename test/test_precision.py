@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from robodyn_ros import advise as adv
+from robodyn_ros import measurements as meas
 from robodyn_ros.bench import precision as P
 from robodyn_ros.scene import load_scene, parse_scene
 from robodyn_ros.simulation import Simulator
@@ -149,7 +150,7 @@ def test_refused_and_failed_runs_are_recorded_not_raised():
 # ---------------------------------------------------------------------------------------------
 def _run(integ, error, wall, setting, status='ok', formulation=''):
     kind = 'fixed' if integ in P.FIXED else 'adaptive'
-    return P.Run(scene='s', formulation=formulation, integrator=integ, kind=kind,
+    return meas.Run(scene='s', formulation=formulation, integrator=integ, kind=kind,
                  dt=setting if kind == 'fixed' else None, rtol=setting if kind == 'adaptive' else None,
                  atol=setting if kind == 'adaptive' else None, horizon=1.0, status=status, error=error,
                  wall_per_sim_s=wall, rhs_evals=int(wall * 1e4), rhs_per_sim_s=wall * 1e4)
@@ -175,7 +176,7 @@ def test_advise_chooses_cheapest_run_meeting_tolerance(tol, expected):
         return
     assert (best.integrator, best.dt if best.kind == 'fixed' else best.rtol) == expected
     assert all(r.error <= tol and r.status == 'ok' for r in [best] + others)
-    assert all(P.cost_key(best) <= P.cost_key(r) for r in others)
+    assert all(meas.cost_key(best) <= meas.cost_key(r) for r in others)
     assert len({(r.integrator, r.formulation) for r in others}) == len(others)
 
 
@@ -186,7 +187,7 @@ def _synthetic_result(scene, mode='quick'):
 
 def test_advise_cache_is_keyed_by_scene_text_machine_and_version(tmp_path, monkeypatch):
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'xdg'))
-    assert adv.cache_dir() == tmp_path / 'xdg' / 'robodyn_ros' / 'precision'
+    assert meas.cache_dir() == tmp_path / 'xdg' / 'robodyn_ros' / 'precision'
     path = tmp_path / 'pend.yaml'
     text = load_scene('betancur_pendulum').text
     path.write_text(text)
@@ -194,28 +195,28 @@ def test_advise_cache_is_keyed_by_scene_text_machine_and_version(tmp_path, monke
 
     def measure(name):
         calls.append(name)
-        return _synthetic_result(P._load(name))
+        return _synthetic_result(meas.load_scene_quietly(name))
     a = adv.advise(str(path), 1e-6, measure=measure)
     assert a.source == 'measured now' and calls == [str(path)]
     assert (a.best.integrator, a.best.rtol) == ('lsoda', 1e-7)
-    cached = list(adv.cache_dir().glob('betancur_pendulum-*.json'))
+    cached = list(meas.cache_dir().glob('betancur_pendulum-*.json'))
     assert len(cached) == 1
     b = adv.advise(str(path), 1e-9, measure=measure)
     assert b.source == 'cache' and calls == [str(path)] and b.best.integrator == 'dop853'
     # a different machine or release gives another key
-    k = adv.cache_key('betancur_pendulum', text)
-    assert k != adv.cache_key('betancur_pendulum', text, machine='other-4')
-    assert k != adv.cache_key('betancur_pendulum', text, version='999')
+    k = meas.cache_key('betancur_pendulum', text)
+    assert k != meas.cache_key('betancur_pendulum', text, machine='other-4')
+    assert k != meas.cache_key('betancur_pendulum', text, version='999')
     # an edited scene is a cache miss: measured again, stored beside the old entry
     path.write_text(text.replace('mass: 0.1', 'mass: 0.2', 1))
     c = adv.advise(str(path), 1e-6, measure=measure)
     assert c.source == 'measured now' and len(calls) == 2
-    assert len(list(adv.cache_dir().glob('betancur_pendulum-*.json'))) == 2
+    assert len(list(meas.cache_dir().glob('betancur_pendulum-*.json'))) == 2
     # a quick measurement never replaces a full one
-    scene = P._load(str(path))
-    adv.store(scene, _synthetic_result(scene, mode='full'))
-    adv.store(scene, _synthetic_result(scene, mode='quick'))
-    assert adv.load(scene)['mode'] == 'full'
+    scene = meas.load_scene_quietly(str(path))
+    meas.store(scene, _synthetic_result(scene, mode='full'))
+    meas.store(scene, _synthetic_result(scene, mode='quick'))
+    assert meas.load(scene)['mode'] == 'full'
     text_out = adv.format_advice(c, str(path))
     assert 'lsoda rtol=1e-07' in text_out and 'robodyn run' in text_out and '--rtol 1e-07' in text_out
 
@@ -223,8 +224,8 @@ def test_advise_cache_is_keyed_by_scene_text_machine_and_version(tmp_path, monke
 def test_advise_cli_answers_from_the_cache(tmp_path, monkeypatch, capsys):
     from robodyn_ros.cli import main
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path))
-    scene = P._load('betancur_pendulum')
-    adv.store(scene, _synthetic_result(scene, mode='full'))
+    scene = meas.load_scene_quietly('betancur_pendulum')
+    meas.store(scene, _synthetic_result(scene, mode='full'))
     assert main(['advise', 'betancur_pendulum', '--tolerance', '1e-3']) == 0
     out = capsys.readouterr().out
     assert 'cheapest: rk4 dt=0.01' in out and 'robodyn run betancur_pendulum --integrator rk4 --dt 0.01' in out
@@ -255,7 +256,7 @@ def test_bench_precision_writes_csv_markdown_and_png(tmp_path, monkeypatch):
     assert '## unfried_free_flyer' in md and '**0.001**' in md and 'selects the **augmented** formulation' in md
     assert (out / 'unfried_free_flyer.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert 'unfried_free_flyer' in (out / 'summary.md').read_text()
-    assert adv.load(P._load('unfried_free_flyer')) is not None  # cached for robodyn advise
+    assert meas.load(meas.load_scene_quietly('unfried_free_flyer')) is not None  # cached for robodyn advise
 
 
 def test_bench_precision_without_matplotlib_writes_the_tables_and_says_how_to_get_the_plot(tmp_path, monkeypatch,

@@ -1,10 +1,14 @@
-"""TfTree.transform_values (the recorder's batched /tf, kernels/records.tf_values_many) against
-TfTree.transforms (one publication at a time) on a tree whose joints have oblique axes and
-rotated origins: every term of the quaternion product is then non-zero (the bundled scenes'
-axes lie along their frames' axes, where a wrong sign on a vanishing term goes unseen)."""
+"""/tf on a tree whose joints have oblique axes and rotated origins, against the dynamics' forward
+kinematics (:func:`robodyn_ros.dynamics.body_poses`, Plücker transforms of ``jcalc``): every term
+of the quaternion product is then non-zero (the bundled scenes' axes lie along their frames' axes,
+where a wrong sign on a vanishing term goes unseen). The transforms are those of
+:func:`robodyn_ros.kernels.records.tf_values_many`, the one implementation of /tf, for K
+publications at once and for one (``TfTree.transforms``)."""
 import numpy as np
 
+from robodyn_ros import dynamics as dyn
 from robodyn_ros.scene import parse_scene
+from robodyn_ros.spatial import quat_to_R
 from robodyn_ros.tf import TfTree
 
 _OBLIQUE = """name: oblique
@@ -22,17 +26,34 @@ parts:
 """
 
 
-def test_batched_tf_equals_per_publication_tf_on_oblique_joints():
+def _world(rows, frames, root):
+    """World pose (R, p) of every child frame, composing the transforms (x, y, z, qx, qy, qz, qw) from root."""
+    poses = {root: (np.eye(3), np.zeros(3))}
+    for (parent, child), v in zip(frames, rows):   # model order: parents first
+        Rp, pp = poses[parent]
+        poses[child] = (Rp @ quat_to_R(v[3:]), pp + Rp @ v[:3])
+    return poses
+
+
+def test_tf_on_oblique_joints_equals_the_dynamics_body_poses():
     sc = parse_scene(_OBLIQUE)
     tree = TfTree(sc.system)
+    model = sc.system.model
     names = list(sc.system.joint_names)
     assert names == ['j1', 'j2', 'j3']
     rng = np.random.default_rng(29)
     pos = rng.uniform(-4.0, 4.0, size=(40, 3))
     got = tree.transform_values(names, pos)
     assert got.shape == (40, 3, 7)
+    worst = 0.0
     for k in range(40):
-        want = np.array([(*p, *q) for _, _, p, q in tree.transforms(names, pos[k])])
-        assert want.tobytes() == got[k].tobytes()   # bit for bit
-        # the oblique case: each moving transform's rotation part has all four components non-zero
-        assert np.all(want[[0, 2], 3:] != 0.0)
+        one = tree.transforms(names, pos[k])   # a single publication: the same numbers as row k
+        assert np.array([(*p, *q) for _, _, p, q in one]).tobytes() == got[k].tobytes()
+        poses = _world(got[k], tree.frames(False), model.root)
+        R, p = dyn.body_poses(model, pos[k])
+        for i, link in enumerate(model.link_names):
+            worst = max(worst, np.abs(poses[link][0] - R[i]).max(), np.abs(poses[link][1] - p[i]).max())
+        # the oblique case: each revolute transform's rotation part has all four components non-zero
+        assert np.all(got[k][[0, 2], 3:] != 0.0)
+    print(f'/tf vs dynamics.body_poses on oblique joints: {worst:.1e}')
+    assert worst < 1e-12

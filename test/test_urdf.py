@@ -377,7 +377,7 @@ def test_velocity_limit_is_reported_and_counted_at_publication():
     run_headless(sim, 1.0, 10.0, sinks=[sink])
     assert sink.seen[0] == 1 and sink.seen[-1] == 7, sink.seen
     assert sim.diag.velocity_limit_exceeded == 7
-    from robodyn_ros.cli.run import summary
+    from robodyn_ros.runs import summary
     assert 'limits       7 published joint velocities above the velocity limits' in \
         summary(sc, sim, {'integrator': 'rk4', 'dt': 1e-4}, 1.0, None, [])
     assert sim.y[4] == pytest.approx(2.0 * np.exp(-1.0), rel=1e-9) and sim.y[5] == pytest.approx(-sim.y[4], rel=1e-9)

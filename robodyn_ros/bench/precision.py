@@ -39,27 +39,28 @@ Outputs, in ``--out`` (default ``docs/precision``): ``<scene>.csv`` (one row per
 ``<scene>.md`` (the table, the reference, and the cheapest run for each of 1e-3, 1e-6, 1e-9),
 ``<scene>.png`` (work-precision diagram: error against rhs evaluations and against CPU time,
 log–log, one line per method and formulation) and ``summary.md`` (the cheapest runs of every
-scene). The measurements are also cached for ``robodyn advise`` (see :mod:`robodyn_ros.advise`).
+scene). The measurements are also stored for ``robodyn advise`` (:mod:`robodyn_ros.measurements`).
 
 ``--quick`` uses the short ladder ``robodyn advise`` runs when it has no measurements.
 ``--workers N`` / ``--scheduler ADDRESS`` run every scene's reference and each method's ladder as
-tasks on Dask (:class:`robodyn_ros.sweep.Pool`, the machinery of ``robodyn sweep``), side by side;
+tasks on Dask (:class:`robodyn_ros.pool.Pool`, the machinery of ``robodyn sweep``), side by side;
 the tables are the same apart from the timing columns. The default (0) runs them one after the
 other in this process, so that no timed run shares the CPU with another.
 """
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 import os
 import sys
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..measurements import CSV_FIELDS, Run, cost_key, store
+from ..measurements import load_scene_quietly as _load
 from ..measures import Progress as _Progress
 from ..measures import state_error  # noqa: F401  (used here and by bench.extremes)
 
@@ -94,82 +95,6 @@ FORMULATION_KEYS = {'free_base': ('minimal', 'augmented'), 'prescribed_arm': ('c
 ADAPTIVE = ('rk45', 'dop853', 'radau', 'bdf', 'lsoda')
 FIXED = ('euler', 'semi_implicit_euler', 'rk4')
 
-CSV_FIELDS = ('scene', 'formulation', 'integrator', 'kind', 'dt', 'rtol', 'atol', 'horizon', 'status', 'error',
-              'error_floor', 'wall_per_sim_s', 'cpu_per_sim_s', 'rhs_evals', 'rhs_per_sim_s', 'steps', 'rejected_steps',
-              'energy_drift', 'momentum_drift', 'constraint_residual', 'note')
-
-
-@dataclass
-class Run:
-    """One measured run (a row of the CSV; see the module docstring for the fields)."""
-
-    scene: str
-    formulation: str
-    integrator: str
-    kind: str
-    dt: float | None
-    rtol: float | None
-    atol: float | None
-    horizon: float
-    status: str = 'ok'
-    error: float = math.nan
-    error_floor: bool = False
-    wall_per_sim_s: float = math.nan
-    cpu_per_sim_s: float = math.nan
-    rhs_evals: int = 0
-    rhs_per_sim_s: float = math.nan
-    steps: int = 0
-    rejected_steps: int | None = 0
-    energy_drift: float = math.nan
-    momentum_drift: float = math.nan
-    constraint_residual: float = math.nan
-    note: str = ''
-    y: np.ndarray | None = field(default=None, repr=False)
-
-    @property
-    def setting(self) -> str:
-        """``dt=0.001`` or ``rtol=1e-06``."""
-        return f'dt={self.dt:g}' if self.kind == 'fixed' else f'rtol={self.rtol:g}'
-
-    @property
-    def label(self) -> str:
-        """Method and formulation, for plot legends."""
-        return self.integrator + (f' ({self.formulation})' if self.formulation else '')
-
-    def row(self) -> dict:
-        """The CSV row."""
-        d = {k: getattr(self, k) for k in CSV_FIELDS}
-        d['rejected_steps'] = '' if self.rejected_steps is None else self.rejected_steps
-        for k in ('dt', 'rtol', 'atol'):
-            d[k] = '' if d[k] is None else d[k]
-        return d
-
-    @classmethod
-    def from_row(cls, d: dict) -> 'Run':
-        """Inverse of :meth:`row` (CSV or JSON)."""
-        def num(x, conv=float):
-            return None if x in ('', None) else conv(x)
-        kw = {}
-        for f in dataclasses.fields(cls):
-            if f.name == 'y' or f.name not in d:
-                continue
-            x = d[f.name]
-            if f.name in ('dt', 'rtol', 'atol'):
-                kw[f.name] = num(x)
-            elif f.name in ('rhs_evals', 'steps'):
-                kw[f.name] = int(float(x))
-            elif f.name == 'rejected_steps':
-                kw[f.name] = num(x, lambda s: int(float(s)))
-            elif f.name == 'error_floor':
-                kw[f.name] = x in (True, 'True', 'true', '1', 1)
-            elif f.name in ('horizon', 'error', 'wall_per_sim_s', 'cpu_per_sim_s', 'rhs_per_sim_s', 'energy_drift',
-                            'momentum_drift', 'constraint_residual'):
-                kw[f.name] = math.nan if x in ('', None) else float(x)
-            else:
-                kw[f.name] = x
-        return cls(**kw)
-
-
 @dataclass
 class Reference:
     """The reference final state of a scene: ``kind`` 'closed form' or 'dop853 rtol=1e-13';
@@ -186,14 +111,6 @@ class Reference:
 # ---------------------------------------------------------------------------------------------
 # scenes, formulations, closed forms
 # ---------------------------------------------------------------------------------------------
-def _load(name_or_path):
-    """Load a scene with warnings silenced (a stretched-arm warning belongs to the run)."""
-    from ..scene import load_scene
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
-        return load_scene(name_or_path)
-
-
 def formulations(scene) -> list:
     """``[(formulation, Scene)]``: the scene in each formulation its parts offer.
 
@@ -476,7 +393,7 @@ def run_scene(name, mode='full', horizon=None, budget=None, integrators=None, fo
     (default ``HORIZONS[mode]``); budget: wall seconds per run (default ``BUDGETS[mode]``);
     integrators: restrict to these names; formulations_only: restrict to these formulations;
     progress: a :class:`Progress` (counted once per run and once for the reference); pool: a
-    :class:`robodyn_ros.sweep.Pool` to run on (default: this process).
+    :class:`robodyn_ros.pool.Pool` to run on (default: this process).
     """
     return next(measure_scenes([name], mode, horizon, budget, integrators, formulations_only, progress, pool))
 
@@ -517,7 +434,7 @@ def measure_scenes(names, mode='full', horizon=None, budget=None, integrators=No
     (default: this process), so on a Dask pool they run side by side; each result is put
     together as :func:`run_scene` always did (errors against the reference, runs in ladder order).
     """
-    from ..sweep import Pool
+    from ..pool import Pool
     horizon = HORIZONS[mode] if horizon is None else float(horizon)
     budget = BUDGETS[mode] if budget is None else float(budget)
     keep = None if not formulations_only else set(formulations_only) | {''}
@@ -586,14 +503,6 @@ def count_runs(name, mode='full', integrators=None, formulations_only=None) -> i
 # ---------------------------------------------------------------------------------------------
 # choosing
 # ---------------------------------------------------------------------------------------------
-def cost_key(r):
-    """Sort key of a run's cost: CPU seconds per simulated second (wall seconds when CPU time was
-    not measured), then rhs evaluations per simulated second."""
-    c = r.cpu_per_sim_s if math.isfinite(r.cpu_per_sim_s) else r.wall_per_sim_s
-    n = r.rhs_per_sim_s
-    return (c if math.isfinite(c) else math.inf, n if math.isfinite(n) else math.inf)
-
-
 def cheapest(runs, tol: float, formulation=None):
     """The cheapest successful run whose error is at most ``tol`` (None if none is).
 
@@ -823,7 +732,7 @@ def main(args) -> int:
         return 2
     progress = Progress(total, quiet=args.quiet)
     results, unplotted = [], []
-    from ..sweep import Pool
+    from ..pool import Pool
     pool = Pool(args.workers, args.scheduler)
     for res in measure_scenes(names, mode, args.horizon, args.budget, args.integrators, args.formulations, progress,
                               pool):
@@ -831,7 +740,6 @@ def main(args) -> int:
         paths = write_scene(res, args.out)
         results.append(res)
         if not args.no_cache:
-            from ..advise import store
             store(name, res)
         if paths['png'] is None:
             unplotted.append(res.scene)

@@ -42,12 +42,12 @@ import time
 
 import numpy as np
 
+from .references import (RTF_DT, RTF_RATE, mujoco_loop, mujoco_model, mujoco_recorded_loop, pin_reference,
+                         pin_rk4_loop)
 from .timing import best_of, fmt_ratio, fmt_time, machine_line, peak_rss_bytes, per_call, rss_bytes, table
 
 HELP = 'per-call ID/M/FD, real-time factors, O(n) scaling, memory and compile cost vs Pinocchio/MuJoCo'
 SECTIONS = ('kernels', 'systems', 'rtf', 'recording', 'scaling', 'memory', 'compile', 'node', 'targets')
-#: step and publication rate of the real-time-factor runs (issue 7: 1 kHz RK4, 100 Hz joint states)
-RTF_DT, RTF_RATE = 1e-3, 100.0
 #: simulated seconds of the numpy-reference RTF run (it is ~100x slower than the compiled one)
 REFERENCE_HORIZON = 0.5
 #: simulated seconds for systems without a compiled path (their numpy constraint solvers are slow)
@@ -143,21 +143,6 @@ def _load(name, backend='numba'):
         return load_scene(name)
 
 
-def _pin_model(model):
-    """Pinocchio model and data of the exported URDF, or ``(None, reason)``."""
-    try:
-        import pinocchio as pin
-    except ImportError:
-        return None, 'pinocchio not installed'
-    from ..model import to_urdf
-    if model.has_spherical:   # URDF has no ball joint: JointModelSpherical, built directly
-        from .pinbridge import pin_model
-        pm = pin_model(model)[0]
-    else:
-        pm = pin.buildModelFromXML(to_urdf(model))
-    return (pm, pm.createData()), ''
-
-
 #: robots imported from example-robot-data (test extras) for the kernels table: label -> scene part
 IMPORTED_ROBOTS = {
     'panda (URDF)': "file: {d}/panda_description/urdf/panda.urdf, "
@@ -216,7 +201,7 @@ def section_kernels(args, names) -> str:
         km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
         kg = kernels.CompiledModel(model, specialize=True) if kernels.AVAILABLE else None
         kg = kg if kg is not None and kg.gen is not None else None
-        pin_md, why = _pin_model(model)
+        pin_md, why = pin_reference(model)
         if pin_md is not None:
             import pinocchio as pin
             pm, pd = pin_md
@@ -278,7 +263,7 @@ def _call_floor(args) -> str:
     z = np.zeros(1)
     fns = {'compiled': (lambda: km.aba(z, z, z)) if kernels.AVAILABLE else None}
     km = kernels.CompiledModel(m) if kernels.AVAILABLE else None
-    pin_md, _ = _pin_model(m)
+    pin_md, _ = pin_reference(m)
     if pin_md:
         import pinocchio as pin
         pm, pd = pin_md
@@ -466,64 +451,6 @@ def has_fused_path(system) -> bool:
         return False
 
 
-def pin_rk4_loop(pm, pd, q0, v0, damping, duration, dt=RTF_DT):
-    """A Python RK4 loop over ``pin.aba`` (fixed-base, unforced: gravity and damping only)."""
-    import pinocchio as pin
-    aba = pin.aba
-    q, v = q0.copy(), v0.copy()
-    h2, h6 = 0.5 * dt, dt / 6.0
-    add = (lambda q, dq: q + dq) if pm.nq == pm.nv else (lambda q, dq: pin.integrate(pm, q, dq))  # quaternions
-    for _ in range(int(round(duration / dt))):
-        a1 = aba(pm, pd, q, v, -damping * v)
-        q2, v2 = add(q, h2 * v), v + h2 * a1
-        a2 = aba(pm, pd, q2, v2, -damping * v2)
-        q3, v3 = add(q, h2 * v2), v + h2 * a2
-        a3 = aba(pm, pd, q3, v3, -damping * v3)
-        q4, v4 = add(q, dt * v3), v + dt * a3
-        a4 = aba(pm, pd, q4, v4, -damping * v4)
-        q = add(q, h6 * (v + 2.0 * v2 + 2.0 * v3 + v4))
-        v = v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    return q, v
-
-
-def mujoco_model(urdf, dt=RTF_DT):
-    """MuJoCo model of a URDF with RK4 at step dt, or ``(None, reason)``."""
-    try:
-        import mujoco
-    except ImportError:
-        return None, 'mujoco not installed'
-    # MuJoCo refuses zero principal moments (a slender bar's axial inertia): bound them at 1e-9 kg m²
-    urdf = urdf.replace('<link ', '<mujoco><compiler boundinertia="1e-9"/></mujoco>\n  <link ', 1)
-    try:
-        m = mujoco.MjModel.from_xml_string(urdf)
-    except Exception as e:  # MuJoCo's URDF importer refuses some files; say why
-        return None, f'MuJoCo cannot load the URDF ({" ".join(str(e).split())})'
-    m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
-    m.opt.timestep = dt
-    return m, ''
-
-
-def mujoco_loop(m, q0, v0, duration, nstep=1, rate=RTF_RATE):
-    """Step MuJoCo from Python: ``nstep`` steps per call; reads qpos at every publication."""
-    import mujoco
-    d = mujoco.MjData(m)
-    d.qpos[:] = q0
-    d.qvel[:] = v0
-    n = int(round(duration / m.opt.timestep))
-    per_pub = max(1, int(round(1.0 / (rate * m.opt.timestep))))
-    step = mujoco.mj_step
-    if nstep == 1:
-        for k in range(n):
-            step(m, d)
-            if (k + 1) % per_pub == 0:
-                d.qpos.copy()
-    else:
-        for _ in range(n // nstep):
-            step(m, d, nstep)
-            d.qpos.copy()
-    return d
-
-
 def section_rtf(args, names) -> str:
     """Real-time factors of the robodyn runs and the references."""
     from ..model import to_urdf
@@ -566,7 +493,7 @@ def section_rtf(args, names) -> str:
                 _, qmap, vmap, _ = pin_model(model)
                 q0, v0 = np.empty_like(q0), np.empty_like(v0)
                 q0[qmap], v0[vmap] = scene.y0[:model.nq], scene.y0[model.nq:]
-            pin_md, why = _pin_model(model)
+            pin_md, why = pin_reference(model)
             if pin_md is not None:
                 pm, pd = pin_md
                 t = best_of(lambda: pin_rk4_loop(pm, pd, q0, v0, model.damping, dur), 1 if args.quick else 2)
@@ -626,29 +553,6 @@ def _kernel_floor(args) -> str:
 # ----------------------------------------------------------------------------------------------
 # recording at the speed of the dynamics (issue 15)
 # ----------------------------------------------------------------------------------------------
-def mujoco_recorded_loop(m, q0, v0, duration, rate=RTF_RATE):
-    """MuJoCo RK4 from Python, ``mj_step(nstep)`` per publication period, its state (time, qpos,
-    qvel, qacc, actuator forces) copied into preallocated arrays every period: a peer that also
-    produces the data a recording needs (without encoding it)."""
-    import mujoco
-    d = mujoco.MjData(m)
-    d.qpos[:] = q0
-    d.qvel[:] = v0
-    nstep = max(1, int(round(1.0 / (rate * m.opt.timestep))))
-    n = int(round(duration * rate))
-    T = np.empty(n)
-    Q, V, A, F = (np.empty((n, m.nq)), np.empty((n, m.nv)), np.empty((n, m.nv)), np.empty((n, m.nv)))
-    step = mujoco.mj_step
-    for k in range(n):
-        step(m, d, nstep)
-        T[k] = d.time
-        Q[k] = d.qpos
-        V[k] = d.qvel
-        A[k] = d.qacc
-        F[k] = d.qfrc_actuator
-    return Q
-
-
 class _StoredCalls:
     """A sink that keeps what :func:`run_headless` hands its sinks (outputs computed, wrenches
     wanted), to hand the same calls to a recorder later (:meth:`replay`)."""
@@ -836,7 +740,7 @@ def section_scaling(args, names) -> str:
         model = random_tree(nb, np.random.default_rng(nb), prismatic_fraction=0.3, chain=True)
         q, v, a = _random_state(model, np.random.default_rng(1))
         km = kernels.CompiledModel(model) if kernels.AVAILABLE else None
-        pin_md, _ = _pin_model(model)
+        pin_md, _ = pin_reference(model)
         fns = {'numpy': lambda: dyn.aba(model, q, v, a),
                'compiled': (lambda: km.aba(q, v, a)) if km else None}
         if km:

@@ -1,14 +1,11 @@
 """``robodyn run``: a headless run of a scene with its scripted commands, recorded to MCAP."""
 from __future__ import annotations
 
-import math
-import os
 import sys
 import time
 
+from ..runs import DIAGNOSTICS_PERIOD, resolve_settings, summary
 
-#: simulated seconds between diagnostics messages in a recording (robodyn run, robodyn sweep)
-DIAGNOSTICS_PERIOD = 0.1
 
 def add_parser(sub):
     """Register the subcommand and its options."""
@@ -35,23 +32,6 @@ def add_parser(sub):
     p.add_argument('--diagnostics-period', type=float, default=DIAGNOSTICS_PERIOD,
                    help='simulated seconds between recorded diagnostics messages (default 0.1)')
     return p
-
-
-def resolve_settings(scene, args) -> dict:
-    """Integrator settings: command-line values over the scene's ``simulation`` defaults."""
-    s = dict(scene.settings)
-    out = {'integrator': args.integrator or s.get('integrator', 'rk4'),
-           'dt': args.dt if args.dt is not None else s.get('dt', 1e-3),
-           'rtol': args.rtol if args.rtol is not None else s.get('rtol'),
-           'atol': args.atol if args.atol is not None else s.get('atol'),
-           'rate': args.rate if args.rate is not None else s.get('publish_rate', 100.0),
-           'duration': args.duration if args.duration is not None else s.get('duration', 10.0)}
-    from ..integrators import INTEGRATORS
-    spec = INTEGRATORS.get(out['integrator'])
-    if spec is not None and spec.kind == 'adaptive':
-        out['rtol'] = out['rtol'] if out['rtol'] is not None else 1e-8
-        out['atol'] = out['atol'] if out['atol'] is not None else 1e-10
-    return out
 
 
 def main(args) -> int:
@@ -87,7 +67,7 @@ def main(args) -> int:
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
-    st = resolve_settings(scene, args)
+    st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration)
     st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
         sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
@@ -113,37 +93,3 @@ def main(args) -> int:
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
     return status
-
-
-def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
-    """Human-readable summary of a finished run (cpu: process CPU seconds of the run, if known)."""
-    e = sim.energy_report()
-    d = sim.diag
-    method = st['integrator'] + (f' dt={st["dt"]:g} s' if st.get('dt') and not st.get('rtol')
-                                 else f' rtol={st["rtol"]:g} atol={st["atol"]:g}')
-    lines = [
-        f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
-        f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, {d.rejected_steps} rejected',
-        f'time         simulated {sim.t:.3f} s in {wall:.3f} s wall '
-        f'(real-time factor {sim.t / wall if wall > 0 else math.inf:.1f}, {d.wall:.3f} s integrating'
-        + (f', {cpu:.3f} s CPU' if cpu is not None else '') + ')',
-        f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
-        f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
-    ]
-    if 'limit_work' in e:   # joint-limit moments (Huston eq. 20.2.1): their part of the work
-        lines[-1] += f'; joint-limit work {e["limit_work"]:.6g} J'
-    if d.velocity_limit_exceeded:   # URDF <limit velocity>: reported, not enforced
-        lines.append(f'limits       {d.velocity_limit_exceeded} published joint velocities above the velocity limits')
-    clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}
-    if clamped:  # actuator effort limits (URDF <limit effort>, effort_limit)
-        lines.append('limits       ' + ', '.join(f'{n} {k} command components clamped to the effort limits'
-                                                 for k, n in clamped.items()))
-    if record:
-        n = sum(getattr(s, 'count', 0) for s in sinks)
-        lines.append(f'recording    {os.path.abspath(record)} ({n} messages; check with: robodyn check {record})')
-    report = getattr(scene.system, 'run_report', None)  # e.g. a planar base: rotations at the end
-    if report is not None:
-        lines.append(report(sim.y))
-    if sim.failed:
-        lines.append(f'FAILED       {sim.failed}')
-    return '\n'.join(lines)

@@ -18,7 +18,15 @@ arrays. ``AVAILABLE`` is False when numba cannot be imported, and callers (``Arm
 use the reference. The fused integrators (:meth:`CompiledModel.integrate_arm`) run a whole
 publication period of fixed steps in one compiled call. The constrained and floating-base
 systems (differential drive, free base in minimal and augmented coordinates, prescribed path)
-run on :class:`CompiledSystem` (:mod:`robodyn_ros.kernels.constrained`), with the same fused loop.
+run on :class:`CompiledSystem`, with the same fused loop (:mod:`robodyn_ros.kernels.fixed_step`).
+
+Layout, mirroring :mod:`robodyn_ros.systems`: :mod:`.tree` (the tree algorithms on packed
+arrays), :mod:`.frames` (body frames, velocities, momentum), :mod:`.linalg` (small dense linear
+algebra), one module per system (:mod:`.arm`, :mod:`.diffdrive`, :mod:`.freeflyer`,
+:mod:`.augmented`, :mod:`.prescribed`), :mod:`.fixed_step` (the constrained systems' fused
+loop), :mod:`.profiles` (command profiles), :mod:`.pfl` (the PFL law), :mod:`.outputs` and
+:mod:`.records` (the recorder's batches), :mod:`.passive` (joint friction) and :mod:`.codegen`
+(scene-specialised code).
 
 Compilation cache. Every kernel is ``@njit(cache=True)``: the first start of a new install
 compiles (a few seconds, see ``robodyn bench speed``) and writes the machine code next to the
@@ -56,23 +64,29 @@ def _cache_dir() -> str:
 #: directory holding the compiled kernels' cache (see the module docstring)
 CACHE_DIR = _cache_dir()
 
+from .jit import NUMBA
+
+if NUMBA and CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
+    import numba
+    numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
+
 try:
     if os.environ.get('ROBODYN_BACKEND', '').lower() == 'numpy':
         raise ImportError('ROBODYN_BACKEND=numpy')
-    import numba  # noqa: F401
-    if CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
-        numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
-    from . import constrained, core
+    if not NUMBA:
+        raise ImportError("No module named 'numba'")
+    from . import arm, augmented, diffdrive, fixed_step, frames, freeflyer, linalg, prescribed, profiles, tree  # noqa: F401
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
-except ImportError as _e:  # numba missing: the numpy reference is used
-    core = constrained = None
+except ImportError as _e:  # the compiled path is off: the systems use the numpy reference
+    # (the kernels that must run anyway -- tree algorithms for the PFL law, command profiles,
+    # the recorder's loops -- import on their own, compiled when numba is there, else plain Python)
     AVAILABLE = False
     UNAVAILABLE_REASON = str(_e)
 
 __all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_model', 'FUSED_METHODS', 'warmup']
 
-#: integrator names the fused loop implements -> method code in :mod:`.core`
+#: integrator names the fused loop implements -> method code in :mod:`.fixed_step`
 FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2}
 
 
@@ -115,7 +129,7 @@ def merge_fixed(model: Model) -> dict:
 def pack_model(model: Model, merge: bool = False):
     """The model as two arrays for the kernels: ``(mi (nb, 5) int64, mf (nb + 1, NF) float64)``.
 
-    Column layout in :mod:`robodyn_ros.kernels.core`: per body parent, joint type, q and v
+    Column layout in :mod:`robodyn_ros.kernels.tree`: per body parent, joint type, q and v
     index, +z-axis flag; axis, Xtree as (E, r), mass, m·com, rotational inertia about the body
     origin; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
     (:func:`merge_fixed`).
@@ -185,88 +199,88 @@ class CompiledModel:
             if self.gen is not None:
                 self.gen.aba(q, v, tau, qdd)
             else:
-                core.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
+                tree.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
         else:
-            core.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
+            tree.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
         return qdd
 
     def rnea(self, q, v, a, f_ext=None):
         """Inverse dynamics ``tau = M a + h`` (nv,)."""
         if f_ext is None:
             tau = np.empty(self.nv)
-            core.rnea_into(self.mi_r, self.mf_r, q, v, a, tau)
+            tree.rnea_into(self.mi_r, self.mf_r, q, v, a, tau)
             return tau
-        return core.rnea(self.mi, self.mf, q, v, a, np.ascontiguousarray(f_ext, dtype=float), True)[0]
+        return tree.rnea(self.mi, self.mf, q, v, a, np.ascontiguousarray(f_ext, dtype=float), True)[0]
 
     def rnea_wrenches(self, q, v, a, f_ext=None):
         """``(tau (nv,), f (nb, 6))``: inverse dynamics and the joint wrenches (parent on child)."""
         fe, has = (self._zf, False) if f_ext is None else (np.ascontiguousarray(f_ext, dtype=float), True)
-        return core.rnea(self.mi, self.mf, q, v, a, fe, has)
+        return tree.rnea(self.mi, self.mf, q, v, a, fe, has)
 
     def crba(self, q):
         """Joint-space inertia matrix ``M(q)`` (nv, nv)."""
         H = np.zeros((self.nv, self.nv))
-        core.crba_into(self.mi_r, self.mf_r, q, H)
+        tree.crba_into(self.mi_r, self.mf_r, q, H)
         return H
 
     def joint_wrenches(self, q, v, tau, f_ext=None):
         """``(qdd (nv,), f (nb, 6))`` under applied forces tau (see ``dynamics.joint_wrenches``)."""
         fe, has = (self._zf, False) if f_ext is None else (np.ascontiguousarray(f_ext, dtype=float), True)
-        return core.joint_wrenches(self.mi, self.mf, q, v, tau, fe, has)
+        return tree.joint_wrenches(self.mi, self.mf, q, v, tau, fe, has)
 
     def energies(self, q, v):
         """``(kinetic, potential)`` energy (J)."""
-        return core.energies(self.mi_r, self.mf_r, q, v)
+        return tree.energies(self.mi_r, self.mf_r, q, v)
 
     def kinetic_energy(self, q, v):
         """Kinetic energy (J)."""
-        return core.energies(self.mi_r, self.mf_r, q, v)[0]
+        return tree.energies(self.mi_r, self.mf_r, q, v)[0]
 
     def potential_energy(self, q):
         """Gravitational potential energy (J), zero at the root origin."""
-        return core.energies(self.mi_r, self.mf_r, q, np.zeros(self.nv))[1]
+        return tree.energies(self.mi_r, self.mf_r, q, np.zeros(self.nv))[1]
 
     def body_poses(self, q):
         """World poses of the body frames ``(R (nb, 3, 3), p (nb, 3))`` (``dynamics.body_poses``)."""
-        return constrained.poses(self.mi, self.mf, np.ascontiguousarray(q, dtype=float))
+        return frames.poses(self.mi, self.mf, np.ascontiguousarray(q, dtype=float))
 
     def momentum(self, q, v):
         """``(p (3,), L (3,), c (3,))``: linear momentum, angular momentum about the centre of mass
         and the centre of mass, world coordinates (``freeflyer.momentum_about_com``)."""
-        return constrained.momentum(self.mi, self.mf, np.ascontiguousarray(q, dtype=float),
+        return frames.momentum(self.mi, self.mf, np.ascontiguousarray(q, dtype=float),
                                     np.ascontiguousarray(v, dtype=float))
 
     def limit_forces(self, q, v):
-        """Joint-limit generalised forces (nv,) of Huston eq. (20.2.1) at (q, v) (``core.limit_forces_add``)."""
-        return core.limit_forces(self.lim, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+        """Joint-limit generalised forces (nv,) of Huston eq. (20.2.1) at (q, v) (``tree.limit_forces_add``)."""
+        return tree.limit_forces(self.lim, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
                                  self.nv)
 
     def qdot(self, q, v):
         """Configuration rate ``dq/dt`` (nq,) (quaternion-aware)."""
-        return core.qdot(self.mi, q, v)
+        return tree.qdot(self.mi, q, v)
 
     def normalize(self, q):
         """q with free- and spherical-joint quaternions renormalised (a new array)."""
         q = np.array(q, dtype=float)
-        core.normalize_into(self.mi, q)
+        tree.normalize_into(self.mi, q)
         return q
 
     def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last) -> int:
-        """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``core.integrate_arm``).
+        """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``arm.integrate_arm``).
 
         method: a key of :data:`FUSED_METHODS`; z (nq + nv + 1,) float64, modified in place;
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid. Returns the
         index of the first non-finite step or -1.
         """
-        run = core.integrate_arm if self.gen is None else self.gen.integrate_arm
+        run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
                    z, float(dt), int(n_full), float(h_last))
 
 
 class CompiledSystem:
-    """A constrained or floating-base system packed for :mod:`robodyn_ros.kernels.constrained`.
+    """A constrained or floating-base system packed for its kernels (:mod:`robodyn_ros.kernels.fixed_step`).
 
-    kind: ``constrained.DIFFDRIVE | FREEFLYER | AUGMENTED | PRESCRIBED``; ip, fp: the system's
+    kind: ``fixed_step.DIFFDRIVE | FREEFLYER | AUGMENTED | PRESCRIBED``; ip, fp: the system's
     parameters in the layout of that kind; model: its kinematic tree (None for the augmented
     formulation, which has its own kinematics); nq: configuration size of the system's state.
     ``km`` is the :class:`CompiledModel` of the tree (or None). The system builds the input
@@ -287,7 +301,7 @@ class CompiledSystem:
             mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 28))
             self.tree = (mi, mf, mi, mf)
         self.stat = np.zeros(4)
-        self._evaluate, self._project, self._integrate = constrained.ENTRY_POINTS[self.kind]
+        self._evaluate, self._project, self._integrate = fixed_step.ENTRY_POINTS[self.kind]
 
     def evaluate(self, t, y, u):
         """``[dy/dt; input power]`` (ny + 1,) at (t, y) under the input vector u.
@@ -298,18 +312,18 @@ class CompiledSystem:
         z[:-1] = y
         z[-1] = 0.0
         dz = np.empty_like(z)
-        if self._evaluate(self.ip, self.fp, *self.tree, u, self.nq, float(t), z, dz, self.stat) != constrained.OK:
+        if self._evaluate(self.ip, self.fp, *self.tree, u, self.nq, float(t), z, dz, self.stat) != linalg.OK:
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
         return dz
 
     def project(self, y):
         """The system's projection of y (ny,) in place; returns y."""
-        if self._project(self.ip, self.fp, *self.tree, self.nq, y) != constrained.OK:
+        if self._project(self.ip, self.fp, *self.tree, self.nq, y) != linalg.OK:
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
         return y
 
     def integrate(self, method: str, z, u, t0, dt, n_full, h_last) -> int:
-        """Fused fixed-step integration of ``z = [y, W]`` in place (``constrained.integrate_<kind>``).
+        """Fused fixed-step integration of ``z = [y, W]`` in place (``fixed_step.integrate_<kind>``).
 
         Returns its code: -1, the first non-finite step, or ``-2 - k`` for a singular mass
         matrix in step k. ``stat`` (4,) collects the prescribed-path singularity counters.

@@ -1,6 +1,6 @@
 """Outputs of many publication periods in one compiled call (the recorder's batches).
 
-``joint_wrenches_many`` is :func:`robodyn_ros.kernels.core.joint_wrenches` (ABA, then the RNEA
+``joint_wrenches_many`` is :func:`robodyn_ros.kernels.tree.joint_wrenches` (ABA, then the RNEA
 wrenches at that acceleration) for K states at once: the same compiled function per state, so
 the same numbers bit for bit (the recordings test compares them byte for byte), without K
 Python calls.
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import core
+from . import tree
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -22,7 +22,7 @@ def _joint_wrenches_many(mi, mf, Q, V, TAU, fext, has_fext):
     nb = mi.shape[0]
     out = np.empty((K, nb, 6))
     for k in range(K):
-        _, f = core.joint_wrenches(mi, mf, Q[k], V[k], TAU[k], fext, has_fext)
+        _, f = tree.joint_wrenches(mi, mf, Q[k], V[k], TAU[k], fext, has_fext)
         out[k] = f
     return out
 

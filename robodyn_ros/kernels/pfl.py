@@ -1,35 +1,31 @@
-"""The partial feedback linearisation law of :mod:`robodyn_ros.pfl`, compiled (numba).
+"""The partial feedback linearisation law of :mod:`robodyn_ros.pfl`: its one implementation.
 
 One call per controller update (:func:`torques_into`): the joint-space inertia and bias of the
-tree (:func:`robodyn_ros.kernels.core.crba_ws`, :func:`~robodyn_ros.kernels.core.rnea_ws` on one workspace),
-the desired inner accelerations and the torques, with no array built in Python. The operations
-are those the numpy formulation of the law performed, in the same order, so the torques are the
-same to the last bit: element-wise sums as written; ``M_ba α``, ``M_ab q̈_b`` and ``M_aa α`` as
-BLAS matrix–vector products and ``M_bb⁻¹`` by LAPACK ``gesv``. numba's ``np.dot`` and
-``np.linalg.solve`` call scipy's OpenBLAS (0.3.30 with scipy 1.17.1), numpy's ``@`` its own
-(0.3.31 with numpy 2.4.6; both pinned in constraints.txt): the torques equal the numpy
-formulation's only while the two libraries pick kernels of the same arithmetic (measured equal
-with their SkylakeX, Haswell, Zen and Sandybridge kernels; test_diver checks the products and
-solve of these shapes). Either way the bits follow the BLAS: the diver recordings made on a
-machine whose OpenBLAS picks other kernels differ in the last bits.
+tree (:func:`robodyn_ros.kernels.tree.crba_ws`, :func:`~robodyn_ros.kernels.tree.rnea_ws` on one
+workspace), the desired inner accelerations and the torques, with no array built in Python.
+Compiled by numba; without numba the same source runs as plain Python (:mod:`.jit`).
+``M_ba α``, ``M_ab q̈_b`` and ``M_aa α`` are BLAS matrix–vector products (``np.dot``) and
+``M_bb⁻¹`` is LAPACK ``gesv`` (``np.linalg.solve``): numba's call scipy's OpenBLAS (0.3.30 with
+scipy 1.17.1), plain Python numpy's (0.3.31 with numpy 2.4.6; both pinned in constraints.txt), so
+the torques' last bits follow the BLAS kernels the machine's OpenBLAS picks.
 """
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from . import core
-from .core import _JIT
+from . import tree
+from .jit import njit
+from .tree import _JIT
 
 
 @njit(**_JIT)
 def mass_and_bias_into(mi, mf, damping, q, v, M, h):
     """``M (nv, nv)`` (zeroed by the caller) and ``h = C v + g + D v`` (nv,) at (q, v);
     mi, mf: the tree packed with fixed bodies welded (``CompiledModel.mi_r, mf_r``)."""
-    W = core.workspace(mi.shape[0])    # the joint transforms once, for both (crba_into, rnea_into)
-    core.transforms(mi, mf, q, W)
-    core.crba_ws(mi, mf, M, W)
-    core.rnea_ws(mi, mf, q, v, np.zeros(v.shape[0]), W, False, h, W)
+    W = tree.workspace(mi.shape[0])    # the joint transforms once, for both (crba_into, rnea_into)
+    tree.transforms(mi, mf, q, W)
+    tree.crba_ws(mi, mf, M, W)
+    tree.rnea_ws(mi, mf, q, v, np.zeros(v.shape[0]), W, False, h, W)
     for k in range(h.shape[0]):
         h[k] = h[k] + damping[k] * v[k]
 

@@ -15,11 +15,7 @@ import math
 
 import numpy as np
 
-try:
-    from numba import njit
-except ImportError:   # recording without numba: the loops below as Python functions
-    def njit(**_):
-        return lambda f: f
+from .jit import njit   # numba's, or without numba the functions as they are (plain Python)
 
 _JIT = dict(cache=True, nogil=True)
 

@@ -2,7 +2,7 @@
 
 Joints: revolute, prismatic, fixed, spherical (anywhere), and one FREE joint at the root (the
 tree floats; its pose is published on ``odom``). Optional joint-limit moments (Huston eq.
-20.2.1, :func:`robodyn_ros.kernels.core.limit_moment`) act on limited joints; their power is part
+20.2.1, :func:`robodyn_ros.kernels.tree.limit_moment`) act on limited joints; their power is part
 of :meth:`ArmSystem.input_power`, so the Simulator's work quadrature counts it (in the seed's law
 the stop only dissipates: its power is never positive).
 
@@ -224,7 +224,7 @@ class ArmSystem(System):
         ``semi_implicit_euler``, ``rk4``): the same method, step grid
         (``FixedStepIntegrator.step_grid``), projection after every step and work quadrature
         ``dW/dt = vᵀ (B u − D v)`` as ``Simulator._integrate`` with this system's ``rhs``,
-        computed by :func:`robodyn_ros.kernels.core.integrate_arm`. Declines (returns None) on
+        computed by :func:`robodyn_ros.kernels.arm.integrate_arm`. Declines (returns None) on
         the numpy backend, for other integrators, and in subclasses that change the dynamics.
         ``z = [y, W, W_lim]`` also integrates :meth:`limit_power` (the Simulator does so when
         :attr:`work_components` names it). Returns ``(z1, IntegratorStats)``; raises ``IntegrationError`` like the
@@ -253,11 +253,11 @@ class ArmSystem(System):
         return z, IntegratorStats.of_fused_steps(integrator_name, n_steps)
 
     def fused_periods(self, integrator_name, dt, z, t_start, t_end, u, program=None, wrenches=False):
-        """Run K publication periods in one compiled call (``core.run_arm_periods``), or None to decline.
+        """Run K publication periods in one compiled call (``kernels.arm.run_arm_periods``), or None to decline.
 
         The block path of :func:`robodyn_ros.simulation.run_headless`: per period the scripted
         command at its start (program: a compiled command profile ``(kind, P, times, values, BT,
-        Bq)`` from :mod:`robodyn_ros.scene`, None: u held), the fused integration of
+        Bq)`` from :mod:`robodyn_ros.profiles`, None: u held), the fused integration of
         :meth:`fused_advance` over the same step grid, and the outputs at its end. z: ``[y, W(,
         W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
         the periods; u (n,): the command held before the first period (updated in place).
@@ -265,13 +265,14 @@ class ArmSystem(System):
         they are (spherical joints, a free root), for input matrices that are not 0/1 selections,
         and where :meth:`outputs` (or what it calls for joint states and wrenches) is not
         ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps)``: see
-        ``core.run_arm_periods``; the joint_states arrays (K, ·) of each period's end, Fs None
+        ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's end, Fs None
         without wrenches, steps (K,) per period.
         """
         if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection \
                 or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
-        from ..kernels import core
+        from ..kernels import arm as karm
+        from ..kernels import profiles as kprofiles
         grid = self._grids.get(dt)
         if grid is None:
             grid = self._grids[dt] = make_integrator('rk4', dt=dt)
@@ -279,7 +280,7 @@ class ArmSystem(System):
         n_full, h_last = grid.step_grids(t_start, t_end)
         if program is None:
             e = np.zeros((0, 0))
-            program = (core.CMD_NONE, e, np.zeros(0), e, e, e)
+            program = (kprofiles.CMD_NONE, e, np.zeros(0), e, e, e)
         kind, P, times, values, BT, Bq = program
         nb = self.model.nb
         Zs = np.empty((K, z.shape[0]))
@@ -287,7 +288,7 @@ class ArmSystem(System):
         TAUs = np.empty((K, self.nv))
         Fs = np.empty((K, nb, 6) if wrenches else (0, nb, 6))
         km = self._km
-        run = core.run_arm_periods if km.gen is None else km.gen.run_arm_periods
+        run = karm.run_arm_periods if km.gen is None else km.gen.run_arm_periods
         k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.lim, self._B, self.nq,
                       kernels.FUSED_METHODS[integrator_name], z, float(dt), np.ascontiguousarray(t_start, dtype=float),
                       n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches))

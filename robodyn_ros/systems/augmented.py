@@ -166,7 +166,7 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
                   *model.gravity, 0.0]
             for arr in (self.m, self.com, self.Ic, self.Etree, self.r, model.axis, model.damping[6:]):
                 fp += list(np.asarray(arr, dtype=float).reshape(-1))
-            self._cs = kernels.CompiledSystem(kernels.constrained.AUGMENTED, ip, fp, None, self.nq)
+            self._cs = kernels.CompiledSystem(kernels.fixed_step.AUGMENTED, ip, fp, None, self.nq)
 
     def _u_vec(self, u):
         """``[(B u_effort)[6:] (nj), base wrench (6)]``."""
@@ -317,10 +317,10 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
         if cs is not None:
             self._sync_height(cs, y)
             nb, nc, nr, nv = self.nb, self.n_constraints, self.nr, self.nv
-            a, lam, info = np.empty(nv), np.empty(nc), np.empty(kernels.constrained.NINFO)
+            a, lam, info = np.empty(nv), np.empty(nc), np.empty(kernels.linalg.NINFO)
             R, E, om, J = np.empty((nb, 3, 3)), np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty((nb, 3, nr))
             beta, C, Cq, M = np.empty((nb, 3)), np.zeros(nc), np.zeros((nc, nv)), np.empty((nv, nv))
-            if kernels.constrained.au_solve(cs.ip, cs.fp, self._u_vec(u), np.ascontiguousarray(y, dtype=float),
+            if kernels.augmented.au_solve(cs.ip, cs.fp, self._u_vec(u), np.ascontiguousarray(y, dtype=float),
                                             exact_info, a, lam, info, R, E, om, J, beta, C, Cq, M):
                 raise np.linalg.LinAlgError('mass matrix is not positive definite')
             info = con.SolveInfo(m=nc, rank=int(info[0]), sigma_min=float(info[1]), sigma_max=float(info[2]),
@@ -445,7 +445,7 @@ class AugmentedFreeFlyerSystem(_FreeBaseCommon):
         cs = self._compiled()
         if cs is not None:
             rep = np.empty(11)
-            kernels.constrained.au_report(cs.ip, cs.fp, np.ascontiguousarray(y, dtype=float), R, om, rep)
+            kernels.augmented.au_report(cs.ip, cs.fp, np.ascontiguousarray(y, dtype=float), R, om, rep)
             p, L, com = rep[0:3], rep[3:6], rep[6:9]
             e = {'kinetic': float(rep[9]), 'potential': float(rep[10])}
         else:

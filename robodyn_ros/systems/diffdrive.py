@@ -218,7 +218,7 @@ class DiffDriveSystem(System):
     arm_root: the name those specs use for their base frame; arm_actuated: arm joints driven by
     the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom; backend:
     ``'numpy'`` (the methods below, the reference) or ``'numba'`` (``'generated'`` is taken as
-    numba): :mod:`robodyn_ros.kernels.constrained` evaluates the right-hand side, projection and
+    numba): :mod:`robodyn_ros.kernels.diffdrive` evaluates the right-hand side, projection and
     constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
     in one call and :meth:`outputs` is one call of ``dd_outputs`` (the numbers of the numpy
     method to round-off; numpy's small BLAS products evaluated as OpenBLAS's SkylakeX kernels do,
@@ -292,12 +292,12 @@ class DiffDriveSystem(System):
         self._wheel_bodies = np.array(self._wheels, dtype=np.int64)
         self._wrench_index = {n: k for k, n in enumerate(self._wrench_names)}
         if compiled:   # where dd_outputs' blocks start in its output
-            c, n = kernels.constrained, len(self._pub_idx)
+            c, n = kernels.diffdrive, len(self._pub_idx)
             self._out_blocks = (n, 3 * n, 3 * n + c.DO_ODOM, 3 * n + c.DO_ODOM + c.NDR,
                                 3 * n + c.DO_ODOM + c.NDR + c.DO_NEXTRA)
 
     def _pack(self):
-        """The packed system for :mod:`robodyn_ros.kernels.constrained` (layout ``DIFFDRIVE``)."""
+        """The packed system for :mod:`robodyn_ros.kernels.diffdrive` (layout ``DIFFDRIVE``)."""
         p = self.params
         cur = [self._cur.index(k) if k in self._cur else -1 for k in range(2)]
         ip = [self.nv, int(self.has_arm), cur[0], cur[1], int(self.B.shape[1] > 0)]
@@ -307,7 +307,7 @@ class DiffDriveSystem(System):
             fp += [mot.torque_constant, mot.resistance, mot.inductance, mot.gear_ratio, mot.viscous_friction,
                    mot.coulomb_friction, mot.coulomb_velocity, mot.supply_voltage]
         fp += list(self._armature) + list(self.model.damping.astype(float))
-        return kernels.CompiledSystem(kernels.constrained.DIFFDRIVE, ip, fp, self.model, self.nq)
+        return kernels.CompiledSystem(kernels.fixed_step.DIFFDRIVE, ip, fp, self.model, self.nq)
 
     def _compiled(self):
         """The packed system when the compiled path stands in for this object's methods, else None."""
@@ -511,8 +511,8 @@ class DiffDriveSystem(System):
         """
         cs = self._compiled()
         if cs is not None:
-            a, lam, info, el = np.empty(self.nv), np.empty(4), np.empty(kernels.constrained.NINFO), np.empty(6)
-            if kernels.constrained.dd_solve(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, self._u_vec(u),
+            a, lam, info, el = np.empty(self.nv), np.empty(4), np.empty(kernels.linalg.NINFO), np.empty(6)
+            if kernels.diffdrive.dd_solve(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, self._u_vec(u),
                                             np.ascontiguousarray(y, dtype=np.float64), True, a, lam, info, el):
                 raise np.linalg.LinAlgError('mass matrix is not positive definite')
             return a, lam, SolveInfo(m=4, rank=int(info[0]), sigma_min=float(info[1]), sigma_max=float(info[2]),
@@ -555,7 +555,7 @@ class DiffDriveSystem(System):
             nv = self.nv
             y = np.ascontiguousarray(y, dtype=np.float64)
             f = np.empty((len(self._wrench_names), 6))
-            kernels.constrained.dd_contact_wrenches(
+            kernels.diffdrive.dd_contact_wrenches(
                 self._cs.fp, self._km.mi, self._km.mf, y[:nv], y[nv:2 * nv], np.ascontiguousarray(a, dtype=np.float64),
                 np.ascontiguousarray(lam, dtype=np.float64), self._wrench_bodies, self._wheel_bodies, f)
             return dict(zip(self._wrench_names, zip(self._wrench_frames, f)))
@@ -626,12 +626,12 @@ class DiffDriveSystem(System):
         'electrical_power', 'copper_loss', 'voltage_saturated', 'constraint_residual')
 
     def _compiled_outputs(self, cs, y, u, wrenches):
-        """:meth:`outputs` on the compiled path: one call of ``kernels.constrained.dd_outputs``
+        """:meth:`outputs` on the compiled path: one call of ``kernels.diffdrive.dd_outputs``
         fills one array; the published arrays are views of it."""
         n, o, r, e, w = self._out_blocks   # joint states, odometry, report, extra values, wrenches
         nw = len(self._wrench_names) if wrenches else 0
         out = np.empty(w + 6 * nw)
-        if kernels.constrained.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64),
+        if kernels.diffdrive.dd_outputs(cs.ip, cs.fp, *cs.tree, self._u_vec(u), np.ascontiguousarray(y, dtype=np.float64),
                                           self._pub_idx, bool(wrenches), self._wrench_bodies, self._wheel_bodies, out):
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
         ex = out[e:w].tolist()
@@ -649,17 +649,17 @@ class DiffDriveSystem(System):
                              energy=LazyValues(partial(self._report_energies, out[r:e])), extra=extra)
 
     def _report(self, y, uv):
-        """:func:`robodyn_ros.kernels.constrained.dd_report` of state y under the kernels' input
+        """:func:`robodyn_ros.kernels.diffdrive.dd_report` of state y under the kernels' input
         vector uv (compiled path)."""
         cs = self._cs
-        out = np.empty(kernels.constrained.NDR)
-        kernels.constrained.dd_report(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, uv, np.ascontiguousarray(y, dtype=np.float64),
+        out = np.empty(kernels.diffdrive.NDR)
+        kernels.diffdrive.dd_report(cs.ip, cs.fp, cs.km.mi_r, cs.km.mf_r, uv, np.ascontiguousarray(y, dtype=np.float64),
                                       out)
         return out
 
     @staticmethod
     def _report_energies(report):
-        c = kernels.constrained
+        c = kernels.diffdrive
         return {'kinetic': float(report[c.DR_KINETIC]), 'potential': float(report[c.DR_POTENTIAL]),
                 'magnetic': float(report[c.DR_MAGNETIC])}
 

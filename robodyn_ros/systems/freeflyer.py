@@ -182,7 +182,7 @@ class _FreeBaseCommon(System):
     :meth:`initial_state`, else 0); stabilisation: 'baumgarte' | 'projection' | 'none';
     alpha, beta: Baumgarte gains (1/s); backend: ``'numpy'`` (the methods of the classes, the
     reference) or ``'numba'`` (``'generated'`` is taken as numba): right-hand side, projection and
-    solves by :mod:`robodyn_ros.kernels.constrained` (equal to 1e-12) and :meth:`fused_advance`;
+    solves by :mod:`robodyn_ros.kernels.freeflyer` (equal to 1e-12) and :meth:`fused_advance`;
     default :func:`robodyn_ros.systems.base.default_backend`.
     """
 
@@ -271,7 +271,7 @@ class _FreeBaseCommon(System):
         return cs
 
     def _u_vec(self, u):
-        """Input vector of the kernels (layout of the formulation's section in ``kernels.constrained``)."""
+        """Input vector of the kernels (layout of the formulation's section in ``kernels.freeflyer`` / ``kernels.augmented``)."""
         raise NotImplementedError
 
     def _sync_height(self, cs, y):
@@ -343,7 +343,7 @@ class FreeFlyerSystem(_FreeBaseCommon):
         if self.backend != 'numpy':
             stab = {'baumgarte': 0, 'projection': 1, 'none': 2}[self.stabilisation]
             fp = [self.alpha, self.beta, 0.0 if self.table_height is None else self.table_height, con.KKT_RCOND]
-            self._cs = kernels.CompiledSystem(kernels.constrained.FREEFLYER, [int(self.table), stab],
+            self._cs = kernels.CompiledSystem(kernels.fixed_step.FREEFLYER, [int(self.table), stab],
                                               fp + list(model.damping.astype(float)), model, self.nq)
             self._km = self._cs.km
 
@@ -429,7 +429,7 @@ class FreeFlyerSystem(_FreeBaseCommon):
         if cs is not None:
             self._sync_height(cs, q)
             phi, K, k = np.empty(3), np.empty((3, self.nv)), np.empty(3)
-            kernels.constrained.ff_table(cs.fp, self.nv, np.ascontiguousarray(q, dtype=float),
+            kernels.freeflyer.ff_table(cs.fp, self.nv, np.ascontiguousarray(q, dtype=float),
                                          np.ascontiguousarray(v, dtype=float), phi, K, k)
             return phi, K, k
         R = quat_to_R(q[3:7])
@@ -450,9 +450,9 @@ class FreeFlyerSystem(_FreeBaseCommon):
         cs = self._compiled()
         if cs is not None:
             self._sync_height(cs, q)
-            a, lam, info = np.empty(self.nv), np.empty(self.n_constraints), np.empty(kernels.constrained.NINFO)
+            a, lam, info = np.empty(self.nv), np.empty(self.n_constraints), np.empty(kernels.linalg.NINFO)
             c = np.ascontiguousarray
-            if kernels.constrained.ff_solve(cs.ip, cs.fp, *cs.tree, c(q, dtype=float), c(v, dtype=float),
+            if kernels.freeflyer.ff_solve(cs.ip, cs.fp, *cs.tree, c(q, dtype=float), c(v, dtype=float),
                                             c(tau, dtype=float), c(f_ext, dtype=float), True, a, lam, info):
                 raise np.linalg.LinAlgError('mass matrix is not positive definite')
             return a, lam, con.SolveInfo(m=self.n_constraints, rank=int(info[0]), sigma_min=float(info[1]),

@@ -44,8 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: default regularisation speed (rad/s at the motor shaft) of the Coulomb friction tanh
-COULOMB_VELOCITY = 0.05
+from ..model import COULOMB_VELOCITY  # default regularisation speed of the Coulomb friction tanh
 
 
 @dataclass(frozen=True)

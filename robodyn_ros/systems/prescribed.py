@@ -268,7 +268,7 @@ class PrescribedPathSystem(ArmSystem):
     dls_damping: see :data:`SINGULAR_RATIO`, :data:`DLS_DAMPING`; backend: as
     :class:`~robodyn_ros.systems.arm.ArmSystem`; on a compiled backend, with a
     :class:`CirclePath` or :class:`LinePath`, the whole solve (end-point kinematics, SVD of B,
-    either formulation) is :func:`robodyn_ros.kernels.constrained.pr_solve` (equal to 1e-12)
+    either formulation) is :func:`robodyn_ros.kernels.prescribed.pr_solve` (equal to 1e-12)
     and :meth:`fused_advance` runs whole periods of fixed steps in one call.
     """
 
@@ -292,7 +292,7 @@ class PrescribedPathSystem(ArmSystem):
                              '(no free joint)')
         from .base import resolve_backend
         backend = resolve_backend(backend)
-        # the constrained solve runs on kernels.constrained: nothing to specialise
+        # the constrained solve runs on kernels.prescribed: nothing to specialise
         super().__init__(model, actuated=list(actuated), backend='numba' if backend == 'generated' else backend)
         if not self.actuated:
             self.inputs = {}
@@ -314,7 +314,7 @@ class PrescribedPathSystem(ArmSystem):
         self.reset_episode()
 
     def _pack(self):
-        """The packed system for :mod:`robodyn_ros.kernels.constrained` (``PRESCRIBED``), or None
+        """The packed system for :mod:`robodyn_ros.kernels.prescribed` (``PRESCRIBED``), or None
         for a path the kernels do not know."""
         path = self.path
         if type(path) is CirclePath:
@@ -326,7 +326,7 @@ class PrescribedPathSystem(ArmSystem):
         ip = [self.body, FORMULATIONS.index(self.formulation), kind, int(bool(self.actuated))]
         fp = [self.alpha, self.beta, self.singular_ratio, self.dls_damping, KKT_RCOND, NULLSPACE_TOL,
               *self.P.reshape(-1), *pp, *self.model.damping.astype(float)]
-        return kernels.CompiledSystem(kernels.constrained.PRESCRIBED, ip, fp, self.model, self.nq)
+        return kernels.CompiledSystem(kernels.fixed_step.PRESCRIBED, ip, fp, self.model, self.nq)
 
     def _compiled(self):
         """The packed system when the compiled path stands in for this object's methods, else None."""
@@ -441,15 +441,15 @@ class PrescribedPathSystem(ArmSystem):
         return sol
 
     def _solve_compiled(self, cs, t, y, u) -> PathSolve:
-        """:meth:`solve` by :func:`robodyn_ros.kernels.constrained.pr_solve`."""
+        """:meth:`solve` by :func:`robodyn_ros.kernels.prescribed.pr_solve`."""
         n = self.nv
         a, lam, B, phi, phidot = np.empty(n), np.empty(2), np.empty((2, n)), np.empty(2), np.empty(2)
-        E, R, tau, rec = np.empty(3), np.empty((3, 3)), np.empty(n), np.empty(kernels.constrained.NPS)
+        E, R, tau, rec = np.empty(3), np.empty((3, 3)), np.empty(n), np.empty(kernels.prescribed.NPS)
         mi, mf, mi_r, mf_r = cs.tree
-        if kernels.constrained.pr_solve(cs.ip, cs.fp, mi, mf, mi_r, mf_r, self._u_vec(u), float(t),
+        if kernels.prescribed.pr_solve(cs.ip, cs.fp, mi, mf, mi_r, mf_r, self._u_vec(u), float(t),
                                         np.ascontiguousarray(y, dtype=float), a, lam, B, phi, phidot, E, R, tau, rec):
             raise np.linalg.LinAlgError('mass matrix is not positive definite')
-        c = kernels.constrained
+        c = kernels.prescribed
         info = rec[c.PS_INFO:c.PS_INFO + c.NINFO]
         method = ('complement', 'kkt', 'kkt_damped')[int(rec[c.PS_METHOD])]
         return PathSolve(a=a, lam=lam, B=B, phi=phi, phidot=phidot, E=E, R=R, ratio=float(rec[c.PS_RATIO]),

@@ -16,8 +16,8 @@ The algorithms are those of :mod:`robodyn_ros.dynamics` (Featherstone 2008, book
   ``D⁻¹`` (3x3, explicit inverse of the symmetric positive definite ``Sᵀ IA S``) per body;
 * all per-body work quantities live in one work array ``W`` (:func:`workspace`), addressed by
   (row = body, named column offset) — no per-body array views, which numba would have to
-  reference-count — and the fused integrators (:func:`integrate_arm`) allocate once per call and
-  then run whole stretches of fixed steps without returning to Python.
+  reference-count — and the fused integrators (:func:`robodyn_ros.kernels.arm.integrate_arm`)
+  allocate once per call and then run whole stretches of fixed steps without returning to Python.
 
 Packed model (built by :func:`robodyn_ros.kernels.pack_model`):
 
@@ -43,9 +43,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
+from .jit import njit
 
 # columns of mi
 PARENT, JTYPE, QIDX, VIDX, AXK = 0, 1, 2, 3, 4
@@ -58,9 +58,6 @@ T_, TMP_, L_, S1_, S2_, S3_, S4_, FC_ = 0, 36, 45, 81, 87, 93, 99, 105
 # spherical joints (body rows): U = IA S (6x3, row major) and D⁻¹ = (Sᵀ IA S)⁻¹ (3x3)
 U3_, DI3_ = 141, 159
 NW = 168
-
-# fused-integrator method codes (see integrate_arm; kernels.FUSED_METHODS maps names to them)
-M_EULER, M_SEMI_IMPLICIT_EULER, M_RK4 = 0, 1, 2
 
 _JIT = dict(cache=True, nogil=True, error_model='numpy')
 
@@ -1002,227 +999,3 @@ def qdot(mi, q, v):
     out = np.empty(q.shape[0])
     qdot_into(mi, q, v, out)
     return out
-
-
-# ----------------------------------------------------------------------------------------------
-# fused fixed-step integration of an arm with its work quadrature
-# ----------------------------------------------------------------------------------------------
-@njit(**_JIT)
-def arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv):
-    """``tauv = B u − D v + τ_lim`` at ``z = [q, v, W(, W_lim)]``; returns the power ``vᵀ tauv``.
-    With W_lim in z, ``dz[nq + nv + 1] = vᵀ τ_lim`` (the limit forces are formed alone in
-    ``dz[nq:nq + nv]``, which the caller's ABA overwrites; one row per joint, so tauv gets the
-    same sums as :func:`limit_forces_add` on it). Shared by :func:`arm_rhs` and the generated one."""
-    q = z[:nq]
-    v = z[nq:nq + nv]
-    for k in range(nv):
-        tauv[k] = tau_app[k] - damping[k] * v[k]
-    if z.shape[0] > nq + nv + 1:
-        tl = dz[nq:nq + nv]
-        for k in range(nv):
-            tl[k] = 0.0
-        if lim.shape[0]:
-            limit_forces_add(lim, q, v, tl)
-        P = 0.0
-        for k in range(nv):
-            P += v[k] * tl[k]
-            tauv[k] += tl[k]
-        dz[nq + nv + 1] = P
-    elif lim.shape[0]:
-        limit_forces_add(lim, q, v, tauv)
-    P = 0.0
-    for k in range(nv):
-        P += v[k] * tauv[k]
-    return P
-
-
-@njit(**_JIT)
-def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
-    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``;
-    for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
-
-    tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
-    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch.
-    (ArmSystem.rhs, .input_power and .limit_power of the reference path.)
-    """
-    q = z[:nq]
-    v = z[nq:nq + nv]
-    qdot_into(mi, q, v, dz[:nq])
-    P = arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
-    transforms(mi, mf, q, W)
-    aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
-    dz[nq + nv] = P
-
-
-@njit(**_JIT)
-def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last):
-    """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
-    ``n_full`` steps of dt and one of h_last (if > 0).
-
-    method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
-    :mod:`robodyn_ros.integrators` (RK4: ``acc = k1 + 2 k2 + 2 k3 + k4`` folded stage by
-    stage, ``y += h/6 acc``; symplectic Euler: ``[v, W] += h f[nq:]``, then ``q += h q̇(q,
-    v_new)``); free-joint quaternions are renormalised after every step, as the Simulator's
-    projection does. Returns the index of the first step whose result is non-finite (z then
-    holds that result), or -1.
-    """
-    nb = mi.shape[0]
-    n = z.shape[0]
-    nv = damping.shape[0]
-    W = workspace(nb)
-    buf = np.empty(3 * n + nv + nq)
-    K = buf[:n]
-    Y = buf[n:2 * n]
-    acc = buf[2 * n:3 * n]
-    tauv = buf[3 * n:3 * n + nv]
-    qd = buf[3 * n + nv:]
-    n_steps = n_full + (1 if h_last > 0.0 else 0)
-    for k in range(n_steps):
-        h = dt if k < n_full else h_last
-        if method == M_RK4:
-            half = 0.5 * h
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
-            for a in range(n):
-                acc[a] = K[a]
-                Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
-            for a in range(n):
-                acc[a] = (acc[a] + K[a]) + K[a]
-                Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
-            for a in range(n):
-                acc[a] = (acc[a] + K[a]) + K[a]
-                Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
-            h6 = h / 6.0
-            for a in range(n):
-                z[a] += (acc[a] + K[a]) * h6
-        elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
-            for a in range(nq, n):
-                z[a] += K[a] * h
-            qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
-            for a in range(nq):
-                z[a] += qd[a] * h
-        else:
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
-            for a in range(n):
-                z[a] += K[a] * h
-        normalize_into(mi, z[:nq])
-        for a in range(n):
-            if not math.isfinite(z[a]):
-                return k
-    return -1
-
-
-# ----------------------------------------------------------------------------------------------
-# many publication periods in one call: scripted commands, integration, outputs (issue 15)
-# ----------------------------------------------------------------------------------------------
-#: compiled command profiles (scene.py ``COMMAND_PROFILES`` -> ``f.program``): kind codes
-CMD_NONE, CMD_ZERO, CMD_CONSTANT, CMD_PIECEWISE, CMD_SINE, CMD_GRAVITY_SINE = -1, 0, 1, 2, 3, 4
-
-
-@njit(**_JIT)
-def command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t, z, g, zeros, u):
-    """u (n,) = a scene's command profile at time t and state z (``[q, v, ...]``), with the
-    arithmetic of its Python form in :mod:`robodyn_ros.scene`, operation by operation:
-
-    - ``CMD_ZERO``: 0; ``CMD_CONSTANT``: ``P[0]``;
-    - ``CMD_PIECEWISE``: ``values[j]`` with ``j = searchsorted(times, t, 'right') - 1`` (0 before
-      ``times[0]``);
-    - ``CMD_SINE`` (P rows offset, A, ω, φ): ``offset + A sin(ω t + φ)``;
-    - ``CMD_GRAVITY_SINE`` (P rows A, ω, φ, K, center): ``Bᵀ g(q) + K (center − B_q q) + A sin(ω t + φ)``
-      with ``g = RNEA(q, 0, 0)`` (:func:`rnea_into` on the merged tree, as ``CompiledModel.rnea``).
-
-    The products ``Bᵀ g`` and ``B_q q`` are sums from +0.0 (numpy's matmul) over 0/1 selection
-    matrices, whose every summation order gives the same bits; the caller only compiles
-    profiles whose matrices are such selections. g (nv,) and zeros (nv,) are scratch.
-    """
-    n = u.shape[0]
-    if kind == CMD_ZERO:
-        for i in range(n):
-            u[i] = 0.0
-    elif kind == CMD_CONSTANT:
-        for i in range(n):
-            u[i] = P[0, i]
-    elif kind == CMD_PIECEWISE:
-        j = -1
-        for m in range(times.shape[0]):
-            if times[m] <= t:
-                j = m
-            else:
-                break
-        for i in range(n):
-            u[i] = 0.0 if j < 0 else values[j, i]
-    elif kind == CMD_SINE:
-        for i in range(n):
-            u[i] = P[0, i] + P[1, i] * math.sin(P[2, i] * t + P[3, i])
-    else:
-        q = z[:nq]
-        rnea_into(mi_r, mf_r, q, zeros, zeros, g)
-        nv = g.shape[0]
-        for i in range(n):
-            gi = 0.0
-            for j in range(nv):
-                gi += BT[i, j] * g[j]
-            bq = 0.0
-            for j in range(nq):
-                bq += Bq[i, j] * q[j]
-            u[i] = (gi + P[3, i] * (P[4, i] - bq)) + P[0, i] * math.sin(P[1, i] * t + P[2, i])
-
-
-@njit(**_JIT)
-def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_start, n_full, h_last,
-                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f):
-    """K publication periods of an arm in one call: per period k the scripted command at its
-    start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), ``τ_app = B u``,
-    :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
-    ``Zs[k] = z``, ``Us[k] = u``, ``TAUs[k] = τ_app`` and, with want_f, the joint wrenches
-    ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v + τ_lim``, :func:`arm_forces`) -- the
-    numbers the Simulator's per-period path computes with the same functions.
-
-    z: ``[q, v, W(, W_lim)]`` in place; u (n,) the command held before period 0. Returns
-    ``(k, code)``: code 0 after all K periods; 1: the command of period k is non-finite (not
-    applied: u and z are those of the end of period k − 1); 2: the state became non-finite in
-    period k (z as the failed integration left it; ``Zs[k − 1]`` is the end of period k − 1).
-    The caller redoes period k on the per-period path, which raises with the diagnosis.
-    """
-    K = t_start.shape[0]
-    nv = damping.shape[0]
-    n = z.shape[0]
-    nu = u.shape[0]
-    g = np.zeros(nv)
-    zeros = np.zeros(nv)
-    un = np.empty(nu)
-    tau_app = np.empty(nv)
-    dz = np.empty(n)
-    tauv = np.empty(nv)
-    zf = np.zeros((mi.shape[0], 6))
-    for k in range(K):
-        if kind != CMD_NONE:
-            command_eval(kind, P, times, values, BT, Bq, mi_r, mf_r, nq, t_start[k], z, g, zeros, un)
-            for i in range(nu):
-                if not math.isfinite(un[i]):
-                    return k, 1
-            for i in range(nu):
-                u[i] = un[i]
-        for r in range(nv):
-            acc = 0.0
-            for i in range(nu):
-                acc += B[r, i] * u[i]
-            tau_app[r] = acc
-        if integrate_arm(mi_r, mf_r, damping, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k]) >= 0:
-            return k, 2
-        for a in range(n):
-            Zs[k, a] = z[a]
-        for i in range(nu):
-            Us[k, i] = u[i]
-        for r in range(nv):
-            TAUs[k, r] = tau_app[r]
-        if want_f:
-            arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
-            _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, False)
-            for b in range(f.shape[0]):
-                for c in range(6):
-                    Fs[k, b, c] = f[b, c]
-    return K, 0

@@ -1,0 +1,193 @@
+"""The sim node's parameters: their defaults (:data:`PARAMETERS`) and their validation against the
+scene (:func:`resolve_config`), which merges the scene's settings the way ``robodyn run`` does.
+
+No rclpy here: the node (:mod:`robodyn_ros.nodes.sim`) declares these parameters and hands their
+values over, so the validation is tested without ROS.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: the node's modes (see :mod:`robodyn_ros.nodes.sim`)
+MODES = ('realtime', 'max', 'lockstep')
+
+
+#: name -> (default, description); '' / 0 defaults mean "the scene's simulation setting"
+PARAMETERS = {
+    'scene': ('stanford_arm', 'bundled scene name or path to a scene YAML file (or a .urdf file)'),
+    'robot_description_file': ('', "a URDF file to simulate on a fixed base instead of 'scene' ('' = use 'scene')"),
+    'robot_description_timeout': (10.0, "with scene:='' and no robot_description_file: wall seconds to wait for "
+                                        "the URDF on robot_description (transient local)"),
+    'integrator': ('', "integrator name (rk4, dop853, ...); '' = the scene's"),
+    'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
+    'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
+    'atol': (0.0, "absolute tolerance of error-controlled integrators; 0 = the scene's or the default"),
+    'publish_rate': (0.0, "control and publication rate (Hz); one period = 1/publish_rate; 0 = the scene's"),
+    'mode': ('realtime', 'realtime, max (as fast as possible) or lockstep (one period per command)'),
+    'rate_factor': (1.0, 'realtime mode: simulated seconds per wall second'),
+    'max_lag': (0.25, 'realtime mode: wall seconds behind schedule after which the node stops catching up'),
+    'command_timeout': (0.5, 'simulated seconds without a command after which inputs go to zero; 0 = never'),
+    'duration': (0.0, 'simulated seconds to run, then exit; 0 = until shut down'),
+    'record': ('', "MCAP file to record to; '' = no recording; an existing file is refused unless overwrite"),
+    'overwrite': (False, 'replace the record file (and its -1, -2, ... episode files) if they exist'),
+    'scripted_commands': (False, "use the scene's scripted commands instead of the command topics"),
+    'start_paused': (False, 'start with simulation time paused; resume with ~/pause (data: false)'),
+    'initial_positions': (None, "initial joint positions (nq values; unset = the scene's)"),
+    'initial_velocities': (None, "initial joint velocities (nv values; unset = the scene's)"),
+    'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
+    'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
+    'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
+    'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else generated "
+                    '(specialised per scene, compiled once and cached)'),
+}
+
+
+class ConfigError(ValueError):
+    """An invalid parameter value; the message names the parameter and what is accepted."""
+
+
+@dataclass
+class Config:
+    """Validated node parameters (see :data:`PARAMETERS`); scene settings already merged."""
+
+    scene: str
+    integrator: str
+    dt: float | None
+    rtol: float | None
+    atol: float | None
+    publish_rate: float
+    mode: str
+    rate_factor: float
+    max_lag: float
+    command_timeout: float | None
+    duration: float
+    record: str
+    scripted_commands: bool
+    start_paused: bool
+    diagnostics_period: float
+    y0: np.ndarray
+    publish_tf: bool = True
+    backend: str = ''
+
+    def settings(self, namespace: str) -> dict:
+        """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
+        return {'integrator': self.integrator, 'dt': self.dt, 'rtol': self.rtol, 'atol': self.atol,
+                'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
+                'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
+                'scripted_commands': self.scripted_commands, 'namespace': namespace,
+                'y0': [float(x) for x in self.y0], 'backend': self.backend}
+
+
+def check_number(name, v, positive=False, minimum=None) -> float:
+    """Parameter ``name``'s value v as a finite float (``positive``: > 0; ``minimum``: >= it), else ConfigError."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ConfigError(f'parameter {name!r} must be a finite number, got {v!r}')
+    if positive and v <= 0:
+        raise ConfigError(f'parameter {name!r} must be > 0, got {v!r}')
+    if minimum is not None and v < minimum:
+        raise ConfigError(f'parameter {name!r} must be >= {minimum}, got {v!r}')
+    return float(v)
+
+
+def check_vector(name, v, n, what) -> np.ndarray:
+    """Parameter ``name``'s value v as n finite floats (``what`` they are, for the message), else ConfigError."""
+    if not isinstance(v, (list, tuple)) or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v):
+        raise ConfigError(f'parameter {name!r} must be a list of numbers ({what}), got {v!r}')
+    if len(v) != n:
+        raise ConfigError(f'parameter {name!r} needs {n} values ({what}), got {len(v)}')
+    arr = np.array(v, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(f'parameter {name!r} must be finite, got {v!r}')
+    return arr
+
+
+def resolve_config(p: dict, scene) -> Config:
+    """Validate raw parameter values ``p`` (name -> value) against ``scene``; scene defaults fill gaps.
+
+    Raises :class:`ConfigError` naming the parameter. The integrator settings are resolved like
+    ``robodyn run`` does (:func:`robodyn_ros.runs.resolve_settings`), so a node run and a
+    headless run of the same scene use the same defaults.
+    """
+    from ..integrators import INTEGRATORS
+    from ..runs import resolve_settings
+    if not isinstance(p['integrator'], str):
+        raise ConfigError(f"parameter 'integrator' must be a string, got {p['integrator']!r}")
+    if p['integrator'] and p['integrator'].lower() not in INTEGRATORS:
+        raise ConfigError(f"parameter 'integrator': unknown integrator {p['integrator']!r}; "
+                          f"valid names: {', '.join(INTEGRATORS)}")
+    opt = {k: (check_number(k, p[k], minimum=0.0) or None) for k in ('dt', 'rtol', 'atol', 'publish_rate')}
+    st = resolve_settings(scene, p['integrator'].lower() or None, opt['dt'], opt['rtol'], opt['atol'],
+                          opt['publish_rate'])
+    kind = INTEGRATORS[st['integrator']].kind
+    dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
+    mode = p['mode']
+    if mode not in MODES:
+        raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
+    for name in ('scripted_commands', 'start_paused', 'publish_tf', 'overwrite'):
+        if not isinstance(p[name], bool):
+            raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
+    if p['scripted_commands'] and mode == 'lockstep':
+        raise ConfigError("scripted_commands needs mode realtime or max: lockstep advances on received commands")
+    if mode == 'lockstep' and not scene.system.inputs:
+        raise ConfigError(f"mode lockstep advances one period per command, but scene {scene.name!r} "
+                          f"({type(scene.system).__name__}) takes no commands; use mode realtime or max")
+    if p['scripted_commands'] and scene.script is None:
+        raise ConfigError(f'scripted_commands: scene {scene.name!r} has no scripted commands')
+    if not isinstance(p['record'], str):
+        raise ConfigError(f"parameter 'record' must be a file path string, got {p['record']!r}")
+    if p['record']:  # before the simulation starts: never overwrite silently, never fail at the end
+        from ..recording.target import RecordPathError, check_record_path, episode_files
+        try:
+            check_record_path(p['record'], overwrite=p['overwrite'], how_to_overwrite='overwrite:=true',
+                              also=episode_files(p['record']))
+        except RecordPathError as e:
+            raise ConfigError(f"parameter 'record': {e}") from None
+    timeout = check_number('command_timeout', p['command_timeout'], minimum=0.0)
+    system = scene.system
+    y0 = np.array(scene.y0, dtype=float)
+    names = getattr(system, 'joint_names', None)
+    joints = ', '.join(names) if names else 'configuration coordinates'
+    if p['initial_positions'] is not None or p['initial_velocities'] is not None:
+        # overrides are in the coordinates the scene's initial_state uses (minimal ones for the
+        # augmented free-flyer); the system maps them to its state, as the scene loader does
+        nq0, nv0 = getattr(system, 'initial_state_sizes', (system.nq, getattr(system, 'nv', None)))
+        given = (scene.data or {}).get('initial_state') or {}
+        q0 = given.get('q')
+        v0 = given.get('v')
+        if p['initial_positions'] is not None:
+            q0 = check_vector('initial_positions', p['initial_positions'], nq0, joints)
+        if p['initial_velocities'] is not None:
+            if nv0 is None:
+                raise ConfigError(f"parameter 'initial_velocities': {type(system).__name__} does not say how many "
+                                  f"velocities it has; set 'initial_state' ({system.ny} values) instead")
+            v0 = check_vector('initial_velocities', p['initial_velocities'], nv0, joints)
+        try:
+            y0 = system.initial_state(None if q0 is None else np.asarray(q0, dtype=float),
+                                      None if v0 is None else np.asarray(v0, dtype=float))
+        except ValueError as e:
+            raise ConfigError(f'initial_positions/initial_velocities: {e}') from None
+    if p['initial_state'] is not None:
+        y0 = check_vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
+    return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol,
+                  publish_rate=float(st['rate']), mode=mode,
+                  rate_factor=check_number('rate_factor', p['rate_factor'], positive=True),
+                  max_lag=check_number('max_lag', p['max_lag'], positive=True),
+                  command_timeout=timeout or None,
+                  duration=check_number('duration', p['duration'], minimum=0.0),
+                  record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
+                  diagnostics_period=check_number('diagnostics_period', p['diagnostics_period'], positive=True),
+                  y0=y0, publish_tf=p['publish_tf'], backend=check_backend(p.get('backend', '')))
+
+
+def check_backend(value) -> str:
+    """The validated ``backend`` parameter ('' = ROBODYN_BACKEND, else the tools' default)."""
+    from ..systems.base import tools_backend
+    if not isinstance(value, str):
+        raise ConfigError(f"parameter 'backend' must be a string, got {value!r}")
+    try:
+        return tools_backend(value or None)
+    except ValueError as e:
+        raise ConfigError(f"parameter 'backend': {e}") from None

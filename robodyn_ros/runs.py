@@ -1,0 +1,71 @@
+"""What every run needs, wherever it starts (``robodyn run``, the sim node, ``robodyn sweep``):
+its integrator settings and its human-readable summary.
+
+Settings resolve the same way for all three: the value given for the run (command-line option,
+node parameter, sweep parameter) over the scene's ``simulation`` defaults over the package
+defaults, so a node run and a headless run of the same scene integrate alike.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+#: simulated seconds between diagnostics messages in a recording (robodyn run, robodyn sweep)
+DIAGNOSTICS_PERIOD = 0.1
+
+
+def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=None) -> dict:
+    """Integrator settings of a run: the given values over the scene's ``simulation`` defaults.
+
+    scene: a loaded :class:`robodyn_ros.scene.Scene` (its ``settings``); integrator, dt (s),
+    rtol, atol, rate (publication rate, Hz), duration (simulated s): None takes the scene's value,
+    else the package default (rk4, 1e-3 s, 100 Hz, 10 s; rtol 1e-8 and atol 1e-10 for an
+    adaptive integrator). Returns a dict with those six keys.
+    """
+    s = dict(scene.settings)
+    out = {'integrator': integrator or s.get('integrator', 'rk4'),
+           'dt': dt if dt is not None else s.get('dt', 1e-3),
+           'rtol': rtol if rtol is not None else s.get('rtol'),
+           'atol': atol if atol is not None else s.get('atol'),
+           'rate': rate if rate is not None else s.get('publish_rate', 100.0),
+           'duration': duration if duration is not None else s.get('duration', 10.0)}
+    from .integrators import INTEGRATORS
+    spec = INTEGRATORS.get(out['integrator'])
+    if spec is not None and spec.kind == 'adaptive':
+        out['rtol'] = out['rtol'] if out['rtol'] is not None else 1e-8
+        out['atol'] = out['atol'] if out['atol'] is not None else 1e-10
+    return out
+
+
+def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
+    """Human-readable summary of a finished run (cpu: process CPU seconds of the run, if known)."""
+    e = sim.energy_report()
+    d = sim.diag
+    method = st['integrator'] + (f' dt={st["dt"]:g} s' if st.get('dt') and not st.get('rtol')
+                                 else f' rtol={st["rtol"]:g} atol={st["atol"]:g}')
+    lines = [
+        f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
+        f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, {d.rejected_steps} rejected',
+        f'time         simulated {sim.t:.3f} s in {wall:.3f} s wall '
+        f'(real-time factor {sim.t / wall if wall > 0 else math.inf:.1f}, {d.wall:.3f} s integrating'
+        + (f', {cpu:.3f} s CPU' if cpu is not None else '') + ')',
+        f'energy       E0 {e["energy0"]:.6g} J, E {e["energy"]:.6g} J, work in {e["work"]:.6g} J, '
+        f'drift {e["drift"]:.3g} J ({e["relative_drift"]:.2e} relative)',
+    ]
+    if 'limit_work' in e:   # joint-limit moments (Huston eq. 20.2.1): their part of the work
+        lines[-1] += f'; joint-limit work {e["limit_work"]:.6g} J'
+    if d.velocity_limit_exceeded:   # URDF <limit velocity>: reported, not enforced
+        lines.append(f'limits       {d.velocity_limit_exceeded} published joint velocities above the velocity limits')
+    clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}
+    if clamped:  # actuator effort limits (URDF <limit effort>, effort_limit)
+        lines.append('limits       ' + ', '.join(f'{n} {k} command components clamped to the effort limits'
+                                                 for k, n in clamped.items()))
+    if record:
+        n = sum(getattr(s, 'count', 0) for s in sinks)
+        lines.append(f'recording    {os.path.abspath(record)} ({n} messages; check with: robodyn check {record})')
+    report = getattr(scene.system, 'run_report', None)  # e.g. a planar base: rotations at the end
+    if report is not None:
+        lines.append(report(sim.y))
+    if sim.failed:
+        lines.append(f'FAILED       {sim.failed}')
+    return '\n'.join(lines)

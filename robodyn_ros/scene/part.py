@@ -1,0 +1,20 @@
+"""One built part of a scene (what every part kind's builder returns).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class Part:
+    """One built part of a scene.
+
+    name: part name; kind: its PART_KINDS key; mount: 'world' or the part it sits on;
+    system: the part's :class:`robodyn_ros.systems.System`; path: its key path in the file.
+    """
+
+    name: str
+    kind: str
+    mount: str
+    system: object
+    path: str

@@ -1,0 +1,102 @@
+"""The ``urdf`` part: a robot description imported by :func:`robodyn_ros.urdf.read_urdf`.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..model import ModelError
+from ..validation import SceneContext, typename
+from ..validation import key_path as _key
+from .arm import _LIMIT_KEYS, _actuated, _limit_law, build_arm_part
+from .part import Part
+
+
+_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated', 'position_limits')
+
+
+def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
+    """``position_limits: {stiffness, damping, return}``: the eq. 20.2.1 joint-limit moments on every
+    joint with URDF ``<limit lower upper>`` (revolute, prismatic; continuous and locked joints have none)."""
+    ctx.mapping(v, path, optional=_LIMIT_KEYS[2:])
+    law = _limit_law(ctx, v, path)
+    return [replace(s, **law) if s.limits is not None and s.joint_type in ('revolute', 'prismatic') else s
+            for s in specs]
+
+
+def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
+    """Build a ``urdf`` part: a robot description imported by :func:`robodyn_ros.urdf.read_urdf`.
+
+    Keys: ``file`` (path, relative to the scene file) or ``urdf`` (inline URDF text), exactly
+    one; ``mount: world | <diff_drive part> | <free_base part>`` (default world; the URDF's root
+    link is then the frame it hangs from, placed by ``origin``); ``floating`` (default false:
+    the root link is welded to the mount; true: it is a free 6-DOF base in the scene's gravity,
+    environment ``free_fall`` — no ground contact — or ``orbit`` with zero gravity);
+    ``locked: {joint: position}`` freezes joints (gripper fingers, ``<mimic>`` joints);
+    ``actuated`` as for an arm (default every 1-DOF joint); ``position_limits: {stiffness,
+    damping, return}`` (optional; absent = URDF position limits reported only) enforces every
+    joint's ``<limit lower upper>`` with the joint-limit moments of Huston eq. (20.2.1), as a
+    ``limits`` mapping does for an arm link (world-mounted, non-floating robots). The part is an
+    arm (its kind is ``arm`` once built) so it mounts wherever an arm does.
+    """
+    from ..urdf import UrdfError, read_urdf
+    ctx.mapping(spec, path, required=('kind', 'name'), optional=_URDF_KEYS)
+    name = ctx.string(spec['name'], _key(path, 'name'))
+    mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
+    floating = ctx.boolean(spec.get('floating', False), _key(path, 'floating'))
+    if ('file' in spec) == ('urdf' in spec):
+        ctx.fail(path, "give exactly one of 'file' (a URDF file) or 'urdf' (the URDF text)")
+    if 'file' in spec:
+        src = Path(ctx.string(spec['file'], _key(path, 'file')))
+        if not src.is_absolute():
+            base = Path(ctx.file).parent if Path(ctx.file).is_file() else Path.cwd()
+            src = base / src
+        if not src.is_file():
+            ctx.fail(_key(path, 'file'), f'no such URDF file {str(src)!r} (relative paths start at the scene file)')
+        where = _key(path, 'file')
+    else:
+        src = ctx.string(spec['urdf'], _key(path, 'urdf'))
+        where = _key(path, 'urdf')
+    lpath = _key(path, 'locked')
+    given = spec.get('locked', {})
+    if not isinstance(given, dict):
+        ctx.fail(lpath, f'expected a mapping joint: position, got {typename(given)} {given!r}')
+    locked = {k: ctx.number(v, _key(lpath, k)) for k, v in given.items()}
+    try:
+        robot = read_urdf(src, floating=floating, locked=locked)
+    except UrdfError as e:
+        m = re.match(r"locked joint '([^']+)'", str(e))
+        ctx.fail(_key(lpath, m.group(1)) if m else where, str(e))
+    specs = robot.specs
+    if floating and (mount != 'world' or 'origin' in spec):
+        ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')
+    if any(s.friction > 0.0 for s in specs) and (floating or mount != 'world'):
+        j = next(s.joint for s in specs if s.friction > 0.0)
+        ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "
+                        "only (set friction=\"0\" or mount: world)")
+    if 'position_limits' in spec:
+        ppath = _key(path, 'position_limits')
+        if floating or mount != 'world':
+            ctx.fail(ppath, 'joint-limit moments are supported for a URDF mounted on the world only '
+                            '(not floating, not on a platform); remove position_limits or use mount: world')
+        specs = _urdf_position_limits(ctx, spec['position_limits'], ppath, specs)
+    if floating:
+        from ..systems import freeflyer as ff
+        env = 'orbit' if not np.any(ctx.gravity) else 'free_fall'
+        try:
+            model = ff.free_flyer_model(specs[0], specs[1:], gravity=ctx.gravity, name=name)
+        except ModelError as e:
+            ctx.fail(where, str(e))
+        system = ff.FreeFlyerSystem(model, actuated=_actuated(ctx, spec, path, model), environment=env)
+        return Part(name=name, kind='free_base', mount='world', system=system, path=path)
+    root = robot.root
+    host = next((p for p in ctx.parts if p.name == mount and p.kind == 'free_base'), None)
+    if host is not None:  # hang from the free base's link
+        specs = [replace(s, parent=host.system.base_link) if s.parent == root else s for s in specs]
+        root = host.system.base_link
+    arm_spec = {'kind': 'arm', 'name': name, 'mount': mount, 'root': root,
+                **{k: spec[k] for k in ('origin', 'actuated') if k in spec}}
+    return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)))
