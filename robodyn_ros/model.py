@@ -80,7 +80,7 @@ class LinkSpec:
     clamped); velocity_limit: optional largest |q̇| (rad/s or m/s, URDF ``<limit velocity>``),
     reported only: publications above it are counted (:class:`robodyn_ros.simulation.Simulator`,
     diagnostics ``velocity_limit_exceeded``); visuals: URDF ``<visual>`` elements (XML text)
-    exported as given (imported URDFs), else :func:`to_urdf` draws a shape of the link's inertia.
+    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`).
     """
 
     name: str
