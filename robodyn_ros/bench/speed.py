@@ -24,7 +24,7 @@ Sections (each can be skipped with ``--skip``):
 * ``compile``  first-run cost of the compiled kernels (cold numba cache) against a warm start,
   in child processes;
 * ``node``     the ROS node's figures from ``robodyn_ros.bench.node.bench_node()`` when present;
-* ``targets``  the issue's targets against the figures measured above (met or not, by how much).
+* ``targets``  the speed targets against the figures measured above (met or not, by how much).
 
 Per-call timings are CPU time of this process, the minimum over interleaved repeats; run
 figures (real-time factors) are wall time with the CPU-time figure beside them. They are figures
