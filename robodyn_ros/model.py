@@ -83,7 +83,7 @@ class LinkSpec:
     clamped); velocity_limit: optional largest |q̇| (rad/s or m/s, URDF ``<limit velocity>``),
     reported only: publications above it are counted (:class:`robodyn_ros.simulation.Simulator`,
     diagnostics ``velocity_limit_exceeded``); visuals: URDF ``<visual>`` elements (XML text)
-    exported as given (imported URDFs), else :func:`to_urdf` draws a shape of the link's inertia.
+    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`).
     """
 
     name: str
@@ -510,6 +510,55 @@ def dh_links(rows, convention='standard', names=None, root='base_link', tool=Tru
 
 #: smallest dimension (m) of a drawn visual, so that a slender bar or a thin disk stays visible
 VISUAL_MIN_SIZE = 0.01
+#: radius (m) of the sphere drawn at a massless frame with nothing to join (a tool or contact point)
+VISUAL_FRAME_RADIUS = 0.02
+#: fit test of a link's solid: along each direction its key points span, it may pass them by
+#: max(VISUAL_FIT_MARGIN, VISUAL_FIT_FRACTION x their extent) (m) at either end
+VISUAL_FIT_MARGIN, VISUAL_FIT_FRACTION = 0.06, 0.3
+#: density (kg/m³, water) that sets the radius of a joint-to-joint cylinder from the link's mass
+VISUAL_DENSITY = 1000.0
+_MATERIAL = '<material name="robodyn_body"><color rgba="0.6 0.65 0.7 1"/></material>'
+
+
+def _visual(xyz, R, geom: str) -> str:
+    """One ``<visual>`` element: ``geom`` placed at ``xyz`` (3,) with rotation ``R`` (3, 3), link frame."""
+    return (f'<visual><origin xyz="{" ".join(repr(float(x)) for x in xyz)}" '
+            f'rpy="{" ".join(repr(float(x)) for x in R_to_rpy(R))}"/><geometry>{geom}</geometry>{_MATERIAL}</visual>')
+
+
+def _inertia_solid(mass, com, Ic):
+    """The uniform solid of a link's inertia: ``(geometry XML, R (3, 3), points (k, 3))`` or None.
+
+    The points are the solid's extreme points in the link frame (box corners, cylinder rims,
+    sphere poles), for the fit test of :func:`link_visuals`. See :func:`inertia_visual`.
+    """
+    m = float(mass)
+    if not m > 0.0:
+        return None
+    ev, Q = np.linalg.eigh(0.5 * (np.asarray(Ic, dtype=float) + np.asarray(Ic, dtype=float).T))
+    ev = np.maximum(ev, 0.0)
+    if np.linalg.det(Q) < 0:
+        Q[:, 0] = -Q[:, 0]
+    tol = 1e-6 * max(ev.max(), 1e-300)
+
+    def ln(x):
+        return max(float(np.sqrt(max(x, 0.0))), VISUAL_MIN_SIZE)
+    if ev[2] - ev[0] <= tol:
+        r = ln(2.5 * ev[0] / m)
+        geom, local = f'<sphere radius="{r!r}"/>', np.vstack([np.eye(3), -np.eye(3)]) * r
+    elif ev[1] - ev[0] <= tol or ev[2] - ev[1] <= tol:
+        k = 2 if ev[1] - ev[0] <= tol else 0  # the odd principal axis
+        Ia, Ip = ev[k], ev[1]
+        Q = np.roll(Q, 2 - k, axis=1)  # odd axis -> local z of the cylinder (a cyclic shift keeps det = +1)
+        r, h = ln(2.0 * Ia / m), ln(12.0 * Ip / m - 6.0 * Ia / m)
+        geom = f'<cylinder radius="{r!r}" length="{h!r}"/>'
+        a = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+        local = np.array([(r * np.cos(t), r * np.sin(t), z) for t in a for z in (-h / 2, h / 2)])
+    else:
+        d = [ln(6.0 * (ev[(a + 1) % 3] + ev[(a + 2) % 3] - ev[a]) / m) for a in range(3)]
+        geom = f'<box size="{d[0]!r} {d[1]!r} {d[2]!r}"/>'
+        local = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * np.array(d) / 2
+    return geom, Q, np.asarray(com, dtype=float) + local @ Q.T
 
 
 def inertia_visual(mass, com, Ic) -> str:
@@ -522,32 +571,86 @@ def inertia_visual(mass, com, Ic) -> str:
     ``I_x = m (y² + z²)/12`` etc. URDF has no ellipsoid. Each dimension is at least
     :data:`VISUAL_MIN_SIZE`. Massless links get none.
     """
-    m = float(mass)
-    if not m > 0.0:
-        return ''
-    ev, Q = np.linalg.eigh(0.5 * (np.asarray(Ic, dtype=float) + np.asarray(Ic, dtype=float).T))
-    ev = np.maximum(ev, 0.0)
-    if np.linalg.det(Q) < 0:
-        Q[:, 0] = -Q[:, 0]
-    tol = 1e-6 * max(ev.max(), 1e-300)
-    lo = VISUAL_MIN_SIZE
+    solid = _inertia_solid(mass, com, Ic)
+    return '' if solid is None else _visual(com, solid[1], solid[0])
 
-    def ln(x):
-        return max(float(np.sqrt(max(x, 0.0))), lo)
-    if ev[2] - ev[0] <= tol:
-        geom = f'<sphere radius="{ln(2.5 * ev[0] / m)!r}"/>'
-    elif ev[1] - ev[0] <= tol or ev[2] - ev[1] <= tol:
-        k = 2 if ev[1] - ev[0] <= tol else 0  # the odd principal axis
-        Ia, Ip = ev[k], ev[1]
-        Q = np.roll(Q, 2 - k, axis=1)  # odd axis -> local z of the cylinder (a cyclic shift keeps det = +1)
-        geom = f'<cylinder radius="{ln(2.0 * Ia / m)!r}" length="{ln(12.0 * Ip / m - 6.0 * Ia / m)!r}"/>'
-    else:
-        d = [ln(6.0 * (ev[(a + 1) % 3] + ev[(a + 2) % 3] - ev[a]) / m) for a in range(3)]
-        geom = f'<box size="{d[0]!r} {d[1]!r} {d[2]!r}"/>'
-    xyz = ' '.join(repr(float(x)) for x in com)
-    rpy = ' '.join(repr(float(x)) for x in R_to_rpy(Q))
-    return (f'<visual><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geom}</geometry>'
-            '<material name="robodyn_body"><color rgba="0.6 0.65 0.7 1"/></material></visual>')
+
+def solid_fits(points, key_points) -> bool:
+    """Whether a solid (its extreme points (k, 3)) stays within a link's key points (n, 3).
+
+    Along each principal direction u of the key points (SVD of the centred points) in which they
+    extend by e > :data:`VISUAL_MIN_SIZE`, the solid may pass them by at most
+    ``max(VISUAL_FIT_MARGIN, VISUAL_FIT_FRACTION e)`` at either end; across the link (directions
+    the key points do not span: a torso's width, a bar's thickness) it is free.
+    """
+    K = np.asarray(key_points, dtype=float)
+    _, _, Vt = np.linalg.svd(K - K.mean(axis=0))
+    for u in Vt:
+        k, p = K @ u, np.asarray(points) @ u
+        e = k.max() - k.min()
+        pad = max(VISUAL_FIT_MARGIN, VISUAL_FIT_FRACTION * e)
+        if e > VISUAL_MIN_SIZE and (p.min() < k.min() - pad or p.max() > k.max() + pad):
+            return False
+    return True
+
+
+def _cylinders(ends, radius) -> list:
+    """``<visual>`` cylinders from the link frame origin to each point of ``ends`` (link frame)."""
+    out, radius = [], float(radius)
+    for t in ends:
+        L = float(np.linalg.norm(t))
+        z = np.asarray(t, dtype=float) / L
+        x = np.cross(z, (1.0, 0.0, 0.0) if abs(z[0]) < 0.9 else (0.0, 1.0, 0.0))
+        x /= np.linalg.norm(x)
+        out.append(_visual(np.asarray(t, dtype=float) / 2, np.column_stack([x, np.cross(z, x), z]),
+                           f'<cylinder radius="{radius!r}" length="{L!r}"/>'))
+    return out
+
+
+def link_visuals(spec, jtype: int, children, root: bool = False) -> list:
+    """The ``<visual>`` elements drawn for a link without visuals of its own (see docs/urdf.md).
+
+    spec: the link's LinkSpec; jtype: its joint code; children: [(xyz (3,) of a child joint's
+    origin in this link's frame, mass of the child's subtree)]; root: the model's root frame. Its *key points* are the frame
+    origin, the child joint origins and, with mass, the centre of mass c and 2c (a body hung from
+    its joint through its CoM reaches about that far).
+
+    * A link with mass gets the uniform solid of its inertia (:func:`inertia_visual`) when it has
+      no child joint (a hand, a wheel: nothing bounds it), when it floats (free root) or when the
+      solid fits its key points (:func:`solid_fits`). Otherwise (the Stanford arm's boom, whose
+      inertia is that of a 2.7 m rod) it gets cylinders from the origin to each child joint and to
+      2c, of the radius of a water cylinder of its mass (:data:`VISUAL_DENSITY`) and at most a
+      quarter of the longest.
+    * A massless link gets cylinders (radius a tenth of the length, 1 to 5 cm) to the child
+      joints that carry mass (a fixed base's pedestal, an axle), or else a sphere of
+      :data:`VISUAL_FRAME_RADIUS` (a tool or contact point, a fixed base at the first joint). An
+      intermediate frame other than the root whose children all sit at its origin and carry mass
+      (a planar root's massless bodies, a time-varying DH twist's frame) gets nothing.
+    """
+    far = [(np.asarray(p, dtype=float), m) for p, m in children if np.linalg.norm(p) > VISUAL_MIN_SIZE]
+    if not spec.mass > 0.0:
+        ends = [p for p, m in far if m > 0.0]
+        if ends:
+            return _cylinders(ends, min(max(0.1 * min(np.linalg.norm(ends, axis=1)), 0.01), 0.05))
+        if not root and any(m > 0.0 for _, m in children):
+            return []
+        return [_visual(np.zeros(3), np.eye(3), f'<sphere radius="{VISUAL_FRAME_RADIUS!r}"/>')]
+    c = np.asarray(spec.com, dtype=float)
+    geom, R, pts = _inertia_solid(spec.mass, c, spec.inertia)
+    key = np.vstack([np.zeros(3), c, 2.0 * c] + [np.asarray(p, dtype=float) for p, _ in children])
+    if not children or jtype == FREE or solid_fits(pts, key):
+        return [_visual(c, R, geom)]
+    ends = [p for p, _ in far] + ([2.0 * c] if np.linalg.norm(2.0 * c) > VISUAL_MIN_SIZE else [])
+    Ls = np.linalg.norm(ends, axis=1)
+    r = float(np.sqrt(spec.mass / (VISUAL_DENSITY * np.pi * Ls.sum())))
+    return _cylinders(ends, min(max(r, VISUAL_MIN_SIZE), 0.25 * Ls.max()))
+
+
+def _origin(model: Model, i: int):
+    """Joint i's origin in its parent's frame: ``(xyz (3,), R (3, 3))`` from ``Xtree[i]``."""
+    E = model.Xtree[i][:3, :3]
+    p = -(E.T @ model.Xtree[i][3:, :3])  # skew(r) = -E^T X[3:, :3]
+    return np.array([p[2, 1], p[0, 2], p[1, 0]]), E.T
 
 
 def to_urdf(model: Model) -> str:
@@ -555,14 +658,32 @@ def to_urdf(model: Model) -> str:
 
     Revolute joints without limits are exported as ``revolute`` with wide limits (not
     ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
-    written as ``floating``. Effort and velocity limits, damping and friction are written; each link gets its
-    own ``<visual>`` elements (imported URDFs, meshes passed through) or, failing those, the
-    shape of its inertia (:func:`inertia_visual`) so that a 3D viewer shows bodies.
+    written as ``floating``. Effort and velocity limits, damping and friction are written. A
+    model imported with ``<visual>`` elements keeps exactly those (meshes passed through); a
+    model without any gets shapes drawn from each link's inertia and joints
+    (:func:`link_visuals`) so that a 3D viewer shows bodies. Every number is written as Python's ``repr`` of the double (the shortest text
+    that parses back to the same bits), so a tool that rebuilds the model from this text gets
+    the simulator's numbers exactly.
     """
     def f(x):
         return ' '.join(repr(float(v)) for v in x)
 
-    out = [f'<?xml version="1.0"?>', f'<robot name="{model.name}">', f'  <link name="{model.root}"/>']
+    nb = model.nb
+    sub = np.array([float(s.mass) for s in model.specs])  # mass of each subtree
+    for i in range(nb - 1, -1, -1):
+        if model.parent[i] >= 0:
+            sub[model.parent[i]] += sub[i]
+    origins = [_origin(model, i) for i in range(nb)]
+    kids = {j: [] for j in range(-1, nb)}
+    for i in range(nb):
+        if model.jtype[i] != FREE:
+            kids[int(model.parent[i])].append((origins[i][0], sub[i]))
+    drawn = not any(s.visuals for s in model.specs)  # an imported robot shows its own visuals only
+    root = LinkSpec(name=model.root, joint='', parent=None)
+    out = [f'<?xml version="1.0"?>', f'<robot name="{model.name}">']
+    root_vis = link_visuals(root, FIXED, kids[-1], root=True) if kids[-1] and drawn else []
+    out += [f'  <link name="{model.root}">', *(f'    {v}' for v in root_vis), '  </link>'] if root_vis \
+        else [f'  <link name="{model.root}"/>']
     for i, s in enumerate(model.specs):
         Ic = np.asarray(s.inertia, dtype=float)
         out.append(f'  <link name="{s.name}">')
@@ -573,16 +694,12 @@ def to_urdf(model: Model) -> str:
             out.append('      <inertia ixx="{!r}" ixy="{!r}" ixz="{!r}" iyy="{!r}" iyz="{!r}" izz="{!r}"/>'.format(
                 *(float(Ic[j, k]) for j, k in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))))
             out.append('    </inertial>')
-        for v in (s.visuals or (inertia_visual(s.mass, s.com, Ic),)):
-            if v:
-                out.append(f'    {v}')
+        for v in (s.visuals or (link_visuals(s, int(model.jtype[i]), kids[i]) if drawn else ())):
+            out.append(f'    {v}')
         out.append('  </link>')
         jt = int(model.jtype[i])
         parent = model.root if model.parent[i] < 0 else model.link_names[model.parent[i]]
-        E = model.Xtree[i][:3, :3]
-        R = E.T
-        p = -(E.T @ model.Xtree[i][3:, :3])  # skew(r) = -E^T X[3:, :3]
-        r = np.array([p[2, 1], p[0, 2], p[1, 0]])
+        r, R = origins[i]
         if jt == SPHERICAL:
             out += _spherical_urdf(s, parent, f(r), f(R_to_rpy(R)))
             continue
@@ -681,4 +798,5 @@ def random_tree(nb, rng, prismatic_fraction=0.3, chain=False, gravity=(0.0, 0.0,
 __all__ = ['FIXED', 'REVOLUTE', 'PRISMATIC', 'FREE', 'SPHERICAL', 'SPHERICAL_AXES', 'SphericalJointError',
            'refuse_spherical', 'LIMIT_RETURNS', 'limit_table', 'JOINT_TYPES', 'ModelError', 'LinkSpec', 'Model',
            'jcalc', 'build_model', 'bryan_angles', 'spherical_link_names', 'dh_links', 'to_urdf', 'inertia_visual',
+           'link_visuals', 'solid_fits',
            'random_tree', 'skew', 'PLANAR_SUFFIXES', 'planar_links', 'planar_root']

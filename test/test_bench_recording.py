@@ -7,8 +7,8 @@ import argparse
 
 from robodyn_ros.bench import speed
 
-#: README "## Speed", recording paragraph (stanford_arm, this machine): recorder per period,
-#: batched, and messages per period
+#: docs/speed.md, "Recording at the speed of the dynamics" (stanford_arm): recorder per period,
+#: batched, and messages per period; the docs print the sanity bound beside the figure
 README_RECORDER_US = 22.0
 README_MESSAGES = 11
 

@@ -152,7 +152,7 @@ def test_free_base_spinning_at_100_rad_s():
     for form in ('minimal', 'augmented'):
         d = r.data[form]
         assert 'unstable' in d['rk4_0.05_refused']
-        assert d['rk4']['omega_error'] < 1e-6 and d['dop853']['omega_error'] < 1e-9
+        assert d['rk4']['omega_error'] < 1e-6 and d['dop853']['omega_error'] < 7e-10   # measured 2e-8, 7e-12
         assert d['rk4']['momentum_change'] < 1e-6 and d['dop853']['momentum_change'] < 1e-8
         assert d['rk4']['quat_norm'] == pytest.approx(1.0, abs=1e-12)
     assert 'spins at 100 rad/s' in r.data['minimal']['rk4_0.05_refused']
@@ -175,7 +175,7 @@ def test_mass_ratio_of_1e6():
     assert set(r.data) == {'heavy_then_light', 'light_then_heavy'}
     for d in r.data.values():
         assert d['rk4']['ok'] and d['rk4']['error'] < 1e-6 and d['radau']['error'] < 1e-6
-        assert d['rk4']['energy_drift'] < 1e-9
+        assert d['rk4']['energy_drift'] < 3e-10   # measured 3e-12
     assert r.finite
 
 
@@ -198,7 +198,7 @@ def test_long_horizon_1e4_s():
     assert sie['energy_error_second_half'] <= 1.1 * sie['energy_error_first_half']
     assert d['euler']['energy_error_final'] > 1.0
     assert d['euler']['energy_error_second_half'] > 2 * d['euler']['energy_error_first_half']
-    assert d['rk4']['energy_error_final'] < 1e-8 and d['dop853']['energy_error_final'] < 1e-6
+    assert d['rk4']['energy_error_final'] < 2e-9 and d['dop853']['energy_error_final'] < 1e-6   # 2e-11, 2e-8
     assert r.finite
 
 
@@ -207,7 +207,7 @@ def test_redundant_constraints():
     assert r.data['ok'] and r.data['rank'] == 3
     left, right = r.data['lateral']
     assert left != 0.0 and left == pytest.approx(right, rel=1e-9)
-    assert r.data['residual'] < 1e-9
+    assert r.data['residual'] < 3e-15   # round-off: measured 3e-17 m/s
     assert r.finite
 
 
@@ -215,7 +215,7 @@ def test_orientation_through_pitch_90():
     r = ex.extreme_pitch_90()
     assert set(r.data) == {'minimal', 'augmented'}
     for form, d in r.data.items():
-        assert d['rk4']['quat_error'] < 1e-8 and d['dop853']['quat_error'] < 1e-10, form
+        assert d['rk4']['quat_error'] < 4e-10 and d['dop853']['quat_error'] < 6e-14, form   # 4e-12, 6e-16
         assert d['rk4']['odom_quat_norm'] == pytest.approx(1.0, abs=1e-12)
     assert r.finite
 
@@ -227,7 +227,7 @@ def test_huge_efforts_and_voltages():
     assert 'non-finite' in e['failure'] and 'largest command effort = 1e+06' in e['failure']
     assert r.data['dop853_effort']['ok']
     assert r.data['saturated'] == {'flag': True, 'applied': 12.0}
-    assert r.data['unlimited']['error'] < 1e-9
+    assert r.data['unlimited']['error'] < 5e-11   # measured 5e-13
     assert r.finite
 
 
@@ -237,7 +237,7 @@ def test_zero_gravity_zero_damping_no_input_nothing_moves():
                            'betancur_platform'}
     for label, moved in r.data.items():
         if 'augmented' in label:
-            assert moved < 1e-12, label  # Baumgarte acting on the round-off of C(x0)
+            assert moved < 7e-13, label  # Baumgarte acting on the round-off of C(x0): measured 7e-15
         else:
             assert moved == 0.0, label
     assert r.finite

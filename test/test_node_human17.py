@@ -107,5 +107,5 @@ def test_momentum_constant_from_recorded_messages_alone(run):
     dL = np.linalg.norm(Ls - Ls[0], axis=1).max() / np.linalg.norm(Ls[0])
     print(f'from messages: |dp|/|p| {dp:.1e}, |dL|/|L| {dL:.1e}')
     assert np.linalg.norm(ps[0]) > 10 and np.linalg.norm(Ls[0]) > 10
-    assert dp < 1e-6 and dL < 1e-6     # RK4 at 1 ms with the stops: measured ~1e-8
+    assert dp < 1e-6 and dL < 7e-8     # RK4 at 1 ms with the stops: measured 1.2e-8, 6.8e-10
     assert max(moved) > 1.0            # the left arm was swung up

@@ -14,7 +14,7 @@ def _run(integrator, T, **kw):
     return sim
 
 
-def test_dop853_energy_drift_below_1e8_over_10s():
+def test_dop853_energy_drift_below_5e9_over_10s():
     sim = _run('dop853', 10.0, rtol=1e-10, atol=1e-12)
     e = sim.energy_report()
     assert e['work'] == 0.0  # unactuated and undamped: the energy must stay E0
@@ -22,7 +22,7 @@ def test_dop853_energy_drift_below_1e8_over_10s():
     q, v = sim.system.split(sim.y)
     from robodyn_ros.dynamics import kinetic_energy
     assert kinetic_energy(sim.system.model, q, v) > 0.05 * abs(e['energy0'])
-    assert abs(e['drift']) / abs(e['energy0']) < 1e-8
+    assert abs(e['drift']) / abs(e['energy0']) < 5e-9   # measured 4.9e-11
 
 
 def test_rk4_global_error_falls_by_16_when_the_step_halves():

@@ -13,7 +13,7 @@ Sections (each can be skipped with ``--skip``):
   + run_headless, scripted commands, joint states recorded at 100 Hz to a temporary MCAP),
   next to a Python loop of RK4 over ``pin.aba`` and MuJoCo's RK4 (same URDF, timestep 1 ms)
   stepped from Python (one ``mj_step`` per step, and ``mj_step(nstep=10)`` per 10 ms);
-* ``recording`` issue 15: per scene, the integration-only and the fully recorded real-time factor
+* ``recording`` per scene, the integration-only and the fully recorded real-time factor
   (every default topic of ``robodyn run``) and their ratio, the recorder's cost per period and per
   message (batched, and message by message as the node writes) next to zstd's cost for the same
   bytes, and MuJoCo's RK4 stepped from Python with its state copied out every period;
@@ -24,7 +24,7 @@ Sections (each can be skipped with ``--skip``):
 * ``compile``  first-run cost of the compiled kernels (cold numba cache) against a warm start,
   in child processes;
 * ``node``     the ROS node's figures from ``robodyn_ros.bench.node.bench_node()`` when present;
-* ``targets``  the issue's targets against the figures measured above (met or not, by how much).
+* ``targets``  the speed targets against the figures measured above (met or not, by how much).
 
 Per-call timings are CPU time of this process, the minimum over interleaved repeats; run
 figures (real-time factors) are wall time with the CPU-time figure beside them. They are figures
@@ -906,13 +906,9 @@ def section_compile(args, names) -> str:
         table(['start', 'import kernels', 'load/compile all kernels', 'first 0.1 s stanford_arm run', 'total',
                'then the same run with backend=generated (generate + compile/load)',
                'then 0.1 s of betancur_platform (constrained kernels)', 'then 0.1 s of unfried_free_flyer'], rows),
-        '', f'numba caches the machine code on disk (here a temporary NUMBA_CACHE_DIR; normally '
-        f'`{_default_cache()}`), so only the first start of an install pays the compilation.'])
-
-
-def _default_cache() -> str:
-    from .. import kernels
-    return kernels.CACHE_DIR
+        '', 'numba caches the machine code on disk (here a temporary NUMBA_CACHE_DIR; normally '
+        "the installed package's `robodyn_ros/kernels/__pycache__`), so only the first start of an install "
+        'pays the compilation.'])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -978,16 +974,16 @@ def section_targets(args, names) -> str:
     rec = f.get('recording', {})
     if rec:
         worst = min(rec, key=lambda n: rec[n]['ratio'])
-        add('full recorded / integration-only RTF, every scene (issue 15)',
+        add('full recorded / integration-only RTF, every scene',
             ', '.join(f'{n} {r["ratio"]:.2f}' for n, r in rec.items()), '>= 0.5 on every scene',
             all(r['ratio'] >= 0.5 for r in rec.values()), f'lowest: {worst}; CPU time, every default topic')
         r = rec.get('stanford_arm')
         if r and r.get('mujoco'):
-            add('stanford_arm full recorded RTF / MuJoCo RK4 from Python with state copied out (issue 15)',
+            add('stanford_arm full recorded RTF / MuJoCo RK4 from Python with state copied out',
                 f'{r["full"] / r["mujoco"]:.2f} ({r["full"]:.0f} / {r["mujoco"]:.0f})', '>= 3',
                 r['full'] / r['mujoco'] >= 3, 'CPU time, same run')
         if r:
-            add('stanford_arm recorder cost per period / zstd of its bytes (issue 15)',
+            add('stanford_arm recorder cost per period / zstd of its bytes',
                 f'{r["batched_period"] / r["zstd_period"]:.1f} ({r["batched_period"] * 1e6:.1f} µs / '
                 f'{r["zstd_period"] * 1e6:.1f} µs)', 'a small multiple', None,
                 f'{r["messages"]:.0f} messages per period; message by message {r["message_period"] * 1e6:.1f} µs')
@@ -1004,5 +1000,5 @@ def section_targets(args, names) -> str:
             'numba kernels and the first stanford_arm run; see the first-run table')
     if not rows:
         return '### Targets\n\n(no figures: run the other sections)'
-    return '\n'.join(['### Targets (issues 7 and 15) against this run\n',
+    return '\n'.join(['### Targets against this run\n',
                       table(['target', 'measured', 'target value', 'status', 'note'], rows)])
