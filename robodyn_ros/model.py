@@ -83,7 +83,9 @@ class LinkSpec:
     clamped); velocity_limit: optional largest |q̇| (rad/s or m/s, URDF ``<limit velocity>``),
     reported only: publications above it are counted (:class:`robodyn_ros.simulation.Simulator`,
     diagnostics ``velocity_limit_exceeded``); visuals: URDF ``<visual>`` elements (XML text)
-    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`).
+    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`);
+    inertia_as_given: the importer accepted a positive-definite inertia that breaks the triangle
+    inequality (and warned, :mod:`robodyn_ros.urdf`): :func:`build_model` then does not refuse it.
     """
 
     name: str
@@ -106,6 +108,7 @@ class LinkSpec:
     limit_damping: float = 0.0
     limit_return: str = 'spring'
     velocity_limit: float | None = None
+    inertia_as_given: bool = False
 
 
 @dataclass(frozen=True)
@@ -250,7 +253,8 @@ def jcalc(jtype, axis, qj):
 
 
 def _check_inertia(spec: LinkSpec, where: str):
-    """Refuse negative masses and inertias that are not symmetric positive semi-definite."""
+    """Refuse negative masses, inertias that are not symmetric positive semi-definite and (unless
+    ``spec.inertia_as_given``) principal moments breaking the triangle inequality."""
     if not np.isfinite(spec.mass) or spec.mass < 0.0:
         raise ModelError(f'{where}: mass must be a finite number >= 0, got {spec.mass!r}')
     Ic = np.asarray(spec.inertia, dtype=float)
@@ -263,7 +267,7 @@ def _check_inertia(spec: LinkSpec, where: str):
     if ev.min() < -tol:
         raise ModelError(f'{where}: inertia is not positive semi-definite (eigenvalues {ev.tolist()})')
     # principal moments must satisfy the triangle inequality of a real body
-    if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()):
+    if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()) and not spec.inertia_as_given:
         raise ModelError(f'{where}: principal moments {ev.tolist()} violate the triangle inequality '
                          '(no physical body has them)')
 
