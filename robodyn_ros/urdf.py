@@ -608,7 +608,7 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
               origin_rpy=tuple(R_to_rpy(j.T[:3, :3])))
     if jtype == 'fixed':
         return LinkSpec(**kw)
-    kw.update(axis=tuple(j.axis), damping=j.damping, friction=j.friction)
+    kw.update(axis=tuple(float(x) for x in j.axis), damping=j.damping, friction=j.friction)
     for k in ('damping', 'friction'):
         if kw[k] < 0.0:
             raise UrdfError(jw, f'<dynamics {k}> must be >= 0, got {kw[k]!r}')

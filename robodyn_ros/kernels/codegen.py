@@ -233,7 +233,9 @@ def _joint(Z, jt, k, Et, rt, qk):
 
 
 def aba_source(model) -> str | None:
-    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE joints)."""
+    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE or SPHERICAL
+    joints, or a joint whose articulated inertia ``d = Sᵀ IA S`` is the constant 0: its mass matrix is
+    singular everywhere, which the generic kernels' caller reports)."""
     from . import merge_fixed
     a = merge_fixed(model)
     if np.any(a['jtype'] == FREE) or np.any(a['jtype'] == SPHERICAL):
@@ -272,6 +274,9 @@ def aba_source(model) -> str | None:
             vi = int(a['v_idx'][i])
             U[i] = [Z.sp([(1.0, IA[i][x][y], S[i][y]) for y in range(6)]) for x in range(6)]
             d[i] = Z.sp([(1.0, S[i][x], U[i][x]) for x in range(6)])
+            if isinstance(d[i], float) and d[i] == 0.0:
+                return None  # no inertia about this axis in any configuration: the generic kernels (and the
+                #              simulator's preflight, which names the joint) take the model
             u[i] = Z.sp([(-1.0, S[i][x], pA[i][x]) for x in range(6)] + [(1.0, f'tau[{vi}]', None)])
             if p >= 0:
                 dinv = Z.div(1.0, d[i])
@@ -328,7 +333,7 @@ def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
 
 
 def module_source(model) -> str | None:
-    """The whole generated module for ``model`` (None when it has FREE joints)."""
+    """The whole generated module for ``model`` (None when :func:`aba_source` declines it)."""
     from . import arm
     body = aba_source(model)
     if body is None:
