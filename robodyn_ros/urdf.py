@@ -41,9 +41,15 @@ Mapping onto our tree:
   ``lower == upper`` means none given; ``velocity`` (> 0) becomes ``LinkSpec.velocity_limit``: not
   enforced, but publications of a joint velocity above it are counted (diagnostics
   ``velocity_limit_exceeded``, :class:`robodyn_ros.simulation.Simulator`).
-* ``<mimic>`` is refused (a coupled DOF the kernels do not have), unless the mimic joint is
-  locked (``locked={joint: position}``: the joint becomes FIXED at that position, as
-  Pinocchio's ``buildReducedModel`` does).
+* ``<mimic joint multiplier offset>`` (defaults 1 and 0) makes the joint follow another,
+  ``q = multiplier · q_joint + offset`` (``LinkSpec.mimic``; chains of mimics compose): the
+  dynamics is reduced to the independent joints in the compiled kernels
+  (:mod:`robodyn_ros.kernels.coupled`), the joint stays in joint_states and TF and takes no
+  effort command (:mod:`robodyn_ros.systems.arm`). A mimic of a joint that does not exist or does
+  not move is ignored with a note (urdfdom and Pinocchio read such a joint as independent); a
+  cycle of mimics is refused. ``locked={joint: position}`` freezes a joint as FIXED at that
+  position (as Pinocchio's ``buildReducedModel`` does); the joints that mimic a locked joint are
+  locked with it, at their coupled position.
 
 Inertias (:func:`_settle_inertia`). A link welded by fixed joints whose own inertia is not
 physical (sensor frames with made-up values) is lumped with its welded group into the group's
@@ -80,7 +86,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model
+from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
 from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis, rpy_to_R
 
 __all__ = ['UrdfError', 'UrdfWarning', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
@@ -489,13 +495,19 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
         if j.type not in _JOINT_TYPES:
             raise UrdfError(where, f'unknown joint type {j.type!r}; supported: revolute, continuous, prismatic, '
                                    'fixed, floating (root only)')
-        if j.mimic is not None and j.name not in locked and j.type != 'fixed':
-            raise UrdfError(where, f'<mimic joint="{j.mimic[0]}"> is not supported (a coupled DOF); lock the joint '
-                                   f'instead (locked: {{{j.name}: 0.0}}) or remove the <mimic>')
         s = _spec(lk, j, 'fixed' if j.type == 'fixed' else _MOVING[j.type], j.name, no_effort)
         if j.name in locked and j.type != 'fixed':
-            s = _lock(s, j, locked[j.name])
+            s = _lock(s, j.name, locked[j.name])
+        elif j.mimic is not None and j.type != 'fixed':
+            src = joints.get(j.mimic[0])
+            if src is not None and src.type in _MOVING:
+                s = replace(s, mimic=j.mimic)
+            else:  # urdfdom and Pinocchio read such a joint as an independent one; so do we, with a note
+                what = 'is not a joint of the robot' if src is None else f'is a {src.type} joint'
+                notes.append(f'joint {j.name!r}: <mimic joint="{j.mimic[0]}"> ignored: {j.mimic[0]!r} {what}; '
+                             'the joint moves on its own')
         specs.append(s)
+    specs = _lock_followers(specs, locked, notes)
     if no_effort:
         notes.append(f'<limit effort="0"> read as "no effort limit given" (the ROS convention) on '
                      f'{len(no_effort)} joint{"s" if len(no_effort) > 1 else ""}: {", ".join(no_effort)}')
@@ -509,7 +521,7 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
     except ModelError as e:
         where, _, reason = str(e).partition(': ')
         raise UrdfError(where, reason) if reason else UrdfError(f'robot {name!r}', str(e)) from None
-    _check_masses(specs, no_inertial)
+    _check_masses(specs, no_inertial, resolve_mimics(specs))
     vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
     return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
 
@@ -630,9 +642,27 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
     return LinkSpec(**kw)
 
 
-def _lock(s: LinkSpec, j, q) -> LinkSpec:
+def _lock_followers(specs, locked, notes):
+    """Specs with every joint that mimics a locked joint (directly or through other mimics) locked
+    too, at ``multiplier · q_locked + offset``, with a note."""
+    at = {k: float(v) for k, v in locked.items()}
+    specs, changed = list(specs), True
+    while changed:
+        changed = False
+        for k, s in enumerate(specs):
+            if s.mimic is not None and s.mimic[0] in at:
+                src, m, o = s.mimic
+                at[s.joint] = m * at[src] + o
+                specs[k] = _lock(replace(s, mimic=None), s.joint, at[s.joint])
+                notes.append(f'joint {s.joint!r}: mimics locked joint {src!r}, so it is locked too, at '
+                             f'{at[s.joint]:.6g}')
+                changed = True
+    return specs
+
+
+def _lock(s: LinkSpec, name: str, q) -> LinkSpec:
     """The joint frozen as FIXED at position q: its motion folded into the origin."""
-    where = f'locked joint {j.name!r}'
+    where = f'locked joint {name!r}'
     try:
         q = float(q)
     except (TypeError, ValueError):
@@ -645,7 +675,7 @@ def _lock(s: LinkSpec, j, q) -> LinkSpec:
     a = np.asarray(s.axis, dtype=float)
     na = np.linalg.norm(a)
     if not na > 1e-9:
-        raise UrdfError(f'joint {j.name!r}', f'axis must be a non-zero 3-vector, got {list(a)}')
+        raise UrdfError(f'joint {name!r}', f'axis must be a non-zero 3-vector, got {list(a)}')
     a = a / na
     if s.joint_type == 'revolute':
         R, p = R0 @ rot_axis(a, q), np.asarray(s.origin_xyz)
@@ -655,8 +685,10 @@ def _lock(s: LinkSpec, j, q) -> LinkSpec:
                    damping=0.0, friction=0.0, effort_limit=None, limits=None, velocity_limit=None)
 
 
-def _check_masses(specs, no_inertial):
-    """Refuse a moving joint whose subtree (the link and everything below it) has no mass."""
+def _check_masses(specs, no_inertial, mimics):
+    """Refuse a moving joint whose subtree (the link and everything below it) has no mass, nor
+    the subtree of any joint that mimics it (mimics: :func:`robodyn_ros.model.resolve_mimics`;
+    a mimic joint moves with its source, which is the one that needs something to accelerate)."""
     sub = {s.name: s.mass for s in specs}
     by_parent = {}
     for s in specs:
@@ -664,13 +696,19 @@ def _check_masses(specs, no_inertial):
     for s in reversed(specs):  # depth-first order: children after their parent
         for c in by_parent.get(s.name, []):
             sub[s.name] += sub[c.name]
+    followers = {}
     for s in specs:
-        if s.joint_type == 'fixed' or sub[s.name] > 0.0:
+        if s.joint in mimics:
+            followers.setdefault(mimics[s.joint][0], []).append(s.name)
+    for s in specs:
+        if s.joint_type == 'fixed' or s.joint in mimics or sub[s.name] > 0.0 or \
+                any(sub[f] > 0.0 for f in followers.get(s.joint, [])):
             continue
         leaf = not by_parent.get(s.name)
         where = f'link {s.name!r} (joint {s.joint!r})'
-        rest = f'{" at a leaf" if leaf else " whose subtree has no mass either"}; its joint would have no inertia ' \
-               'to accelerate'
+        rest = f'{" at a leaf" if leaf else " whose subtree has no mass either"}' + \
+            (' (nor have those of the joints that mimic it)' if s.joint in followers else '') + \
+            '; its joint would have no inertia to accelerate'
         if s.name in no_inertial:
             raise UrdfError(where, f'missing <inertial> on a moving link{rest} (give it an <inertial> or make the '
                                    'joint fixed)')

@@ -152,9 +152,9 @@ MALFORMED = [
     ('floating joint below the root', _robot(_link('a'), _link('b'), _link('c'), _joint('j1', 'a', 'b'),
                                               _joint('j2', 'b', 'c', 'floating', '')),
      "joint 'j2': a floating joint is only supported from the root link"),
-    ('mimic joint', _robot(_link('a'), _link('b'), _link('c'), _joint('j1', 'a', 'b'),
+    ('mimic cycle', _robot(_link('a'), _link('b'), _link('c'), _joint('j1', 'a', 'b', extra='<mimic joint="j2"/>'),
                            _joint('j2', 'a', 'c', extra='<axis xyz="0 0 1"/><mimic joint="j1"/>')),
-     "joint 'j2': <mimic joint=\"j1\"> is not supported"),
+     "joint 'j1': the mimic joints form a cycle j1 -> j2 -> j1"),
     ('zero-mass moving leaf', _robot(_link('a'), _link('b', '<inertial><mass value="0"/><inertia ixx="0" iyy="0" '
                                                             'izz="0" ixy="0" ixz="0" iyz="0"/></inertial>'),
                                      _joint('j1', 'a', 'b')),
