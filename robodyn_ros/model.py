@@ -727,7 +727,7 @@ def to_urdf(model: Model) -> str:
 
     Revolute joints without limits are exported as ``revolute`` with wide limits (not
     ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
-    written as ``floating``. Effort and velocity limits, damping and friction are written. A
+    written as ``floating``. Effort and velocity limits, damping, friction and mimics are written. A
     model imported with ``<visual>`` elements keeps exactly those (meshes passed through); a
     model without any gets shapes drawn from each link's inertia and joints
     (:func:`link_visuals`) so that a 3D viewer shows bodies. Every number is written as Python's ``repr`` of the double (the shortest text
@@ -785,6 +785,9 @@ def to_urdf(model: Model) -> str:
             out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="{eff!r}" velocity="{vel!r}"/>')
             if s.damping or s.friction:
                 out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="{float(s.friction)!r}"/>')
+            if s.mimic is not None:
+                out.append(f'    <mimic joint="{s.mimic[0]}" multiplier="{float(s.mimic[1])!r}" '
+                           f'offset="{float(s.mimic[2])!r}"/>')
         out.append('  </joint>')
     out.append('</robot>')
     return '\n'.join(out) + '\n'

@@ -352,3 +352,30 @@ def test_example_robot_data_mimic_robots_run_and_keep_the_coupling_exact():
             for qj, vj, qi, vi, k, o in table:
                 assert p[int(qj)] == k * p[int(qi)] + o
         assert abs(sim.energy_report()['relative_drift']) < 1e-8, rel_path
+
+
+def test_mimic_joints_are_refused_where_the_coupling_is_not_modelled():
+    """A floating URDF base or a platform mount with mimic joints: refused with the way out (lock
+    them); locked, the same robot loads; the numpy backend refuses the coupled tree."""
+    text = _pendulum(1.0)
+    with pytest.raises(SceneError, match=r"parts\[0\]\.urdf: joint 'j2': <mimic> joints are supported for a URDF "
+                                         r"mounted on the world only"):
+        parse_scene('name: p\nparts:\n  - kind: urdf\n    name: p\n    floating: true\n    urdf: |\n      '
+                    + text + '\n')
+    sc = parse_scene('name: p\nparts:\n  - kind: urdf\n    name: p\n    floating: true\n    locked: {j2: 0.0}\n'
+                     '    urdf: |\n      ' + text + '\n')
+    assert sc.system.model.nv == 7
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope('numpy'), pytest.raises(SceneError, match='mimic joints .* compiled kernels only'):
+        _system(text)
+
+
+def test_robot_description_keeps_the_mimics_and_reads_back_the_same_coupling():
+    sc = _scene(str(ERD / MIMIC_ROBOTS[1]))
+    text = sc.system.urdf()
+    assert text.count('<mimic ') == len(sc.system.model.mimic_joint_names) == 10
+    back = read_urdf(text)
+    assert {s.joint: s.mimic for s in back.specs if s.mimic} == \
+        {s.joint: s.mimic for s in sc.system.model.specs if s.mimic}
+    pr = pin.buildModelFromXML(text, mimic=True)   # urdfdom and Pinocchio read them as mimics
+    assert pr.nv == sc.system.model.nv - 10

@@ -78,6 +78,10 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     specs = robot.specs
     if floating and (mount != 'world' or 'origin' in spec):
         ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')
+    if any(s.mimic is not None for s in specs) and (floating or mount != 'world'):
+        j = next(s.joint for s in specs if s.mimic is not None)
+        ctx.fail(where, f"joint {j!r}: <mimic> joints are supported for a URDF mounted on the world only (lock them "
+                        "with locked: {joint: position}, or use mount: world)")
     if any(s.friction > 0.0 for s in specs) and (floating or mount != 'world'):
         j = next(s.joint for s in specs if s.friction > 0.0)
         ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "
