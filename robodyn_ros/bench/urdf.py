@@ -9,7 +9,7 @@ writes the table (``make bench`` does). Needs the test extras (example-robot-dat
 The backend defaults to ``numba`` (the generic compiled kernels: every robot shares one
 compilation); the generated backend gives the same verdicts and only adds a per-model
 compilation to each run's time. DOF is the number of velocity coordinates (a floating base
-counts 6), from the importer.
+counts 6), from the importer; mimic joints count among them (the notes say how many).
 """
 from __future__ import annotations
 
@@ -75,22 +75,24 @@ def urdf_files(only=None) -> list:
     return [(str(p.relative_to(d)), str(p)) for p in files if only is None or p.stem in only]
 
 
-def dof(path) -> int | None:
-    """Velocity coordinates of the imported robot (None when it is refused)."""
+def dof(path) -> tuple:
+    """``(velocity coordinates, mimic joints among them)`` of the imported robot ((None, 0) when
+    it is refused)."""
     from ..urdf import UrdfError, read_urdf
     try:
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')
             r = read_urdf(path)
     except UrdfError:
-        return None
-    return sum({'revolute': 1, 'prismatic': 1, 'free': 6}.get(s.joint_type, 0) for s in r.specs)
+        return None, 0
+    return (sum({'revolute': 1, 'prismatic': 1, 'free': 6}.get(s.joint_type, 0) for s in r.specs),
+            sum(s.mimic is not None for s in r.specs))
 
 
 def run_one(rel: str, path: str, backend: str = 'numba') -> Row:
     """Run ``robodyn run path --duration DURATION`` in a child process and classify the outcome."""
     cmd = [sys.executable, '-m', 'robodyn_ros.cli', 'run', path, '--duration', str(DURATION), '--backend', backend]
-    n = dof(path)
+    n, n_mimic = dof(path)
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT)
     except subprocess.TimeoutExpired:
@@ -98,7 +100,7 @@ def run_one(rel: str, path: str, backend: str = 'numba') -> Row:
     lines = p.stderr.splitlines()
     warned = [ln[len('robodyn: warning: '):] for ln in lines if ln.startswith('robodyn: warning: ')]
     errors = [ln for ln in lines if not ln.startswith('robodyn: warning: ')]
-    notes = tuple(_note(w) for w in warned)
+    notes = tuple(_note(w) for w in warned) + ((f'{n_mimic} mimic joints follow others',) if n_mimic else ())
     if p.returncode == 0:
         return Row(rel, n, 'runs', notes=notes)
     text = _strip(errors[-1] if errors else f'exit status {p.returncode}', path)
