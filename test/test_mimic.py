@@ -296,17 +296,25 @@ def test_mimic_effort_is_the_coupling_force_and_wrenches_project_to_joint_effort
         assert w[1] == pytest.approx(total, rel=1e-12)   # the axis is y, the wrench in the child frame
 
 
-def test_mimic_chains_locks_and_odd_mimics():
-    lnk = lambda n: (f'<link name="{n}"><inertial><origin xyz="0 0 -0.3"/><mass value="1"/><inertia ixx="0.01" '  # noqa: E731
-                     'iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>')
+def _chain_link(n):
+    return (f'<link name="{n}"><inertial><origin xyz="0 0 -0.3"/><mass value="1"/><inertia ixx="0.01" iyy="0.01" '
+            'izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>')
 
-    def jnt(n, p, c, mimic=''):
-        return (f'<joint name="{n}" type="revolute"><parent link="{p}"/><child link="{c}"/><axis xyz="0 1 0"/>'
-                f'<limit effort="5" lower="-3" upper="3" velocity="2"/>{mimic}</joint>')
-    chain = ('<robot name="c"><link name="base"/>' + ''.join(lnk(n) for n in 'abcd') + jnt('j1', 'base', 'a') +
-             jnt('j2', 'a', 'b', '<mimic joint="j1" multiplier="2" offset="0.1"/>') +
-             jnt('j3', 'b', 'c', '<mimic joint="j2" multiplier="-0.5" offset="0.2"/>') +
-             jnt('j4', 'c', 'd', '<mimic joint="ghost"/>') + '</robot>')
+
+def _chain_joint(n, p, c, mimic=''):
+    return (f'<joint name="{n}" type="revolute"><parent link="{p}"/><child link="{c}"/><axis xyz="0 1 0"/>'
+            f'<limit effort="5" lower="-3" upper="3" velocity="2"/><dynamics damping="0.05"/>{mimic}</joint>')
+
+
+#: four links on joints about y: j2 follows j1 (x2, +0.1), j3 follows j2 (x-0.5, +0.2), j4's mimic names no joint
+CHAIN = ('<robot name="c"><link name="base"/>' + ''.join(_chain_link(n) for n in 'abcd') +
+         _chain_joint('j1', 'base', 'a') + _chain_joint('j2', 'a', 'b', '<mimic joint="j1" multiplier="2" offset="0.1"/>') +
+         _chain_joint('j3', 'b', 'c', '<mimic joint="j2" multiplier="-0.5" offset="0.2"/>') +
+         _chain_joint('j4', 'c', 'd', '<mimic joint="ghost"/>') + '</robot>')
+
+
+def test_mimic_chains_locks_and_odd_mimics():
+    chain = CHAIN
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         r = read_urdf(chain)
@@ -379,3 +387,46 @@ def test_robot_description_keeps_the_mimics_and_reads_back_the_same_coupling():
         {s.joint: s.mimic for s in sc.system.model.specs if s.mimic}
     pr = pin.buildModelFromXML(text, mimic=True)   # urdfdom and Pinocchio read them as mimics
     assert pr.nv == sc.system.model.nv - 10
+
+
+@pytest.mark.parametrize('robot', ['pr2', 'chain'])
+@pytest.mark.parametrize('method', ['rk4', 'euler', 'semi_implicit_euler'])
+def test_fused_loop_equals_the_per_step_path_on_a_mimic_robot(method, robot):
+    """pr2 (10 mimic joints, multipliers ±1, damping) and the chain (multipliers 2 and −0.5,
+    offsets): 0.2 s with a command on every independent joint, through the compiled fused loop
+    and through the Simulator's per-step Python path (the system's rhs and projection): the same
+    states, bit for bit (as for every arm: the same operations in the same order; B is a 0/1
+    selection, so numpy's B u has the compiled loop's bits)."""
+    sc = _scene(str(ERD / MIMIC_ROBOTS[1])) if robot == 'pr2' else _system(CHAIN)
+    s = sc.system
+    u = 0.3 * np.sin(np.arange(s.inputs['effort'].size))
+    out = []
+    per_step = _PerStep(s)
+    for system in (s, per_step):
+        sim = Simulator(system, sc.y0, integrator=method, dt=1e-3)
+        sim.set_command('effort', u)
+        calls = per_step.rhs_calls
+        sim.advance(0.2)
+        out.append(sim.y.copy())
+    assert per_step.rhs_calls - calls >= 200   # the second run stepped in Python
+    assert s.fused_advance(method, 1e-3, 0.0, np.concatenate([sc.y0, [0.0]]), 1e-3, {'effort': u}) is not None
+    diff = float(np.max(np.abs(out[0] - out[1])))
+    print(f'{method}: fused vs per-step largest difference {diff:.2e}')
+    assert diff == 0.0   # the same arithmetic, compiled once: the fused loop is the per-step path, step by step
+
+
+class _PerStep:
+    """A system that forwards everything but the fused loop (the Simulator then steps in Python)."""
+
+    def __init__(self, system):
+        self._s = system
+        self.rhs_calls = 0
+
+    def rhs(self, t, y, u):
+        self.rhs_calls += 1
+        return self._s.rhs(t, y, u)
+
+    def __getattr__(self, name):
+        if name in ('fused_advance', 'fused_periods'):
+            raise AttributeError(name)
+        return getattr(self._s, name)

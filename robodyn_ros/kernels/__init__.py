@@ -190,10 +190,12 @@ class CompiledModel:
         from ..model import mimic_table
         self.mimic = mimic_table(model)  # joints following others (URDF <mimic>): the coupled dynamics
         self.coupled = None
+        self.cpl = None   # the fused loop's coupling argument: (mimic table, col, mul) of a coupled tree
         if self.mimic.shape[0]:
             from . import coupled
             self.coupled = coupled
             self.col, self.mul, self.nr = coupled.coupling(self.mimic, self.nv)
+            self.cpl = (self.mimic, self.col, self.mul)
         self.gen = None
         if specialize and self.coupled is None:   # a coupled tree stays on the generic kernels
             from . import codegen
@@ -301,11 +303,9 @@ class CompiledModel:
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid. Returns the
         index of the first non-finite step or -1.
         """
-        if self.coupled is not None:
-            raise NotImplementedError('the fused loop does not integrate a tree with mimic joints')
         run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
-                   z, float(dt), int(n_full), float(h_last))
+                   z, float(dt), int(n_full), float(h_last), self.cpl)
 
 
 class CompiledSystem:

@@ -284,13 +284,14 @@ class ArmSystem(System):
         W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
         the periods; u (n,): the command held before the first period (updated in place).
         Declines where :meth:`fused_advance` does, for joint_states that are not ``(q, v)`` as
-        they are (spherical joints, a free root), for input matrices that are not 0/1 selections,
+        they are (spherical joints, a free root), for mimic joints (their efforts are the coupling's
+        forces, computed per period), for input matrices that are not 0/1 selections,
         and where :meth:`outputs` (or what it calls for joint states and wrenches) is not
         ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps)``: see
         ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's end, Fs None
         without wrenches, steps (K,) per period.
         """
-        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection \
+        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection or self._coupled \
                 or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         from ..kernels import arm as karm
@@ -323,7 +324,7 @@ class ArmSystem(System):
         ``z``: compiled kernels, a method it implements, this class's dynamics (:meth:`_fused_exact`),
         viscous damping only (no Coulomb friction), ``z = [y, W]`` or ``[y, W, W_lim]``."""
         return self._km is not None and integrator_name in kernels.FUSED_METHODS and self._fused_exact() \
-            and not self._has_friction and not self._coupled and z.shape in ((self.ny + 1,), (self.ny + 2,))
+            and not self._has_friction and z.shape in ((self.ny + 1,), (self.ny + 2,))
 
     def _fused_exact(self) -> bool:
         """True when this object computes dy/dt, power, projection and q̇ exactly as ArmSystem
