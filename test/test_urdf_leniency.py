@@ -298,3 +298,35 @@ def test_robodyn_run_prints_each_warning_once_and_refuses_in_one_line(tmp_path):
     assert p.returncode == 2 and p.stdout == ''
     assert p.stderr.splitlines() == [f"robodyn run: {broken}: link 'b' (joint 'j1'): inertia is not positive "
                                      "semi-definite (eigenvalues [-0.01, 0.1, 0.1])"]
+
+
+def test_romeo_inertias_as_docs_urdf_describes_them_and_as_mujoco_reads_them():
+    """romeo_small: two links break the triangle inequality by 80 % and 74 % of I3 and are kept as
+    given; MuJoCo refuses the file unless it balances them. romeo_laas_small: LHipPitch_link has a
+    negative principal moment and is refused, by MuJoCo too (with or without balanceinertia)."""
+    import re
+
+    import mujoco
+
+    from robodyn_ros.urdf import example_robot_data_dir
+    d = example_robot_data_dir() / 'romeo_description' / 'urdf'
+    r, notes = _read(d / 'romeo_small.urdf')
+    tri = [n for n in notes if 'triangle' in n]
+    assert len(tri) == 2 and all('accepted as given' in n for n in tri)
+    assert "link 'RShoulderYawLink'" in tri[0] and '(I1 + I2 = 0.001341 < I3; 80 % of I3)' in tri[0]
+    assert "link 'RElbowYawLink'" in tri[1] and '; 74 % of I3)' in tri[1]
+    with pytest.raises(UrdfError, match=r"romeo_laas_small\.urdf: link 'LHipPitch_link' \(joint 'LHipPitch_joint'\): "
+                                        r"inertia is not positive semi-definite \(eigenvalues \[-0\.0027"):
+        read_urdf(d / 'romeo_laas_small.urdf')
+
+    def mj(name, balance):
+        text = re.sub(r'<(visual|collision)>.*?</\1>', '', (d / name).read_text(), flags=re.S)
+        if balance:
+            text = re.sub(r'(<robot[^>]*>)', r'\1<mujoco><compiler balanceinertia="true"/></mujoco>', text, count=1)
+        return mujoco.MjModel.from_xml_string(text)
+    with pytest.raises(ValueError, match=r"inertia must satisfy A \+ B >= C"):
+        mj('romeo_small.urdf', False)
+    assert mj('romeo_small.urdf', True).nbody > 30
+    for balance in (False, True):
+        with pytest.raises(ValueError, match='inertia must have positive eigenvalues'):
+            mj('romeo_laas_small.urdf', balance)

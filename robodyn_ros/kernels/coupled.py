@@ -58,6 +58,28 @@ def couple_into(table, q, v):
 
 
 @njit(**_JIT)
+def reduce_into(A, f, col, mul, Ar, fr):
+    """``Ar = Gᵀ A G`` (nr, nr) and ``fr = Gᵀ f`` (nr,) for a joint-space matrix A (nv, nv) and
+    vector f (nv,) (G from :func:`coupling`): what any solve in the joint space of a coupled tree
+    takes (the mass matrix here; ``M + γ h D + γ² h² K`` of an implicit step alike)."""
+    nv = f.shape[0]
+    nr = fr.shape[0]
+    for a in range(nr):
+        fr[a] = 0.0
+        for c in range(nr):
+            Ar[a, c] = 0.0
+    for k in range(nv):
+        ck = mul[k]
+        if ck == 0.0:
+            continue
+        a = col[k]
+        fr[a] += ck * f[k]
+        for m in range(nv):
+            if mul[m] != 0.0:
+                Ar[a, col[m]] += ck * mul[m] * A[k, m]
+
+
+@njit(**_JIT)
 def coupled_fd_ws(mi, mf, col, mul, q, v, tau, qdd, W, H, h, Mr, L, b, x):
     """Coupled forward dynamics into qdd (nv,) (module docstring); ``transforms`` done by the caller.
 
@@ -74,19 +96,9 @@ def coupled_fd_ws(mi, mf, col, mul, q, v, tau, qdd, W, H, h, Mr, L, b, x):
         for m in range(nv):
             H[k, m] = 0.0
     crba_ws(mi, mf, H, W)
-    for a in range(nr):
-        b[a] = 0.0
-        for c in range(nr):
-            Mr[a, c] = 0.0
-    for k in range(nv):                               # M_r = Gᵀ M G, b = Gᵀ (τ − h)
-        ck = mul[k]
-        if ck == 0.0:
-            continue
-        a = col[k]
-        b[a] += ck * (tau[k] - h[k])
-        for m in range(nv):
-            if mul[m] != 0.0:
-                Mr[a, col[m]] += ck * mul[m] * H[k, m]
+    for k in range(nv):
+        h[k] = tau[k] - h[k]
+    reduce_into(H, h, col, mul, Mr, b)                # M_r = Gᵀ M G, b = Gᵀ (τ − h)
     if cholesky(Mr, nr, L):
         chol_solve(L, nr, b, x)
     else:
