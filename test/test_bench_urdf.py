@@ -51,7 +51,7 @@ def test_the_committed_table_has_every_installed_urdf_and_consistent_counts():
     installed = {rel for rel, _ in bench_urdf.urdf_files()}
     assert {r[1] for r in rows} == installed and len(rows) == len(installed) == 69
     _consistent(counts, rows)
-    assert counts['runs'] >= 40  # before the implicit integrator: 17 are refused as stiff at 1 ms
+    assert counts["runs"] >= 45  # before the implicit integrator: 21 are refused as stiff at 1 ms
 
 
 def test_the_table_dof_equals_pinocchio_nv():
@@ -83,3 +83,17 @@ def test_the_script_on_four_robots_tabulates_runs_refusals_and_their_words(tmp_p
     assert by['ur3'][3] == 'refused' and by['ur3'][4] == "`robot 'ur3': no <link> element: nothing to simulate`"
     assert by['xarm7'][3] == 'refused' and by['xarm7'][4].startswith('stiff at the default step: fastest mode')
     assert out.read_text() in capsys.readouterr().out
+
+
+def test_readme_and_docs_urdf_quote_the_table_counts():
+    counts, rows = parse(DOC.read_text())
+    stiff = sum(r[3] == 'refused' and r[4].startswith('stiff at the default step') for r in rows)
+    other = sum(r[3] != 'runs' for r in rows) - stiff
+    root = DOC.parent.parent
+    for f in (root / 'README.md', root / 'docs' / 'urdf.md'):
+        text = ' '.join(f.read_text().split())
+        m = re.search(r'of the (\d+) URDFs of example-robot-data [\d.]+, (\d+) run with defaults \(`robodyn run FILE '
+                      r'--duration 0.2`\); (\d+) are refused as stiff at the default 1 ms step.*?and (\d+) for what '
+                      r'their files hold', text, flags=re.I)
+        assert m, f
+        assert tuple(int(x) for x in m.groups()) == (counts['total'], counts['runs'], stiff, other), f

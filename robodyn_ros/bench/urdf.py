@@ -31,6 +31,7 @@ CAUSES = [('stiff', 'stiff at the default step (needs an implicit integrator)', 
           ('mimic', '`<mimic>` joint', r'<mimic'),
           ('inertia', 'inertia not positive semi-definite', r'inertia is not positive semi-definite'),
           ('empty', 'no `<link>` in the file', r'no <link> element'),
+          ('massless', 'moving links without mass', r'zero-mass moving link|missing <inertial> on a moving link'),
           ('singular', 'singular mass matrix', r'mass matrix is (singular|not finite)'),
           ('other', 'other', r'')]
 #: warnings condensed for the notes column: (pattern, words)
@@ -100,7 +101,8 @@ def run_one(rel: str, path: str, backend: str = 'numba') -> Row:
     lines = p.stderr.splitlines()
     warned = [ln[len('robodyn: warning: '):] for ln in lines if ln.startswith('robodyn: warning: ')]
     errors = [ln for ln in lines if not ln.startswith('robodyn: warning: ')]
-    notes = tuple(_note(w) for w in warned) + ((f'{n_mimic} mimic joints follow others',) if n_mimic else ())
+    notes = tuple(_note(w) for w in warned) + \
+        ((f'{n_mimic} mimic joint{"s follow others" if n_mimic > 1 else " follows another"}',) if n_mimic else ())
     if p.returncode == 0:
         return Row(rel, n, 'runs', notes=notes)
     text = _strip(errors[-1] if errors else f'exit status {p.returncode}', path)
