@@ -330,3 +330,20 @@ def test_romeo_inertias_as_docs_urdf_describes_them_and_as_mujoco_reads_them():
     for balance in (False, True):
         with pytest.raises(ValueError, match='inertia must have positive eigenvalues'):
             mj('romeo_laas_small.urdf', balance)
+
+
+def test_the_node_logs_each_warning_once_and_runs(tmp_path):
+    """The sim node on a URDF read leniently: each warning is one log line, once; the run ends
+    normally."""
+    from ros_helpers import run_sim_to_end
+    f = tmp_path / 'lenient.urdf'
+    f.write_bytes(b'\n' + _pendulum(_inertial(0.01, 0.02, 0.05, origin='<origin xyz="0 0 -0.3"/>'))
+                  .replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><limit effort="0" velocity="1"/>').encode()
+                  + b'\x00')
+    rc, log = run_sim_to_end({'robot_description_file': str(f), 'mode': 'max', 'duration': 0.05, 'backend': 'numba'},
+                             tmp_path / 'node.log')
+    assert rc == 0, log
+    warned = [ln for ln in log.splitlines() if '[WARN]' in ln and str(f) in ln]
+    assert len(warned) == 3, log
+    assert sum('effort="0"' in ln for ln in warned) == 1 and sum('triangle' in ln for ln in warned) == 1
+    assert 'Traceback' not in log
