@@ -20,7 +20,7 @@ from ros_helpers import Domain, start_sim
 from urdf_mutations import FILES, mutate
 
 ERD = example_robot_data_dir()
-SEED, CASES = 20240, 500
+SEED, CASES = 20240, 400
 #: wall seconds one in-process case may take (load, preflight, 20 ms of simulation)
 CASE_TIMEOUT = 20
 
