@@ -27,6 +27,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m robodyn_ros.bench speed --out docs/bench_speed.md
+	$(PY) -m robodyn_ros.bench urdf --out docs/urdf_robots.md
 
 clean:
 	rm -rf $(VENV) build install log

@@ -36,13 +36,15 @@ setup(
     # numba: compiled kernels (robodyn_ros.kernels); pip-only (no rosdep key), optional at run time:
     # without it ArmSystem falls back to the numpy reference kernels
     # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels;
-    # yourdfpy reads URDF files (robodyn_ros.urdf); dask + distributed run `robodyn sweep` (and the
-    # precision ladder) on a local or remote cluster, pyarrow writes its Parquet table
+    # dask + distributed run `robodyn sweep` (and the precision ladder) on a local or remote cluster,
+    # pyarrow writes its Parquet table; URDF files are read with the standard library (robodyn_ros.urdf);
+    # yourdfpy is a test oracle only
     install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba', 'llvmlite',
-                      'yourdfpy', 'dask', 'distributed', 'pyarrow'],
+                      'dask', 'distributed', 'pyarrow'],
     extras_require={
         'plot': ['matplotlib'],
-        'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data'],
+        'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data',
+                 'yourdfpy'],
     },
     zip_safe=True,
     maintainer='robodyn_ros developers',

@@ -83,7 +83,11 @@ class LinkSpec:
     clamped); velocity_limit: optional largest |q̇| (rad/s or m/s, URDF ``<limit velocity>``),
     reported only: publications above it are counted (:class:`robodyn_ros.simulation.Simulator`,
     diagnostics ``velocity_limit_exceeded``); visuals: URDF ``<visual>`` elements (XML text)
-    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`).
+    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`);
+    inertia_as_given: the importer accepted a positive-definite inertia that breaks the triangle
+    inequality (and warned, :mod:`robodyn_ros.urdf`): :func:`build_model` then does not refuse it;
+    mimic: ``(joint, multiplier, offset)``: this 1-DOF joint follows another 1-DOF joint,
+    ``q = multiplier · q_joint + offset`` (URDF ``<mimic>``, :func:`mimic_table`).
     """
 
     name: str
@@ -106,6 +110,8 @@ class LinkSpec:
     limit_damping: float = 0.0
     limit_return: str = 'spring'
     velocity_limit: float | None = None
+    inertia_as_given: bool = False
+    mimic: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -197,6 +203,16 @@ class Model:
         raise ValueError(f'{name!r} is not a joint_states entry of {self.name}; entries are {self.state_joint_names}')
 
     @property
+    def has_mimic(self) -> bool:
+        """True when a joint follows another (URDF ``<mimic>``, :func:`mimic_table`)."""
+        return any(s.mimic is not None for s in self.specs)
+
+    @property
+    def mimic_joint_names(self) -> list:
+        """Names of the joints that follow another (they take no effort command), in model order."""
+        return [s.joint for s in self.specs if s.mimic is not None]
+
+    @property
     def has_spherical(self) -> bool:
         """True when a joint is SPHERICAL (then only the compiled kernels compute the model)."""
         return bool(np.any(self.jtype == SPHERICAL))
@@ -250,7 +266,8 @@ def jcalc(jtype, axis, qj):
 
 
 def _check_inertia(spec: LinkSpec, where: str):
-    """Refuse negative masses and inertias that are not symmetric positive semi-definite."""
+    """Refuse negative masses, inertias that are not symmetric positive semi-definite and (unless
+    ``spec.inertia_as_given``) principal moments breaking the triangle inequality."""
     if not np.isfinite(spec.mass) or spec.mass < 0.0:
         raise ModelError(f'{where}: mass must be a finite number >= 0, got {spec.mass!r}')
     Ic = np.asarray(spec.inertia, dtype=float)
@@ -263,7 +280,7 @@ def _check_inertia(spec: LinkSpec, where: str):
     if ev.min() < -tol:
         raise ModelError(f'{where}: inertia is not positive semi-definite (eigenvalues {ev.tolist()})')
     # principal moments must satisfy the triangle inequality of a real body
-    if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()):
+    if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()) and not spec.inertia_as_given:
         raise ModelError(f'{where}: principal moments {ev.tolist()} violate the triangle inequality '
                          '(no physical body has them)')
 
@@ -312,6 +329,57 @@ def limit_table(model) -> np.ndarray:
                      float(LIMIT_RETURNS[s.limit_return]), *pairs.reshape(-1), float(s.limit_stiffness),
                      float(s.limit_damping)])
     return np.ascontiguousarray(np.array(rows, dtype=float).reshape(-1, 12))
+
+
+def resolve_mimics(specs) -> dict:
+    """Each following joint's independent joint: ``{joint: (source, multiplier, offset)}`` with
+    ``q_joint = multiplier · q_source + offset`` and ``source`` itself not following another (a
+    mimic of a mimic composes: ``m = m₁ m₂``, ``o = m₁ o₂ + o₁``). specs: the LinkSpecs of one tree.
+    Raises :class:`ModelError` naming the joint for a source that is not a 1-DOF joint of the tree,
+    a following joint that is not 1-DOF, a non-finite multiplier or offset, or a cycle.
+    """
+    by_joint = {s.joint: s for s in specs}
+    one_dof = ('revolute', 'prismatic')
+    direct = {}
+    for s in specs:
+        if s.mimic is None:
+            continue
+        where = f'link {s.name!r} (joint {s.joint!r})'
+        src, m, o = s.mimic
+        if s.joint_type not in one_dof:
+            raise ModelError(f'{where}: only a revolute or prismatic joint can follow another (mimic), not a '
+                             f'{s.joint_type} joint')
+        if src not in by_joint or by_joint[src].joint_type not in one_dof:
+            what = 'is not a joint of the tree' if src not in by_joint else f'is a {by_joint[src].joint_type} joint'
+            raise ModelError(f'{where}: mimics joint {src!r}, which {what} (a mimic follows a revolute or prismatic '
+                             'joint)')
+        if not (math.isfinite(m) and math.isfinite(o)):
+            raise ModelError(f'{where}: mimic multiplier and offset must be finite, got {m!r}, {o!r}')
+        direct[s.joint] = (src, float(m), float(o))
+    out = {}
+    for j in direct:
+        chain, (src, m, o) = [j], direct[j]
+        while src in direct:
+            if src in chain:
+                raise ModelError(f'joint {j!r}: the mimic joints form a cycle {" -> ".join(chain + [src])}')
+            chain.append(src)
+            s2, m2, o2 = direct[src]
+            src, m, o = s2, m * m2, m * o2 + o
+        out[j] = (src, m, o)
+    return out
+
+
+def mimic_table(model) -> np.ndarray:
+    """The joints that follow another as rows ``[q_j, v_j, q_i, v_i, multiplier, offset]`` (float
+    (nm, 6)) with ``q_j = multiplier · q_i + offset`` and i independent (:func:`resolve_mimics`),
+    for the compiled kernels' coupled dynamics (:mod:`robodyn_ros.kernels`): the velocity map
+    ``v = G v_r`` has ``G[v_j, r(v_i)] = multiplier``."""
+    rows = []
+    index = {n: i for i, n in enumerate(model.joint_names)}
+    for j, (src, m, o) in resolve_mimics(model.specs).items():
+        a, b = index[j], index[src]
+        rows.append([float(model.q_idx[a]), float(model.v_idx[a]), float(model.q_idx[b]), float(model.v_idx[b]), m, o])
+    return np.ascontiguousarray(np.array(rows, dtype=float).reshape(-1, 6))
 
 
 def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robot',
@@ -400,6 +468,7 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
             raise ModelError(f'{where}: velocity limit must be a finite number > 0, got {s.velocity_limit!r}')
         _check_limits(s, jt, where)
         specs.append(s)
+    resolve_mimics(specs)  # refuses a mimic of an unknown or non-1-DOF joint, or a cycle
     q_idx = np.concatenate([[0], np.cumsum(nq_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
     v_idx = np.concatenate([[0], np.cumsum(nv_j)[:-1]]).astype(np.int64) if nb else np.zeros(0, np.int64)
     g = np.asarray(gravity, dtype=float)
@@ -658,7 +727,7 @@ def to_urdf(model: Model) -> str:
 
     Revolute joints without limits are exported as ``revolute`` with wide limits (not
     ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
-    written as ``floating``. Effort and velocity limits, damping and friction are written. A
+    written as ``floating``. Effort and velocity limits, damping, friction and mimics are written. A
     model imported with ``<visual>`` elements keeps exactly those (meshes passed through); a
     model without any gets shapes drawn from each link's inertia and joints
     (:func:`link_visuals`) so that a 3D viewer shows bodies. Every number is written as Python's ``repr`` of the double (the shortest text
@@ -716,6 +785,9 @@ def to_urdf(model: Model) -> str:
             out.append(f'    <limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="{eff!r}" velocity="{vel!r}"/>')
             if s.damping or s.friction:
                 out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="{float(s.friction)!r}"/>')
+            if s.mimic is not None:
+                out.append(f'    <mimic joint="{s.mimic[0]}" multiplier="{float(s.mimic[1])!r}" '
+                           f'offset="{float(s.mimic[2])!r}"/>')
         out.append('  </joint>')
     out.append('</robot>')
     return '\n'.join(out) + '\n'

@@ -297,6 +297,8 @@ def _singular_joint(system, y) -> str:
         M = dyn.crba(model, q)
     except Exception:  # noqa: BLE001 - best effort: the caller reports the original error anyway
         return ''
+    if not np.all(np.isfinite(M)):
+        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)'
     d = np.diag(M)
     scale = max(float(np.max(np.abs(d))), 1e-300)
     names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]

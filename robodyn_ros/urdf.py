@@ -1,8 +1,23 @@
 """URDF import: a robot description (file or text) -> LinkSpecs for :func:`robodyn_ros.model.build_model`.
 
-Parsing is done by `yourdfpy <https://github.com/clemense/yourdfpy>`_ (a maintained URDF parser
-from PyPI, pinned in constraints.txt; meshes are neither loaded nor resolved, so its mesh stack is
-never exercised); this module only checks what it read and maps it onto our tree:
+Reading. The XML is read here with the standard library's parser (meshes are neither loaded nor
+resolved), leniently where the robot is unambiguous and never with a traceback:
+
+* a byte-order mark, blank lines or spaces before ``<?xml`` are skipped; bytes after the root
+  element's end (a trailing NUL, an editor's junk) are ignored, with a note;
+* elements the URDF format does not define (``<ros2_control>``, ``<mujoco>``, ``<contact>``
+  under a link, ...) are ignored, with one note listing them; ``<transmission>``, ``<gazebo>``,
+  ``<collision>``, ``<calibration>`` and ``<safety_controller>`` are URDF, not dynamics, and are
+  ignored silently; a top-level ``<material>`` needs no name (its colour is copied into the
+  visuals that use it, so the exported description stands alone); a robot without a name takes
+  the file's;
+* everything the dynamics reads must be there and be a finite number: a missing mass value or
+  diagonal moment, two ``<inertial>`` in one link, ``nan`` in an origin... is refused.
+
+Notes and warnings are :class:`UrdfWarning` (``warnings.warn``, and :attr:`UrdfRobot.notes`);
+``robodyn run`` and the ``sim`` node print each once.
+
+Mapping onto our tree:
 
 * joint types: ``revolute`` and ``continuous`` -> REVOLUTE (continuous has no position limits),
   ``prismatic`` -> PRISMATIC, ``fixed`` -> FIXED (kept as a body, so every URDF link has a TF
@@ -18,44 +33,92 @@ never exercised); this module only checks what it read and maps it onto our tree
   (:mod:`robodyn_ros.systems.motor`): a smooth right-hand side, no stick-slip events; below
   ``|q̇| ~ COULOMB_VELOCITY`` it acts as a stiff damper of slope ``f / COULOMB_VELOCITY``.
 * ``<limit effort>`` becomes the joint's effort limit (commands are clamped to ±effort and the
-  clamps counted, see :mod:`robodyn_ros.simulation`); ``lower``/``upper`` become
-  ``LinkSpec.limits`` (reported, exported, checked against the initial state; enforced by the
-  joint-limit moments of Huston eq. 20.2.1 only when a scene's ``kind: urdf`` part gives
-  ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`); ``velocity`` (> 0) becomes
-  ``LinkSpec.velocity_limit``: not enforced, but publications of a joint velocity above it are
-  counted (diagnostics ``velocity_limit_exceeded``, :class:`robodyn_ros.simulation.Simulator`).
-* ``<mimic>`` is refused (a coupled DOF the kernels do not have), unless the mimic joint is
-  locked (``locked={joint: position}``: the joint becomes FIXED at that position, as
-  Pinocchio's ``buildReducedModel`` does).
+  clamps counted, see :mod:`robodyn_ros.simulation`); ``effort="0"`` means "no limit given" (the
+  ROS convention: many vendor exports write it on every joint) and is read so, with one warning
+  naming the joints; ``lower``/``upper`` become ``LinkSpec.limits`` (reported, exported, checked
+  against the initial state; enforced by the joint-limit moments of Huston eq. 20.2.1 only when a
+  scene's ``kind: urdf`` part gives ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`);
+  ``lower == upper`` means none given; ``velocity`` (> 0) becomes ``LinkSpec.velocity_limit``: not
+  enforced, but publications of a joint velocity above it are counted (diagnostics
+  ``velocity_limit_exceeded``, :class:`robodyn_ros.simulation.Simulator`).
+* ``<mimic joint multiplier offset>`` (defaults 1 and 0) makes the joint follow another,
+  ``q = multiplier · q_joint + offset`` (``LinkSpec.mimic``; chains of mimics compose): the
+  dynamics is reduced to the independent joints in the compiled kernels
+  (:mod:`robodyn_ros.kernels.coupled`), the joint stays in joint_states and TF and takes no
+  effort command (:mod:`robodyn_ros.systems.arm`). A mimic of a joint that does not exist or does
+  not move is ignored with a note (urdfdom and Pinocchio read such a joint as independent); a
+  cycle of mimics is refused. ``locked={joint: position}`` freezes a joint as FIXED at that
+  position (as Pinocchio's ``buildReducedModel`` does); the joints that mimic a locked joint are
+  locked with it, at their coupled position.
 
-A URDF that cannot be simulated is refused with :class:`UrdfError` naming the link or joint and the
-reason: XML errors, a link with two parents, a loop, several roots, an unknown joint type, a
-moving link whose subtree has no mass (a zero-mass or missing ``<inertial>`` leaf), a
-non-physical inertia (:func:`robodyn_ros.model.build_model`'s checks). A link welded by fixed
-joints whose own inertia is not physical (sensor frames with made-up values) is lumped with its
-welded group into the group's moving link first (:func:`_lump_welded`); only that composite must
-be physical.
+Inertias (:func:`_settle_inertia`). A link welded by fixed joints whose own inertia is not
+physical (sensor frames with made-up values) is lumped with its welded group into the group's
+moving link first (:func:`_lump_welded`); only that composite is then judged. Principal moments
+``I1 <= I2 <= I3`` of a real body obey the triangle inequality ``I1 + I2 >= I3`` (each moment is a
+sum of two of the three second moments of the mass distribution, which are >= 0). CAD exports
+often break it by a little. Such an inertia is accepted with a warning naming the link and the
+violation:
+
+* positive definite (``I1 > 0``): kept as given. The kinetic energy ``½ vᵀ I v`` is still positive
+  for every motion, so the mass matrix is positive definite and the dynamics well posed
+  (Pinocchio accepts it too); but no mass distribution has these moments: it is the inertia of a
+  body with some negative density, ``Σ = ½ tr(I) 1 − I`` having a negative eigenvalue;
+* positive semi-definite with a zero moment (``I1 = 0 < I2 < I3``, not a slender bar): balanced
+  the way MuJoCo's compiler option ``balanceinertia`` does: the three principal moments are
+  replaced by their mean (the trace, and with it ``Σ m r²``, kept; the principal axes then no
+  longer matter), since a singular inertia that is not a bar's can make the mass matrix singular;
+* not positive semi-definite (a negative moment), or a negative mass: refused.
+
+A URDF that cannot be simulated is refused with :class:`UrdfError`, one line ``<file>: <where>:
+<reason>`` naming the link or joint (or the line and column of an XML error): a link with two
+parents, a loop, several roots, an unknown joint type, a moving link whose subtree has no mass
+(a zero-mass or missing ``<inertial>`` leaf), a non-physical inertia
+(:func:`robodyn_ros.model.build_model`'s checks).
 """
 from __future__ import annotations
 
-import io
 import os
+import re
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model
-from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis
+from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
+from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis, rpy_to_R
 
-__all__ = ['UrdfError', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
+__all__ = ['UrdfError', 'UrdfWarning', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
 
 _MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic'}
+_JOINT_TYPES = ('revolute', 'continuous', 'prismatic', 'fixed', 'floating', 'planar')
+#: the URDF format's elements (children of robot, link, joint, inertial); others are noted and ignored
+_KNOWN = {'robot': {'link', 'joint', 'material', 'transmission', 'gazebo'},
+          'link': {'inertial', 'visual', 'collision'},
+          'joint': {'origin', 'parent', 'child', 'axis', 'calibration', 'dynamics', 'limit', 'mimic',
+                    'safety_controller'},
+          'inertial': {'origin', 'mass', 'inertia'}}
+_XACRO = '{http://www.ros.org/wiki/xacro}'
+#: relative tolerance of the inertia checks (of the largest principal moment)
+INERTIA_TOL = 1e-9
 
 
 class UrdfError(ValueError):
-    """A URDF that cannot be simulated; the message names the link or joint and the reason."""
+    """A URDF that cannot be simulated: one line ``<file>: <where>: <reason>``.
+
+    where: the link or joint (``joint 'elbow'``, ``link 'b' (joint 'j1')``), or ``line L, column
+    C`` of an XML error; file: the file read, or None for URDF text given without a name (the
+    message is then ``<where>: <reason>``). Attributes ``file``, ``where``, ``reason``.
+    """
+
+    def __init__(self, where: str, reason: str, file: str | None = None):
+        self.where, self.reason, self.file = where, ' '.join(str(reason).split()), file
+        super().__init__(': '.join(x for x in (file, where, self.reason) if x))
+
+
+class UrdfWarning(UserWarning):
+    """Something in a URDF that was read leniently (ignored, or adapted); the message names it."""
 
 
 @dataclass
@@ -65,7 +128,8 @@ class UrdfRobot:
     name: robot name; root: name of the root link (the fixed frame, or the floating base);
     specs: LinkSpecs (one per non-root link; with ``floating`` the root link's spec comes first
     with joint type 'free'); floating: whether the root moves freely; velocity_limits: joint ->
-    URDF ``<limit velocity>`` (reported only); text: the URDF text read.
+    URDF ``<limit velocity>`` (reported only); text: the URDF text read; notes: the
+    :class:`UrdfWarning` messages issued while reading (one line each).
     """
 
     name: str
@@ -74,6 +138,7 @@ class UrdfRobot:
     floating: bool
     velocity_limits: dict = field(default_factory=dict)
     text: str = ''
+    notes: list = field(default_factory=list)
 
 
 def example_robot_data_dir() -> Path | None:
@@ -87,155 +152,378 @@ def example_robot_data_dir() -> Path | None:
     return p if p.is_dir() else None
 
 
-def _load(source):
-    """``(text, base_dir)`` of a URDF path or text (text starts with '<' after whitespace)."""
-    if isinstance(source, (str, os.PathLike)) and not str(source).lstrip().startswith('<'):
+# ------------------------------------------------------------------------------------------------
+# the document: bytes or text -> the <robot> element
+# ------------------------------------------------------------------------------------------------
+def _load(source, file):
+    """``(data, base_dir, file label)`` of a URDF path or text (text starts with '<' after a BOM or
+    whitespace); data is bytes for a file (its XML declaration names the encoding), else str."""
+    if isinstance(source, (str, os.PathLike)) and not str(source).lstrip('\ufeff \t\r\n').startswith('<'):
         p = Path(source)
         try:
-            return p.read_text(encoding='utf-8'), p.resolve().parent
-        except (OSError, UnicodeDecodeError) as e:
-            raise UrdfError(f'{p}: cannot read the URDF file: {e}') from None
-    return str(source), None
+            return p.read_bytes(), p.resolve().parent, file or str(source)
+        except OSError as e:
+            raise UrdfError('(file)', f'cannot read the URDF file: {e.strerror or e}', file or str(source)) from None
+    return str(source), None, file
 
 
-def _visuals(elem, base_dir) -> tuple:
-    """The ``<visual>`` elements of a link as XML text; relative mesh paths made absolute file:// URIs."""
+def _strip_head(data):
+    """Data without the byte-order mark and blank space in front of the first '<'."""
+    if isinstance(data, bytes):
+        if data.startswith((b'\xff\xfe', b'\xfe\xff')):  # UTF-16 with its BOM: decode, parse as text
+            return _strip_head(data.decode('utf-16', errors='replace'))
+        if data.startswith(b'\xef\xbb\xbf'):
+            data = data[3:]
+        return data.lstrip(b' \t\r\n')
+    return data.lstrip('\ufeff \t\r\n')
+
+
+def _parse_document(data, notes) -> ET.Element:
+    """The root element; bytes after its end are ignored with a note. Raises UrdfError with the
+    line and column of the first XML error inside the document."""
+    data = _strip_head(data)
+    if isinstance(data, str):  # text: its declared encoding no longer applies
+        data = re.sub(r'^<\?xml[^>]*\?>', '', data, count=1)
+    parser = ET.XMLPullParser(events=('start', 'end'))
+    try:
+        parser.feed(data)
+        parser.close()
+    except ET.ParseError:
+        pass  # the parser queues the error after the events read before it
+    depth, root, events = 0, None, parser.read_events()
+    try:
+        for ev, el in events:
+            if ev == 'start':
+                root = el if root is None else root
+                depth += 1
+            else:
+                depth -= 1
+                if depth == 0:
+                    break
+    except ET.ParseError as e:
+        line, col = e.position
+        raise UrdfError(f'line {line}, column {col + 1}', f'not well-formed XML: {str(e).split(":")[0]}') from None
+    if root is None or depth != 0:
+        raise UrdfError('(document)', 'not well-formed XML: ' + ('no element found' if root is None else
+                                                                 f'<{root.tag}> is never closed'))
+    if root.tag != 'robot':
+        raise UrdfError('(document)', f'the root element must be <robot>, got <{root.tag}>')
+    try:
+        for _ in events:
+            pass
+    except ET.ParseError as e:  # something after </robot>: ignored
+        line, col = e.position
+        notes.append(f'(document): ignored what follows </robot> from line {line}, column {col + 1} '
+                     f'({str(e).split(":")[0]})')
+    return root
+
+
+# ------------------------------------------------------------------------------------------------
+# elements -> plain values (each failure names the link or joint)
+# ------------------------------------------------------------------------------------------------
+def _floats(el, attr, n, where, default=None):
+    """The attribute as ``n`` finite floats (an array), or ``default`` when absent."""
+    s = el.get(attr) if el is not None else None
+    if s is None:
+        if default is None:
+            raise UrdfError(where, f'<{el.tag}> needs the attribute {attr}=')
+        return np.array(default, dtype=float)
+    parts = s.split()
+    try:
+        x = np.array([float(p) for p in parts], dtype=float)
+    except ValueError:
+        raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected {n} number{"s" if n > 1 else ""}') from None
+    if len(x) != n:
+        raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected {n} numbers, got {len(x)}')
+    if not np.all(np.isfinite(x)):
+        raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected finite numbers')
+    return x
+
+
+def _float(el, attr, where, default=None):
+    """The attribute as one finite float, or ``default`` (may be None) when absent."""
+    if el is None or el.get(attr) is None:
+        return default
+    return float(_floats(el, attr, 1, where)[0])
+
+
+def _one(el, tag, where):
+    """The child element ``tag`` (None when absent); two of them are refused (which would count?)."""
+    found = el.findall(tag)
+    if len(found) > 1:
+        raise UrdfError(where, f'{len(found)} <{tag}> elements (one expected)')
+    return found[0] if found else None
+
+
+def _origin(el, where) -> np.ndarray:
+    """Homogeneous transform (4, 4) of an ``<origin xyz rpy>`` element (identity when absent)."""
+    T = np.eye(4)
+    if el is not None:
+        T[:3, :3] = rpy_to_R(_floats(el, 'rpy', 3, where, (0.0, 0.0, 0.0)))
+        T[:3, 3] = _floats(el, 'xyz', 3, where, (0.0, 0.0, 0.0))
+    return T
+
+
+@dataclass
+class _Link:
+    """A parsed ``<link>``: mass (kg), com (3,) and inertia (3, 3) about the com in link axes
+    (None: no ``<inertial>``), and its ``<visual>`` elements as XML text."""
+
+    name: str
+    inertial: tuple | None
+    visuals: tuple
+
+
+@dataclass
+class _Joint:
+    """A parsed ``<joint>``: origin T (4, 4), axis (3,), limit values (None when absent), dynamics,
+    mimic ``(joint, multiplier, offset)`` or None."""
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    T: np.ndarray
+    axis: np.ndarray
+    effort: float | None = None
+    velocity: float | None = None
+    lower: float | None = None
+    upper: float | None = None
+    damping: float = 0.0
+    friction: float = 0.0
+    mimic: tuple | None = None
+
+
+def _inertial(el, where):
+    """``(mass, com (3,), inertia (3, 3) about the com in link axes)`` of an ``<inertial>``."""
+    T = _origin(_one(el, 'origin', where), where)
+    m_el = _one(el, 'mass', where)
+    mass = _float(m_el, 'value', where) if m_el is not None else None
+    if mass is None:
+        raise UrdfError(where, '<inertial> needs <mass value="..."/>')
+    i_el = _one(el, 'inertia', where)
+    if i_el is None:
+        raise UrdfError(where, '<inertial> needs <inertia ixx=".." iyy=".." izz=".." (ixy ixz iyz)/>')
+    d = [_float(i_el, k, where) for k in ('ixx', 'iyy', 'izz')]
+    if None in d:
+        raise UrdfError(where, '<inertia> needs ixx, iyy and izz')
+    ixy, ixz, iyz = (_float(i_el, k, where, 0.0) for k in ('ixy', 'ixz', 'iyz'))
+    I0 = np.array([[d[0], ixy, ixz], [ixy, d[1], iyz], [ixz, iyz, d[2]]])
+    R = T[:3, :3]
+    Ic = R @ I0 @ R.T
+    return mass, T[:3, 3].copy(), 0.5 * (Ic + Ic.T)
+
+
+def _visuals(elem, base_dir, materials, link) -> tuple:
+    """The ``<visual>`` elements of a link as XML text, each standing alone: relative mesh paths
+    made absolute file:// URIs, a material naming a top-level ``<material>`` given its colour, a
+    nameless material given a name (urdfdom, hence robot_state_publisher and RViz, needs one), a
+    material that is defined nowhere dropped."""
     out = []
-    for v in elem.findall('visual'):
+    for k, v in enumerate(elem.findall('visual')):
         v = ET.fromstring(ET.tostring(v))
         for mesh in v.iter('mesh'):
             fn = mesh.get('filename', '')
             if base_dir is not None and fn and '://' not in fn:
                 mesh.set('filename', 'file://' + str((base_dir / fn).resolve()))
+        for mat in v.findall('material'):
+            own = mat.find('color') is not None or mat.find('texture') is not None
+            if not own and mat.get('name') in materials:
+                mat.extend(ET.fromstring(ET.tostring(c)) for c in materials[mat.get('name')])
+            elif not own:
+                v.remove(mat)
+                continue
+            if not mat.get('name'):
+                mat.set('name', f'{link}_visual{k}')
         out.append(ET.tostring(v, encoding='unicode').strip())
     return tuple(out)
 
 
-def _float(x, what, default=0.0) -> float:
-    if x is None:
-        return default
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise UrdfError(f'{what}: expected a number, got {x!r}') from None
-    if not np.isfinite(v):
-        raise UrdfError(f'{what}: expected a finite number, got {x!r}')
-    return v
+def _joint(e, where) -> _Joint:
+    """A parsed ``<joint>`` (its name, type, parent and child already checked)."""
+    lim, dyn, mim = _one(e, 'limit', where), _one(e, 'dynamics', where), _one(e, 'mimic', where)
+    j = _Joint(name=e.get('name'), type=e.get('type'), parent=e.find('parent').get('link'),
+               child=e.find('child').get('link'), T=_origin(_one(e, 'origin', where), where),
+               axis=_floats(_one(e, 'axis', where), 'xyz', 3, where, (1.0, 0.0, 0.0)))
+    if lim is not None:
+        j.effort, j.velocity = _float(lim, 'effort', where), _float(lim, 'velocity', where)
+        j.lower, j.upper = _float(lim, 'lower', where), _float(lim, 'upper', where)
+    if dyn is not None:
+        j.damping, j.friction = _float(dyn, 'damping', where, 0.0), _float(dyn, 'friction', where, 0.0)
+    if mim is not None:
+        if not mim.get('joint'):
+            raise UrdfError(where, '<mimic> needs joint="..."')
+        j.mimic = (mim.get('joint'), _float(mim, 'multiplier', where, 1.0), _float(mim, 'offset', where, 0.0))
+    return j
 
 
-def read_urdf(source, floating: bool = False, locked: dict | None = None) -> UrdfRobot:
+def _parse_robot(root, base_dir, notes, default_name):
+    """``(name, links {name: _Link} in file order, joints [_Joint])`` of the ``<robot>`` element."""
+    unknown = {}
+
+    def note_unknown(el, level, path):
+        for c in el:
+            if not isinstance(c.tag, str):
+                continue  # comments, processing instructions
+            if c.tag.startswith(_XACRO):
+                raise UrdfError(f'{path}<xacro:{c.tag[len(_XACRO):]}>',
+                                'an unexpanded xacro macro: run xacro on the file first (xacro robot.urdf.xacro > '
+                                'robot.urdf)')
+            if c.tag not in _KNOWN[level]:
+                unknown[f'{path}<{c.tag}>'] = unknown.get(f'{path}<{c.tag}>', 0) + 1
+    note_unknown(root, 'robot', '')
+    materials = {m.get('name'): list(m) for m in root.findall('material') if m.get('name')}
+    links = {}
+    for k, e in enumerate(root.findall('link')):
+        name = e.get('name')
+        if not name:
+            raise UrdfError(f'<link> number {k + 1}', 'needs a name attribute')
+        where = f'link {name!r}'
+        if name in links:
+            raise UrdfError(where, 'duplicate link name')
+        note_unknown(e, 'link', '<link>/')
+        in_el = _one(e, 'inertial', where)
+        if in_el is not None:
+            note_unknown(in_el, 'inertial', '<inertial>/')
+        links[name] = _Link(name, _inertial(in_el, where) if in_el is not None else None,
+                            _visuals(e, base_dir, materials, name))
+    joints = []
+    for k, e in enumerate(root.findall('joint')):
+        name = e.get('name')
+        if not name:
+            raise UrdfError(f'<joint> number {k + 1}', 'needs a name attribute')
+        where = f'joint {name!r}'
+        if not e.get('type'):
+            raise UrdfError(where, 'needs a type attribute')
+        for end in ('parent', 'child'):
+            el = _one(e, end, where)
+            if el is None or not el.get('link'):
+                raise UrdfError(where, f'missing <{end} link="..."/>')
+        note_unknown(e, 'joint', '<joint>/')
+        joints.append(_joint(e, where))
+    if unknown:
+        notes.append('(document): ignored elements that are not URDF: ' +
+                     ', '.join(f'{t}' + (f' x{n}' if n > 1 else '') for t, n in unknown.items()))
+    return root.get('name') or default_name, links, joints
+
+
+# ------------------------------------------------------------------------------------------------
+# the robot: parsed links and joints -> checked LinkSpecs
+# ------------------------------------------------------------------------------------------------
+def read_urdf(source, floating: bool = False, locked: dict | None = None, file: str | None = None) -> UrdfRobot:
     """Read a URDF and check that it can be simulated.
 
     source: a file path or the URDF text; floating: give the root link a FREE (6-DOF) joint;
     locked: joint name -> position (rad or m) of joints to freeze as FIXED (e.g. gripper fingers,
-    or ``<mimic>`` joints). Returns a :class:`UrdfRobot`; raises :class:`UrdfError`.
+    or ``<mimic>`` joints); file: the name messages give the source (default: the path, or none
+    for text). Returns a :class:`UrdfRobot`; raises :class:`UrdfError` (one line); issues a
+    :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
     """
-    import yourdfpy
-    text, base_dir = _load(source)
-    try:  # strict XML first: yourdfpy's lxml parser silently recovers from broken files
-        xml_root = ET.fromstring(text)
-    except ET.ParseError as e:
-        raise UrdfError(f'URDF is not well-formed XML: {e}') from None
-    if xml_root.tag != 'robot':
-        raise UrdfError(f"URDF root element must be <robot>, got <{xml_root.tag}>")
-    for k, e in enumerate(xml_root.findall('joint')):  # what the parser would trip over without naming it
-        jn = e.get('name')
-        if not jn or not e.get('type'):
-            raise UrdfError(f'<joint> number {k + 1} ({jn!r}): needs a name and a type attribute')
-        for end in ('parent', 'child'):
-            el = e.find(end)
-            if el is None or not el.get('link'):
-                raise UrdfError(f'joint {jn!r}: missing <{end} link="..."/>')
-    for e in xml_root.findall('link'):
-        if not e.get('name'):
-            raise UrdfError('<link> without a name attribute')
+    data, base_dir, label = _load(source, file)
+    notes = []
     try:
-        urdf = yourdfpy.URDF.load(io.BytesIO(text.encode('utf-8')), build_scene_graph=False, load_meshes=False,
-                                  build_collision_scene_graph=False, load_collision_meshes=False)
-    except Exception as e:  # noqa: BLE001 - the parser raises assorted types; report its words
-        raise UrdfError(f'URDF parser (yourdfpy): {type(e).__name__}: {e}') from None
-    robot = urdf.robot
-    locked = dict(locked or {})
-    links = {lk.name: lk for lk in robot.links}
-    xml_links = {e.get('name'): e for e in xml_root.findall('link')}
+        robot = _read(data, base_dir, label, floating, dict(locked or {}), notes)
+    except UrdfError as e:
+        raise UrdfError(e.where, e.reason, label) from None
+    for n in notes:
+        warnings.warn(UrdfWarning(f'{label}: {n}' if label else n), stacklevel=2)
+    robot.notes = [f'{label}: {n}' if label else n for n in notes]
+    return robot
+
+
+def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
+    """:func:`read_urdf` without the file name in its errors and notes."""
+    xml_root = _parse_document(data, notes)
+    default_name = Path(label).stem if label else 'robot'
+    name, links, joint_list = _parse_robot(xml_root, base_dir, notes, default_name)
+    text = data.decode('utf-8', errors='replace') if isinstance(data, bytes) else data
     if not links:
-        raise UrdfError(f'robot {robot.name!r}: no <link>')
-    if len(xml_links) != len(xml_root.findall('link')):
-        raise UrdfError(f'robot {robot.name!r}: duplicate link names')
-    joints = {}
-    parent_of = {}
-    for j in robot.joints:
+        raise UrdfError(f'robot {name!r}', 'no <link> element: nothing to simulate')
+    joints, parent_of = {}, {}
+    for j in joint_list:
         if j.name in joints:
-            raise UrdfError(f'joint {j.name!r}: duplicate joint name')
+            raise UrdfError(f'joint {j.name!r}', 'duplicate joint name')
         joints[j.name] = j
         for end, what in ((j.parent, 'parent'), (j.child, 'child')):
             if end not in links:
-                raise UrdfError(f'joint {j.name!r}: {what} link {end!r} is not a <link> of the robot')
+                raise UrdfError(f'joint {j.name!r}', f'{what} link {end!r} is not a <link> of the robot')
         if j.child in parent_of:
-            raise UrdfError(f'link {j.child!r}: has two parents (joints {parent_of[j.child].name!r} and {j.name!r}); '
-                            'a URDF must be a tree (closed loops are not supported)')
+            raise UrdfError(f'link {j.child!r}', f'has two parents (joints {parent_of[j.child].name!r} and '
+                                                 f'{j.name!r}); a URDF must be a tree (closed loops are not supported)')
         parent_of[j.child] = j
-    for name in locked:
-        if name not in joints:
-            raise UrdfError(f'locked joint {name!r}: no such joint; joints are {sorted(joints)}')
+    for jn in locked:
+        if jn not in joints:
+            raise UrdfError(f'locked joint {jn!r}', f'no such joint; joints are {sorted(joints)}')
     roots = [n for n in links if n not in parent_of]
     if len(roots) != 1:
         if not roots:
-            raise UrdfError(f'robot {robot.name!r}: every link has a parent, so the joints form a loop')
-        raise UrdfError(f'robot {robot.name!r}: {len(roots)} root links {roots}; the links must form one tree')
+            raise UrdfError(f'robot {name!r}', 'every link has a parent, so the joints form a loop')
+        shown = roots if len(roots) <= 6 else roots[:6] + ['...']
+        raise UrdfError(f'robot {name!r}', f'{len(roots)} root links {shown}; the links must form one tree')
     root = roots[0]
     for n in links:  # a loop among non-root links leaves them unreachable from the root
         seen, k = [n], n
         while k in parent_of:
             k = parent_of[k].parent
             if k in seen:
-                raise UrdfError(f'link {n!r}: the joints form a loop {" <- ".join(seen + [k])}')
+                raise UrdfError(f'link {n!r}', f'the joints form a loop {" <- ".join(seen + [k])}')
             seen.append(k)
     children = {n: [] for n in links}
-    for j in robot.joints:
+    for j in joint_list:
         children[j.parent].append(j.child)
     # a 'world' link with one floating joint to the base: floating base written in the URDF
     free_joint = 'root_joint'  # Pinocchio's name for the free-flyer joint it adds
     if len(children[root]) == 1 and parent_of[children[root][0]].type == 'floating' and \
-            _float(getattr(links[root].inertial, 'mass', 0.0), f'link {root!r}: <mass>') == 0.0:
+            (links[root].inertial is None or links[root].inertial[0] == 0.0):
         floating, root = True, children[root][0]
         free_joint = parent_of.pop(root).name
-    specs = []
-    no_inertial = {n for n, lk in links.items() if lk.inertial is None}
-    for name in _depth_first(root, children):
-        lk = links[name]
-        if name == root:
+    specs, no_inertial, no_effort = [], {n for n, lk in links.items() if lk.inertial is None}, []
+    for lname in _depth_first(root, children):
+        lk = links[lname]
+        if lname == root:
             if floating:
-                specs.append(_spec(lk, None, 'free', free_joint, xml_links, base_dir))
+                specs.append(_spec(lk, None, 'free', free_joint, no_effort))
             continue
-        j = parent_of[name]
-        jt = j.type
+        j = parent_of[lname]
         where = f'joint {j.name!r}'
-        if jt == 'floating':
-            raise UrdfError(f'{where}: a floating joint is only supported from the root link '
-                            f'(here it attaches link {name!r} to {j.parent!r})')
-        if jt == 'planar':
-            raise UrdfError(f'{where}: planar joints are not supported (no 3-DOF planar joint in the model); '
-                            'write it as two prismatic joints and one revolute joint')
-        if jt not in _MOVING and jt != 'fixed':
-            raise UrdfError(f'{where}: unknown joint type {jt!r}; supported: revolute, continuous, prismatic, '
-                            'fixed, floating (root only)')
-        if j.mimic is not None and j.name not in locked:
-            raise UrdfError(f'{where}: <mimic joint="{j.mimic.joint}"> is not supported (a coupled DOF); '
-                            f'lock the joint instead (locked: {{{j.name}: 0.0}}) or remove the <mimic>')
-        s = _spec(lk, j, 'fixed' if jt == 'fixed' else _MOVING[jt], j.name, xml_links, base_dir)
-        if j.name in locked and jt != 'fixed':
-            s = _lock(s, j, _float(locked[j.name], f'locked joint {j.name!r}'))
+        if j.type == 'floating':
+            raise UrdfError(where, 'a floating joint is only supported from the root link '
+                                   f'(here it attaches link {lname!r} to {j.parent!r})')
+        if j.type == 'planar':
+            raise UrdfError(where, 'planar joints are not supported (no 3-DOF planar joint in the model); '
+                                   'write it as two prismatic joints and one revolute joint')
+        if j.type not in _JOINT_TYPES:
+            raise UrdfError(where, f'unknown joint type {j.type!r}; supported: revolute, continuous, prismatic, '
+                                   'fixed, floating (root only)')
+        s = _spec(lk, j, 'fixed' if j.type == 'fixed' else _MOVING[j.type], j.name, no_effort)
+        if j.name in locked and j.type != 'fixed':
+            s = _lock(s, j.name, locked[j.name])
+        elif j.mimic is not None and j.type != 'fixed':
+            src = joints.get(j.mimic[0])
+            if src is not None and src.type in _MOVING:
+                s = replace(s, mimic=j.mimic)
+            else:  # urdfdom and Pinocchio read such a joint as an independent one; so do we, with a note
+                what = 'is not a joint of the robot' if src is None else f'is a {src.type} joint'
+                notes.append(f'joint {j.name!r}: <mimic joint="{j.mimic[0]}"> ignored: {j.mimic[0]!r} {what}; '
+                             'the joint moves on its own')
         specs.append(s)
+    specs = _lock_followers(specs, locked, notes)
+    if no_effort:
+        notes.append(f'<limit effort="0"> read as "no effort limit given" (the ROS convention) on '
+                     f'{len(no_effort)} joint{"s" if len(no_effort) > 1 else ""}: {", ".join(no_effort)}')
+    for s in specs:  # before lumping: a negative mass is refused wherever it is
+        if s.mass < 0.0:
+            raise UrdfError(f'link {s.name!r} (joint {s.joint!r})', f'mass must be >= 0, got {s.mass!r}')
     specs = _lump_welded(specs)
-    try:  # the model's own checks (inertia, axes, ...) with the link and joint named
-        build_model(specs, root='__urdf_world__' if floating else root, name=robot.name)
+    specs = [_settle_inertia(s, notes) for s in specs]
+    try:  # the model's own checks (axes, origins, ...) with the link and joint named
+        build_model(specs, root='__urdf_world__' if floating else root, name=name)
     except ModelError as e:
-        raise UrdfError(str(e)) from None
-    _check_masses(specs, no_inertial)
-    vel = {j.name: _float(j.limit.velocity, f'joint {j.name!r}: <limit velocity>')
-           for j in robot.joints if j.limit is not None and j.limit.velocity is not None and j.type in _MOVING}
-    return UrdfRobot(name=robot.name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
+        where, _, reason = str(e).partition(': ')
+        raise UrdfError(where, reason) if reason else UrdfError(f'robot {name!r}', str(e)) from None
+    _check_masses(specs, no_inertial, resolve_mimics(specs))
+    vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
+    return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
 
 
 def _physical(s: LinkSpec) -> bool:
@@ -267,7 +555,7 @@ def _lump_welded(specs):
     for h in bad:
         members = [s for s in specs if head[s.name] == h]
         if h is not None and len(members) < 2:
-            continue  # a lone body: build_model refuses it with its own words
+            continue  # a lone body: judged by _settle_inertia
         zero = dict(mass=0.0, com=(0.0, 0.0, 0.0), inertia=np.zeros((3, 3)))
         for s in members:
             if h is not None or not _physical(s):
@@ -281,6 +569,35 @@ def _lump_welded(specs):
     return out
 
 
+def _settle_inertia(s: LinkSpec, notes) -> LinkSpec:
+    """The spec with an inertia breaking the triangle inequality accepted (positive definite: as
+    given) or balanced (singular: MuJoCo's ``balanceinertia``, every principal moment set to their
+    mean), with a note naming the link and the violation; other inertias unchanged (a negative
+    moment or mass is left to build_model's refusal)."""
+    Ic = np.asarray(s.inertia, dtype=float)
+    if s.mass < 0.0 or not np.all(np.isfinite(Ic)) or _physical(s):
+        return s
+    ev = np.linalg.eigvalsh(0.5 * (Ic + Ic.T))
+    tol = INERTIA_TOL * max(ev[2], 1e-300)
+    if ev[0] < -tol or ev[0] + ev[1] >= ev[2] - tol:
+        return s  # not positive semi-definite, or not a triangle defect: build_model says why
+    where = f'link {s.name!r} (joint {s.joint!r})'
+    what = (f'principal moments {_g(ev[0])}, {_g(ev[1])}, {_g(ev[2])} kg·m² break the triangle inequality '
+            f'(I1 + I2 = {_g(ev[0] + ev[1])} < I3; {100 * (ev[2] - ev[0] - ev[1]) / ev[2]:.2g} % of I3)')
+    if ev[0] > tol:
+        notes.append(f'{where}: {what}: accepted as given (positive definite, so the dynamics is well posed, '
+                     'but no mass distribution has these moments)')
+        return replace(s, inertia_as_given=True)
+    mean = ev.sum() / 3.0
+    notes.append(f'{where}: {what} and the smallest is zero: balanced as MuJoCo\'s balanceinertia does '
+                 f'(all three moments set to their mean {_g(mean)} kg·m²)')
+    return replace(s, inertia=np.eye(3) * mean)
+
+
+def _g(x) -> str:
+    return f'{float(x):.4g}'
+
+
 def _depth_first(root, children):
     out, stack = [], [root]
     while stack:
@@ -290,63 +607,76 @@ def _depth_first(root, children):
     return out
 
 
-def _spec(lk, j, jtype, jname, xml_links, base_dir) -> LinkSpec:
-    """LinkSpec of URDF link ``lk`` hanging from joint ``j`` (None for the root)."""
-    where = f'link {lk.name!r}'
-    mass, com, Ic = 0.0, np.zeros(3), np.zeros((3, 3))
-    if lk.inertial is not None:
-        mass = _float(lk.inertial.mass, f'{where}: <mass>')
-        T = lk.inertial.origin if lk.inertial.origin is not None else np.eye(4)
-        Ic0 = np.asarray(lk.inertial.inertia if lk.inertial.inertia is not None else np.zeros((3, 3)), dtype=float)
-        if not np.all(np.isfinite(Ic0)) or not np.all(np.isfinite(T)):
-            raise UrdfError(f'{where}: <inertial> has non-finite values')
-        R = np.asarray(T[:3, :3], dtype=float)
-        com, Ic = np.asarray(T[:3, 3], dtype=float), R @ Ic0 @ R.T
-        Ic = 0.5 * (Ic + Ic.T)
+def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
+    """LinkSpec of link ``lk`` hanging from joint ``j`` (None for the root); joints whose
+    ``<limit effort="0">`` is read as no limit are appended to no_effort."""
+    mass, com, Ic = lk.inertial if lk.inertial is not None else (0.0, np.zeros(3), np.zeros((3, 3)))
     kw = dict(name=lk.name, joint=jname, parent=None, joint_type=jtype, mass=mass, com=tuple(com), inertia=Ic,
-              visuals=_visuals(xml_links[lk.name], base_dir))
-    if j is not None:
-        jw = f'joint {j.name!r}'
-        T = np.asarray(j.origin, dtype=float) if j.origin is not None else np.eye(4)
-        kw.update(parent=j.parent, origin_xyz=tuple(T[:3, 3]), origin_R=T[:3, :3].copy(),
-                  origin_rpy=tuple(R_to_rpy(T[:3, :3])))
-        if jtype != 'fixed':
-            kw['axis'] = tuple(np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=float))
-            if j.dynamics is not None:
-                kw['damping'] = _float(j.dynamics.damping, f'{jw}: <dynamics damping>')
-                kw['friction'] = _float(j.dynamics.friction, f'{jw}: <dynamics friction>')
-                for k in ('damping', 'friction'):
-                    if kw[k] < 0.0:
-                        raise UrdfError(f'{jw}: <dynamics {k}> must be >= 0, got {kw[k]!r}')
-            lim = j.limit
-            if lim is not None:
-                if lim.effort is not None:
-                    eff = _float(lim.effort, f'{jw}: <limit effort>')
-                    if eff <= 0.0:
-                        raise UrdfError(f'{jw}: <limit effort> must be > 0, got {eff!r} '
-                                        '(a joint that can exert no effort: make it passive instead)')
-                    kw['effort_limit'] = eff
-                if lim.velocity is not None:  # reported only; <= 0 (written by some exporters) = none
-                    vel = _float(lim.velocity, f'{jw}: <limit velocity>')
-                    if vel > 0.0:
-                        kw['velocity_limit'] = vel
-                if j.type != 'continuous' and (lim.lower is not None or lim.upper is not None):
-                    lo = _float(lim.lower, f'{jw}: <limit lower>')
-                    hi = _float(lim.upper, f'{jw}: <limit upper>')
-                    if lo < hi:  # URDF: lower == upper means "no limits given" for some exporters
-                        kw['limits'] = (lo, hi)
-                    elif lo > hi:
-                        raise UrdfError(f'{jw}: <limit lower="{lo}"> is above upper="{hi}"')
+              visuals=lk.visuals)
+    if j is None:
+        return LinkSpec(**kw)
+    jw = f'joint {j.name!r}'
+    kw.update(parent=j.parent, origin_xyz=tuple(j.T[:3, 3]), origin_R=j.T[:3, :3].copy(),
+              origin_rpy=tuple(R_to_rpy(j.T[:3, :3])))
+    if jtype == 'fixed':
+        return LinkSpec(**kw)
+    kw.update(axis=tuple(float(x) for x in j.axis), damping=j.damping, friction=j.friction)
+    for k in ('damping', 'friction'):
+        if kw[k] < 0.0:
+            raise UrdfError(jw, f'<dynamics {k}> must be >= 0, got {kw[k]!r}')
+    if j.effort is not None:
+        if j.effort < 0.0:
+            raise UrdfError(jw, f'<limit effort> must be >= 0 (0: no limit given), got {j.effort!r}')
+        if j.effort == 0.0:
+            no_effort.append(j.name)
+        else:
+            kw['effort_limit'] = j.effort
+    if j.velocity is not None and j.velocity > 0.0:  # reported only; <= 0 (written by some exporters) = none
+        kw['velocity_limit'] = j.velocity
+    if j.type != 'continuous' and (j.lower is not None or j.upper is not None):
+        lo, hi = j.lower or 0.0, j.upper or 0.0
+        if lo < hi:  # URDF: lower == upper means "no limits given" for some exporters
+            kw['limits'] = (lo, hi)
+        elif lo > hi:
+            raise UrdfError(jw, f'<limit lower="{lo}"> is above upper="{hi}"')
     return LinkSpec(**kw)
 
 
-def _lock(s: LinkSpec, j, q: float) -> LinkSpec:
+def _lock_followers(specs, locked, notes):
+    """Specs with every joint that mimics a locked joint (directly or through other mimics) locked
+    too, at ``multiplier · q_locked + offset``, with a note."""
+    at = {k: float(v) for k, v in locked.items()}
+    specs, changed = list(specs), True
+    while changed:
+        changed = False
+        for k, s in enumerate(specs):
+            if s.mimic is not None and s.mimic[0] in at:
+                src, m, o = s.mimic
+                at[s.joint] = m * at[src] + o
+                specs[k] = _lock(replace(s, mimic=None), s.joint, at[s.joint])
+                notes.append(f'joint {s.joint!r}: mimics locked joint {src!r}, so it is locked too, at '
+                             f'{at[s.joint]:.6g}')
+                changed = True
+    return specs
+
+
+def _lock(s: LinkSpec, name: str, q) -> LinkSpec:
     """The joint frozen as FIXED at position q: its motion folded into the origin."""
+    where = f'locked joint {name!r}'
+    try:
+        q = float(q)
+    except (TypeError, ValueError):
+        raise UrdfError(where, f'expected a number, got {q!r}') from None
+    if not np.isfinite(q):
+        raise UrdfError(where, f'expected a finite number, got {q!r}')
     if s.limits is not None and not s.limits[0] <= q <= s.limits[1]:
-        raise UrdfError(f'locked joint {j.name!r}: position {q!r} is outside its limits {list(s.limits)}')
+        raise UrdfError(where, f'position {q!r} is outside its limits {list(s.limits)}')
     R0 = np.asarray(s.origin_R, dtype=float)
     a = np.asarray(s.axis, dtype=float)
-    a = a / np.linalg.norm(a)
+    na = np.linalg.norm(a)
+    if not na > 1e-9:
+        raise UrdfError(f'joint {name!r}', f'axis must be a non-zero 3-vector, got {list(a)}')
+    a = a / na
     if s.joint_type == 'revolute':
         R, p = R0 @ rot_axis(a, q), np.asarray(s.origin_xyz)
     else:
@@ -355,8 +685,10 @@ def _lock(s: LinkSpec, j, q: float) -> LinkSpec:
                    damping=0.0, friction=0.0, effort_limit=None, limits=None, velocity_limit=None)
 
 
-def _check_masses(specs, no_inertial):
-    """Refuse a moving joint whose subtree (the link and everything below it) has no mass."""
+def _check_masses(specs, no_inertial, mimics):
+    """Refuse a moving joint whose subtree (the link and everything below it) has no mass, nor
+    the subtree of any joint that mimics it (mimics: :func:`robodyn_ros.model.resolve_mimics`;
+    a mimic joint moves with its source, which is the one that needs something to accelerate)."""
     sub = {s.name: s.mass for s in specs}
     by_parent = {}
     for s in specs:
@@ -364,14 +696,20 @@ def _check_masses(specs, no_inertial):
     for s in reversed(specs):  # depth-first order: children after their parent
         for c in by_parent.get(s.name, []):
             sub[s.name] += sub[c.name]
+    followers = {}
     for s in specs:
-        if s.joint_type == 'fixed' or sub[s.name] > 0.0:
+        if s.joint in mimics:
+            followers.setdefault(mimics[s.joint][0], []).append(s.name)
+    for s in specs:
+        if s.joint_type == 'fixed' or s.joint in mimics or sub[s.name] > 0.0 or \
+                any(sub[f] > 0.0 for f in followers.get(s.joint, [])):
             continue
         leaf = not by_parent.get(s.name)
+        where = f'link {s.name!r} (joint {s.joint!r})'
+        rest = f'{" at a leaf" if leaf else " whose subtree has no mass either"}' + \
+            (' (nor have those of the joints that mimic it)' if s.joint in followers else '') + \
+            '; its joint would have no inertia to accelerate'
         if s.name in no_inertial:
-            raise UrdfError(f'link {s.name!r} (joint {s.joint!r}): missing <inertial> on a moving link'
-                            f'{" at a leaf" if leaf else " whose subtree has no mass either"}; its joint would have '
-                            'no inertia to accelerate (give it an <inertial> or make the joint fixed)')
-        raise UrdfError(f'link {s.name!r} (joint {s.joint!r}): zero-mass moving link'
-                        f'{" at a leaf" if leaf else " whose subtree has no mass either"}; its joint would have '
-                        'no inertia to accelerate (give it a mass or make the joint fixed)')
+            raise UrdfError(where, f'missing <inertial> on a moving link{rest} (give it an <inertial> or make the '
+                                   'joint fixed)')
+        raise UrdfError(where, f'zero-mass moving link{rest} (give it a mass or make the joint fixed)')

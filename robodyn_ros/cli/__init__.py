@@ -30,10 +30,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Print a warning as one line ``robodyn: warning: <message>`` (the default filter prints each once)."""
+    print(f'robodyn: warning: {message}', file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``robodyn`` console script; returns the exit status."""
+    import warnings
     args = build_parser().parse_args(argv)
-    return int(args._main(args) or 0)
+    shown, warnings.showwarning = warnings.showwarning, _show_warning
+    try:
+        return int(args._main(args) or 0)
+    finally:
+        warnings.showwarning = shown
 
 
 if __name__ == '__main__':

@@ -187,15 +187,29 @@ class CompiledModel:
         from ..model import limit_table
         self.lim = limit_table(model)   # joint-limit moments (Huston eq. 20.2.1), 0 rows = none
         self._zf = np.zeros((self.nb, 6))
+        from ..model import mimic_table
+        self.mimic = mimic_table(model)  # joints following others (URDF <mimic>): the coupled dynamics
+        self.coupled = None
+        self.cpl = None   # the fused loop's coupling argument: (mimic table, col, mul) of a coupled tree
+        if self.mimic.shape[0]:
+            from . import coupled
+            self.coupled = coupled
+            self.col, self.mul, self.nr = coupled.coupling(self.mimic, self.nv)
+            self.cpl = (self.mimic, self.col, self.mul)
         self.gen = None
-        if specialize:
+        if specialize and self.coupled is None:   # a coupled tree stays on the generic kernels
             from . import codegen
             self.gen = codegen.specialize(model)
 
     def aba(self, q, v, tau, f_ext=None):
-        """Forward dynamics ``qdd`` (nv,) by the articulated-body algorithm."""
+        """Forward dynamics ``qdd`` (nv,) by the articulated-body algorithm (a tree with mimic joints:
+        the coupled dynamics of :mod:`robodyn_ros.kernels.coupled`; external forces not supported there)."""
         qdd = np.empty(self.nv)
-        if f_ext is None:
+        if self.coupled is not None:
+            if f_ext is not None:
+                raise NotImplementedError('external forces on a tree with mimic joints')
+            self.coupled.coupled_fd_into(self.mi_r, self.mf_r, self.col, self.mul, self.nr, q, v, tau, qdd)
+        elif f_ext is None:
             if self.gen is not None:
                 self.gen.aba(q, v, tau, qdd)
             else:
@@ -224,9 +238,26 @@ class CompiledModel:
         return H
 
     def joint_wrenches(self, q, v, tau, f_ext=None):
-        """``(qdd (nv,), f (nb, 6))`` under applied forces tau (see ``dynamics.joint_wrenches``)."""
+        """``(qdd (nv,), f (nb, 6))`` under applied forces tau (see ``dynamics.joint_wrenches``); a
+        tree with mimic joints: at its coupled accelerations (:meth:`coupled_wrenches`)."""
+        if self.coupled is not None:
+            return self.coupled_wrenches(q, v, tau, f_ext)[:2]
         fe, has = (self._zf, False) if f_ext is None else (np.ascontiguousarray(f_ext, dtype=float), True)
         return tree.joint_wrenches(self.mi, self.mf, q, v, tau, fe, has)
+
+    def coupled_wrenches(self, q, v, tau, f_ext=None):
+        """``(qdd (nv,), f (nb, 6), λ (nv,))`` of a tree with mimic joints (``coupled.coupled_wrenches``):
+        λ is the coupling's generalised force, the effort a following joint transmits."""
+        if f_ext is not None:
+            raise NotImplementedError('external forces on a tree with mimic joints')
+        return self.coupled.coupled_wrenches(self.mi, self.mf, self.col, self.mul, self.nr,
+                                             np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+                                             np.ascontiguousarray(tau, dtype=float))
+
+    def couple(self, q, v):
+        """Set the following joints of q and v in place from their sources (``coupled.couple_into``)."""
+        if self.coupled is not None:
+            self.coupled.couple_into(self.mimic, q, v)
 
     def energies(self, q, v):
         """``(kinetic, potential)`` energy (J)."""
@@ -274,7 +305,7 @@ class CompiledModel:
         """
         run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
-                   z, float(dt), int(n_full), float(h_last))
+                   z, float(dt), int(n_full), float(h_last), self.cpl)
 
 
 class CompiledSystem:

@@ -15,6 +15,7 @@ from numba import njit
 
 from .fixed_step import M_RK4, M_SEMI_IMPLICIT_EULER
 from .profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval
+from .coupled import couple_into, coupled_fd_ws
 from .tree import (_JIT, aba_ws, joint_wrenches, limit_forces_add, normalize_into, qdot_into, rnea_into, transforms,
                    workspace)
 
@@ -52,12 +53,14 @@ def arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv):
 
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
+def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
     """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``;
     for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
 
     tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
-    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch.
+    (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch; cpl: None, or ``(mimic table,
+    col, mul)`` of a tree with mimic joints (:mod:`.coupled`), whose v̇ is then the coupled
+    dynamics (:func:`.coupled.coupled_fd_ws`, scratch cs) instead of ABA.
     (ArmSystem.rhs, .input_power and .limit_power of the reference path.)
     """
     q = z[:nq]
@@ -65,22 +68,36 @@ def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W):
     qdot_into(mi, q, v, dz[:nq])
     P = arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
     transforms(mi, mf, q, W)
-    aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
+    if cpl is not None:   # a None argument prunes this branch at compile time: no coupled code for other trees
+        coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
+    else:
+        aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
     dz[nq + nv] = P
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last):
+def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl):
     """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
     ``n_full`` steps of dt and one of h_last (if > 0).
 
     method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
     :mod:`robodyn_ros.integrators` (RK4: ``acc = k1 + 2 k2 + 2 k3 + k4`` folded stage by
     stage, ``y += h/6 acc``; symplectic Euler: ``[v, W] += h f[nq:]``, then ``q += h q̇(q,
-    v_new)``); free-joint quaternions are renormalised after every step, as the Simulator's
-    projection does. Returns the index of the first step whose result is non-finite (z then
-    holds that result), or -1.
+    v_new)``); free-joint quaternions are renormalised and mimic joints set from their sources
+    (cpl: None, or see :func:`arm_rhs`) after every step, as the Simulator's projection does.
+    Returns the index of the first step whose result is non-finite (z then holds that result), or -1.
     """
+    if cpl is None:
+        return arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None)
+    nv = damping.shape[0]
+    nr = nv - cpl[0].shape[0]
+    cs = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nr, nr)), np.zeros((nr, nr)), np.zeros(nr), np.zeros(nr))
+    return arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs)
+
+
+@njit(**_JIT)
+def arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs):
+    """The steps of :func:`integrate_arm` (cs: the coupled dynamics' scratch, None with cpl)."""
     nb = mi.shape[0]
     n = z.shape[0]
     nv = damping.shape[0]
@@ -96,34 +113,36 @@ def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_la
         h = dt if k < n_full else h_last
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W)
+            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
             for a in range(n):
                 z[a] += K[a] * h
         normalize_into(mi, z[:nq])
+        if cpl is not None:
+            couple_into(cpl[0], z[:nq], z[nq:nq + nv])
         for a in range(n):
             if not math.isfinite(z[a]):
                 return k
@@ -172,7 +191,8 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
             for i in range(nu):
                 acc += B[r, i] * u[i]
             tau_app[r] = acc
-        if integrate_arm(mi_r, mf_r, damping, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k]) >= 0:
+        # (the block path declines trees with mimic joints: ArmSystem.fused_periods)
+        if integrate_arm(mi_r, mf_r, damping, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k], None) >= 0:
             return k, 2
         for a in range(n):
             Zs[k, a] = z[a]

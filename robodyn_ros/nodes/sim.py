@@ -31,6 +31,7 @@ import os
 import signal
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -574,6 +575,10 @@ def main(args=None) -> int:
 
     from ..scene import SceneError
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    # warnings (a URDF read leniently, a marginal step) as one log line each; the default filter
+    # prints each once
+    from rclpy.logging import get_logger
+    warnings.showwarning = lambda message, *a, **k: get_logger(NODE_NAME).warning(str(message))
     stop = _Stop()
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model import ModelError
-from ..validation import SceneContext, typename
+from ..validation import SceneContext, SceneError, typename
 from ..validation import key_path as _key
 from .arm import _LIMIT_KEYS, _actuated, _limit_law, build_arm_part
 from .part import Part
@@ -65,14 +65,23 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     if not isinstance(given, dict):
         ctx.fail(lpath, f'expected a mapping joint: position, got {typename(given)} {given!r}')
     locked = {k: ctx.number(v, _key(lpath, k)) for k, v in given.items()}
+    alone = isinstance(src, Path) and Path(ctx.file).resolve() == src.resolve()  # the scene is this URDF alone
     try:
-        robot = read_urdf(src, floating=floating, locked=locked)
+        robot = read_urdf(src, floating=floating, locked=locked, file=ctx.file if alone else None)
     except UrdfError as e:
-        m = re.match(r"locked joint '([^']+)'", str(e))
-        ctx.fail(_key(lpath, m.group(1)) if m else where, str(e))
+        m = re.match(r"locked joint '([^']+)'", e.where)
+        if m:
+            ctx.fail(_key(lpath, m.group(1)), e.reason)
+        if alone:  # its errors are the URDF's: '<file>: <link/joint>: <reason>'
+            raise SceneError(str(e)) from None
+        ctx.fail(where, str(e))
     specs = robot.specs
     if floating and (mount != 'world' or 'origin' in spec):
         ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')
+    if any(s.mimic is not None for s in specs) and (floating or mount != 'world'):
+        j = next(s.joint for s in specs if s.mimic is not None)
+        ctx.fail(where, f"joint {j!r}: <mimic> joints are supported for a URDF mounted on the world only (lock them "
+                        "with locked: {joint: position}, or use mount: world)")
     if any(s.friction > 0.0 for s in specs) and (floating or mount != 'world'):
         j = next(s.joint for s in specs if s.friction > 0.0)
         ctx.fail(where, f"joint {j!r}: Coulomb <dynamics friction> is supported for a URDF mounted on the world "

@@ -12,6 +12,16 @@ spherical joint, ``<joint>_x``, ``<joint>_y``, ``<joint>_z``: position = the Bry
 joints the URDF export writes for it, so TF and Foxglove agree — velocity = the components of the
 joint's angular velocity in the child frame (not the Bryan-angle rates, which are singular at
 β = ±90°), effort = the commanded torque components about the child axes.
+
+Mimic joints (URDF ``<mimic>``, ``LinkSpec.mimic``): a following joint keeps its place in the
+state and in ``joint_states`` but moves with its source, ``q_j = m q_i + o`` (set after every
+step, :meth:`ArmSystem.project`); the dynamics is reduced to the independent joints in the
+compiled kernels (:mod:`robodyn_ros.kernels.coupled`; not on the numpy backend, and the
+generated backend keeps such a tree on the generic kernels). A following joint takes no effort
+command; its ``joint_states`` effort is the generalised force the coupling applies to it (λ,
+what a linkage or gear train transmits: the torque a sensor on that joint would read), since it
+has no actuator of its own. Its constraint wrench is published like any joint's: RNEA's joint
+wrench at the coupled accelerations.
 """
 from __future__ import annotations
 
@@ -59,8 +69,9 @@ class ArmSystem(System):
         if backend != 'numpy' and not kernels.AVAILABLE:
             raise ValueError(f'backend {backend} unavailable (no numba): {kernels.UNAVAILABLE_REASON}')
         lim = limit_table(model)
-        if backend == 'numpy' and (model.has_spherical or lim.shape[0]):
-            what = 'spherical joints are' if model.has_spherical else 'joint-limit moments are'
+        if backend == 'numpy' and (model.has_spherical or lim.shape[0] or model.has_mimic):
+            what = 'spherical joints are' if model.has_spherical else 'joint-limit moments are' if lim.shape[0] \
+                else 'mimic joints (the coupled dynamics) are'
             raise ValueError(f'{model.name}: {what} computed by the compiled kernels only; '
                              "backend 'numpy' cannot simulate this model (use 'numba' or 'generated')")
         self._lim = lim
@@ -73,7 +84,13 @@ class ArmSystem(System):
         self.nq, self.nv = model.nq, model.nv
         self.ny = self.nq + self.nv
         self.joint_names = model.state_joint_names
-        self.actuated, self.B, port = effort_actuation(model, self.joint_names, actuated)  # tau = B u
+        # mimic joints (URDF <mimic>) follow their source: no effort command of their own
+        self._coupled = self._km is not None and self._km.coupled is not None
+        followers = set(model.mimic_joint_names)
+        self.actuated, self.B, port = effort_actuation(model, [n for n in self.joint_names if n not in followers],
+                                                       actuated, what='joints that take an effort (mimic joints '
+                                                       'follow their source)' if followers else 'joints')  # tau = B u
+        self._mimic_v = np.array([model.state_index(n)[1] for n in model.mimic_joint_names], dtype=int)
         self.inputs = {'effort': port}
         self._B = np.ascontiguousarray(self.B, dtype=np.float64)
         self._B_is_selection = _is_selection(self.B)   # fused_periods' condition
@@ -113,6 +130,8 @@ class ArmSystem(System):
         y[:self.nq] = self.model.neutral() if q0 is None else q0
         if v0 is not None:
             y[self.nq:] = v0
+        if self._coupled:  # mimic joints follow their sources
+            self._km.couple(y[:self.nq], y[self.nq:])
         return y
 
     def config_rate(self, q, w):
@@ -122,10 +141,13 @@ class ArmSystem(System):
         return dyn.qdot(self.model, q, w[:self.nv])
 
     def project(self, y):
-        """Renormalise free- and spherical-joint quaternions (a no-op for a 1-DOF fixed-base arm)."""
+        """Renormalise free- and spherical-joint quaternions and set mimic joints from their sources
+        (a no-op for a 1-DOF fixed-base arm without mimic joints)."""
         if self.nq != self.nv:
             y[:self.nq] = self._km.normalize(y[:self.nq]) if self._km is not None else \
                 dyn.normalize_configuration(self.model, y[:self.nq])
+        if self._coupled:
+            self._km.couple(y[:self.nq], y[self.nq:self.nq + self.nv])
         return y
 
     def generalized_forces(self, y, u):
@@ -262,13 +284,14 @@ class ArmSystem(System):
         W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
         the periods; u (n,): the command held before the first period (updated in place).
         Declines where :meth:`fused_advance` does, for joint_states that are not ``(q, v)`` as
-        they are (spherical joints, a free root), for input matrices that are not 0/1 selections,
+        they are (spherical joints, a free root), for mimic joints (their efforts are the coupling's
+        forces, computed per period), for input matrices that are not 0/1 selections,
         and where :meth:`outputs` (or what it calls for joint states and wrenches) is not
         ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps)``: see
         ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's end, Fs None
         without wrenches, steps (K,) per period.
         """
-        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection \
+        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection or self._coupled \
                 or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         from ..kernels import arm as karm
@@ -313,6 +336,12 @@ class ArmSystem(System):
         q, v = self.split(y)
         tau_cmd = self.B @ u['effort']
         w = {}
+        if self._coupled:  # a mimic joint's effort: what the coupling transmits to it (λ, kernels.coupled)
+            _, f, lam = self._km.coupled_wrenches(q, v, self.generalized_forces(y, u))
+            tau_cmd[self._mimic_v] = lam[self._mimic_v]
+            if wrenches:
+                w = {self.model.joint_names[i]: (self.model.link_names[i], f[i].copy()) for i in range(self.model.nb)}
+            return self._outputs(q.copy(), v.copy(), tau_cmd, w)
         if wrenches:
             if self._km is not None:   # computed when read, or for many publications at once by a recorder
                 q1, v1 = q.copy(), v.copy()

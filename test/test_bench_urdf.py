@@ -1,0 +1,99 @@
+"""``robodyn bench urdf``: the example-robot-data table (docs/urdf_robots.md) parsed: one row per
+installed URDF, counts in its summary equal to its rows, a reason on every refusal, DOF equal to
+Pinocchio's; and the script itself on a few robots."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pinocchio as pin
+
+from robodyn_ros.bench import urdf as bench_urdf
+from robodyn_ros.urdf import example_robot_data_dir
+
+DOC = Path(__file__).resolve().parent.parent / 'docs' / 'urdf_robots.md'
+ROW = re.compile(r'^\| ([^|]+) \| `([^`]+)` \| (\d+|—) \| (runs|refused|failed|timeout) \| (.*) \|$')
+
+
+def parse(text: str):
+    """``(summary counts {'runs': n, 'total': n, cause words: n}, rows [(robot, file, dof, verdict, text)])``."""
+    m = re.search(r'\*\*(\d+) of (\d+) run\.\*\* Refused: (.*?)\.(?: Failed or timed out: (\d+)\.)?\n', text)
+    assert m, 'summary line missing'
+    counts = {'runs': int(m.group(1)), 'total': int(m.group(2)), 'failed': int(m.group(4) or 0)}
+    for part in m.group(3).split(', '):
+        if part != 'none':
+            n, words = part.split(' ', 1)
+            counts[words] = int(n)
+    rows = []
+    for line in text.splitlines():
+        r = ROW.match(line)
+        if r:
+            rows.append((r.group(1), r.group(2), None if r.group(3) == '—' else int(r.group(3)), r.group(4),
+                         r.group(5)))
+    return counts, rows
+
+
+def _consistent(counts, rows):
+    assert counts['total'] == len(rows)
+    assert counts['runs'] == sum(r[3] == 'runs' for r in rows)
+    assert counts['failed'] == sum(r[3] in ('failed', 'timeout') for r in rows)
+    refused = [r for r in rows if r[3] == 'refused']
+    by_words = {words: key for key, words, _ in bench_urdf.CAUSES}
+    assert sum(n for w, n in counts.items() if w in by_words) == len(refused)
+    for r in refused:
+        assert r[4].strip(), r
+    stiff = [r for r in refused if r[4].startswith('stiff at the default step')]
+    assert counts.get(bench_urdf.CAUSES[0][1], 0) == len(stiff)
+
+
+def test_the_committed_table_has_every_installed_urdf_and_consistent_counts():
+    counts, rows = parse(DOC.read_text())
+    installed = {rel for rel, _ in bench_urdf.urdf_files()}
+    assert {r[1] for r in rows} == installed and len(rows) == len(installed) == 69
+    _consistent(counts, rows)
+    assert counts["runs"] >= 45  # before the implicit integrator: 21 are refused as stiff at 1 ms
+
+
+def test_the_table_dof_equals_pinocchio_nv():
+    """DOF of every robot the table lists with one, against Pinocchio's model of the same file (a
+    URDF ``floating`` joint is a free flyer there too: 6 DOF)."""
+    _, rows = parse(DOC.read_text())
+    d = example_robot_data_dir()
+    checked = 0
+    for robot, rel, dof, verdict, _ in rows:
+        if dof is not None:
+            assert dof == pin.buildModelFromUrdf(str(d / rel)).nv, robot
+            checked += 1
+    assert checked >= 50
+
+
+def test_the_script_on_four_robots_tabulates_runs_refusals_and_their_words(tmp_path, capsys):
+    out = tmp_path / 'table.md'
+    args = bench_urdf.add_arguments(__import__('argparse').ArgumentParser()).parse_args(
+        ['--only', 'double_pendulum_simple', 'ur3', 'xarm7', 'solo12', '--out', str(out)])
+    assert bench_urdf.main(args) == 0
+    counts, rows = parse(out.read_text())
+    _consistent(counts, rows)
+    assert counts['runs'] == 2 and counts['total'] == 4
+    by = {r[0]: r for r in rows}
+    solo = example_robot_data_dir() / by['solo12'][1]
+    assert by['solo12'][2:4] == (pin.buildModelFromUrdf(str(solo)).nv, 'runs')  # on a fixed base, as robodyn run
+    assert by['double_pendulum_simple'][2:4] == (2, 'runs')
+    assert by['double_pendulum_simple'][4] == '`effort="0" read as no limit (2 joints)`'
+    assert by['ur3'][3] == 'refused' and by['ur3'][4] == "`robot 'ur3': no <link> element: nothing to simulate`"
+    assert by['xarm7'][3] == 'refused' and by['xarm7'][4].startswith('stiff at the default step: fastest mode')
+    assert out.read_text() in capsys.readouterr().out
+
+
+def test_readme_and_docs_urdf_quote_the_table_counts():
+    counts, rows = parse(DOC.read_text())
+    stiff = sum(r[3] == 'refused' and r[4].startswith('stiff at the default step') for r in rows)
+    other = sum(r[3] != 'runs' for r in rows) - stiff
+    root = DOC.parent.parent
+    for f in (root / 'README.md', root / 'docs' / 'urdf.md'):
+        text = ' '.join(f.read_text().split())
+        m = re.search(r'of the (\d+) URDFs of example-robot-data [\d.]+, (\d+) run with defaults \(`robodyn run FILE '
+                      r'--duration 0.2`\); (\d+) are refused as stiff at the default 1 ms step.*?and (\d+) for what '
+                      r'their files hold', text, flags=re.I)
+        assert m, f
+        assert tuple(int(x) for x in m.groups()) == (counts['total'], counts['runs'], stiff, other), f
