@@ -153,7 +153,7 @@ def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_pat
 
 def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
     """After ``robodyn warm``'s runs, the runs of ``robodyn run`` (every bundled scene, with and
-    without recording) and of example-robot-data robots (with and without friction) add no kernel
+    without recording) and of example-robot-data robots (friction, mimic joints) add no kernel
     signature: what warm compiles into the cache is all they load. In one process, whatever the
     cache holds (the signatures, not the disk, are compared)."""
     import contextlib
@@ -177,8 +177,9 @@ def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
         runs += [['run', name, '--duration', '0.3'],
                  ['run', name, '--duration', '0.3', '--record', str(tmp_path / 'r.mcap'), '--overwrite']]
     d = example_robot_data_dir()
-    if d is not None:   # a quadruped, an arm with prismatic fingers and friction (z1), a humanoid
-        runs += [['run', str(next(d.rglob(f))), '--duration', '0.05'] for f in ('go2.urdf', 'z1.urdf', 'human.urdf')]
+    if d is not None:   # a quadruped, an arm with friction (z1), a humanoid, an arm with a mimic finger
+        runs += [['run', str(next(d.rglob(f))), '--duration', '0.05']
+                 for f in ('go2.urdf', 'z1.urdf', 'human.urdf', 'panda.urdf')]
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
         for argv in runs:

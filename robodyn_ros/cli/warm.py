@@ -4,7 +4,8 @@ numba compiles a kernel the first time a process calls it and caches the machine
 (:mod:`robodyn_ros.kernels.cache`); a fresh install would pay that (about a minute in all) in its
 first runs. This command pays it up front, as ``make run`` does once after installing: every
 bundled scene, and a URDF robot (stanford_arm's arm written to URDF and read back, the path of
-``robodyn run robot.urdf``; once more with joint friction and effort limits), each run for :data:`DURATION` s the two ways the tools run them:
+``robodyn run robot.urdf``; again with joint friction and effort limits, and with a ``<mimic>``
+joint), each run for :data:`DURATION` s the two ways the tools run them:
 
 * as ``robodyn run SCENE --record FILE`` runs it (compiled blocks of periods, the batched
   recorder, every default topic), and
@@ -35,7 +36,7 @@ def add_parser(sub):
 
 
 def _scene_runs(scratch):
-    """``[(label, load)]``: every bundled scene and two URDF robots, each a ``load() -> Scene``."""
+    """``[(label, load)]``: every bundled scene and three URDF robots, each a ``load() -> Scene``."""
     import os
     from dataclasses import replace
 
@@ -43,20 +44,26 @@ def _scene_runs(scratch):
     from ..scene import list_scenes, load_scene
     runs = [(name, lambda name=name: load_scene(name)) for name, _ in list_scenes()]
 
-    def urdf_robot(passive):
-        """stanford_arm's arm as a URDF file (``passive``: with Coulomb friction and effort limits on
-        every joint, the right-hand side URDF robots with ``<dynamics friction>`` run on)."""
-        path = os.path.join(scratch, f'robot{int(passive)}.urdf')
+    def urdf_robot(variant):
+        """stanford_arm's arm as a URDF file: as it is, with Coulomb friction and effort limits on
+        every joint (the right-hand side of URDF robots with ``<dynamics friction>``), or with its
+        last joint following the one before (``<mimic>``: the coupled dynamics)."""
+        path = os.path.join(scratch, f'robot_{variant}.urdf')
         if not os.path.exists(path):
             m = load_scene('stanford_arm').system.model
-            if passive:
-                m = build_model([replace(s, friction=1e-3, effort_limit=100.0) if s.joint_type != 'fixed' else s
-                                 for s in m.specs], gravity=m.gravity, name=m.name, root=m.root)
+            moving = [s for s in m.specs if s.joint_type != 'fixed']
+            if variant == 'friction':
+                specs = [replace(s, friction=1e-3, effort_limit=100.0) if s.joint_type != 'fixed' else s
+                         for s in m.specs]
+            elif variant == 'mimic':
+                specs = [replace(s, mimic=(moving[-2].joint, 0.5, 0.0)) if s is moving[-1] else s for s in m.specs]
+            else:
+                specs = m.specs
             with open(path, 'w') as f:
-                f.write(to_urdf(m))
+                f.write(to_urdf(build_model(specs, gravity=m.gravity, name=m.name, root=m.root)))
         return load_scene(path)
-    return runs + [('stanford_arm as URDF', lambda: urdf_robot(False)),
-                   ('the same with friction', lambda: urdf_robot(True))]
+    return runs + [(f'stanford_arm as URDF{"" if v == "plain" else ", " + v}', lambda v=v: urdf_robot(v))
+                   for v in ('plain', 'friction', 'mimic')]
 
 
 def warm_scene(load, backend, scratch) -> None:
@@ -106,7 +113,7 @@ def main(args) -> int:
             warm_scene(load, backend, scratch)
             n = len(compiled_here())
             if not args.quiet:
-                print(f'{label:28s} {time.perf_counter() - t:6.1f} s, {n - n0} kernel signatures compiled', flush=True)
+                print(f'{label:32s} {time.perf_counter() - t:6.1f} s, {n - n0} kernel signatures compiled', flush=True)
             n0 = n
     print(f'robodyn warm: {n0} kernel signatures compiled in {time.perf_counter() - t0:.1f} s '
           f'({backend} backend; cache {kernels.CACHE_DIR})')
