@@ -101,7 +101,8 @@ def test_every_kernel_is_cached_and_stamped_with_the_fingerprint():
         loc = d._cache._impl.locator
         assert getattr(loc, 'ROBODYN', False), name
         generated = name.startswith('robodyn_gen_')   # a generated module other tests loaded: its own text too
-        assert loc.get_source_stamp() == (cache._generated_stamp(loc._py_file) if generated else cache.FINGERPRINT), name
+        stamp = cache._generated_stamp(loc._py_file) if generated else cache.FINGERPRINT
+        assert loc.get_source_stamp() == stamp, name
         if not generated:   # (a generated module's cache is beside it, in the generated-code directory)
             assert os.path.abspath(loc.get_cache_path()).startswith(os.path.abspath(cache.cache_root())), name
 

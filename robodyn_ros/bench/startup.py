@@ -2,9 +2,10 @@
 
 Every figure is a whole process (``robodyn ...`` as a user types it, or a peer's script), timed
 from the outside: wall time, CPU time (user + system) and peak resident memory of that process
-(``getrusage(RUSAGE_CHILDREN)`` in a bare interpreter that starts it), median of ``--repeat`` where a row says so. "beyond the simulation" is the
-process's wall time minus the simulation's own (the ``simulated ... in X s wall`` of the run
-summary): importing, building the robot, loading (or compiling) the kernels, exiting.
+(``getrusage(RUSAGE_CHILDREN)`` in a bare interpreter that starts it), median of ``--repeat``
+where a row says so. "beyond the simulation" is the process's wall time minus the simulation's
+own (the ``simulated ... in X s wall`` of the run summary): importing, building the robot,
+loading (or compiling) the kernels, exiting; its CPU form subtracts the run's CPU time.
 
 Sections (each can be skipped with ``--skip``):
 
@@ -383,9 +384,10 @@ def section_generated(args) -> str:
             gen = g['cpu']
             even = gen / saved * 0.01 if saved > 0 else None
             out[name] = {'nv': model.nv, **cost, 'generate_compile': gen, 'break_even': even}
-            rows.append([f'{name} ({model.nv} DOF)', f'{cost["numba"] * 1e6:.1f} µs', f'{cost["generated"] * 1e6:.1f} µs',
-                         f'{cost["numba"] / cost["generated"]:.2f}x', f'{gen:.1f} s (wall {g["generate_compile"]:.1f} s)',
-                         f'{g["lines"]} lines', '—' if even is None else f'{even / 60:.0f} simulated minutes'])
+            rows.append([f'{name} ({model.nv} DOF)', f'{cost["numba"] * 1e6:.1f} µs',
+                         f'{cost["generated"] * 1e6:.1f} µs', f'{cost["numba"] / cost["generated"]:.2f}x',
+                         f'{gen:.1f} s (wall {g["generate_compile"]:.1f} s)', f'{g["lines"]} lines',
+                         '—' if even is None else f'{even / 60:.0f} simulated minutes'])
     args.figures['generated'] = out
     return '\n'.join([
         '### The per-model (generated) backend against the generic one\n',
