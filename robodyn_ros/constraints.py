@@ -49,7 +49,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
 
 # Relative eigenvalue threshold below which K M⁻¹ Kᵀ is treated as singular (rank-deficient).
 KKT_RCOND = 1e-10
@@ -94,6 +93,7 @@ def kkt_solve(M, Q, K, k, rcond=KKT_RCOND, damping=0.0):
     eigenvalue cut-off of ``K M⁻¹ Kᵀ``; damping: μ² of damped least squares (0 = none).
     Returns ``(a (n,), λ (m,), SolveInfo)``. Redundant rows get the minimum-norm λ.
     """
+    from scipy.linalg import cho_factor, cho_solve   # the numpy backend's solver, loaded when used
     n = M.shape[0]
     m = K.shape[0]
     c = cho_factor(M)
@@ -179,6 +179,7 @@ def project_velocities(M, K, v, g=None):
 
     Returns the corrected velocity: ``v − M⁻¹Kᵀ (K M⁻¹ Kᵀ)⁺ (K v − g)``.
     """
+    from scipy.linalg import cho_factor, cho_solve
     e = K @ v - (0.0 if g is None else g)
     c = cho_factor(M)
     MinvKt = cho_solve(c, K.T)
@@ -192,6 +193,7 @@ def project_positions(M, phi_fn, K_fn, q, tol=1e-12, max_iter=10):
     M: (n, n) metric; phi_fn(q) -> (m,); K_fn(q) -> (m, n) = ∂φ/∂q; q: (n,) start.
     Returns ``(q, ‖φ‖∞, iterations)``.
     """
+    from scipy.linalg import cho_factor, cho_solve
     c = cho_factor(M)
     q = np.array(q, dtype=float)
     for it in range(max_iter):

@@ -48,7 +48,6 @@ from dataclasses import asdict, dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 __all__ = [
     'INTEGRATORS',
@@ -655,10 +654,13 @@ def _fixed(cls):
     return build
 
 
-def _adaptive(solver_class):
-    """Return a factory for an error-controlled integrator on a scipy solver class."""
+def _adaptive(solver_name):
+    """Return a factory for an error-controlled integrator on the ``scipy.integrate`` solver class
+    of that name (imported when the first such integrator is built: a fixed-step run never loads
+    scipy)."""
     def build(spec, rtol, atol, **kw):
-        return AdaptiveIntegrator(spec, solver_class, rtol, atol, **kw)
+        import scipy.integrate
+        return AdaptiveIntegrator(spec, getattr(scipy.integrate, solver_name), rtol, atol, **kw)
     return build
 
 
@@ -681,24 +683,24 @@ INTEGRATORS: dict[str, IntegratorSpec] = {s.name: s for s in (
     IntegratorSpec(name='rk45', kind='adaptive', order=5, symplectic=False, implicit=False,
                    projection='step', multistep=False,
                    summary='Dormand-Prince 5(4) explicit Runge-Kutta (scipy RK45)',
-                   options=_ADAPTIVE_OPTIONS, factory=_adaptive(RK45)),
+                   options=_ADAPTIVE_OPTIONS, factory=_adaptive('RK45')),
     IntegratorSpec(name='dop853', kind='adaptive', order=8, symplectic=False, implicit=False,
                    projection='step', multistep=False,
                    summary='Dormand-Prince 8(5,3) explicit Runge-Kutta (scipy DOP853)',
-                   options=_ADAPTIVE_OPTIONS, factory=_adaptive(DOP853)),
+                   options=_ADAPTIVE_OPTIONS, factory=_adaptive('DOP853')),
     IntegratorSpec(name='radau', kind='adaptive', order=5, symplectic=False, implicit=True,
                    projection='step', multistep=False,
                    summary='Radau IIA implicit Runge-Kutta, order 5, L-stable (scipy Radau)',
-                   options=_ADAPTIVE_OPTIONS + ('jac',), factory=_adaptive(Radau)),
+                   options=_ADAPTIVE_OPTIONS + ('jac',), factory=_adaptive('Radau')),
     IntegratorSpec(name='bdf', kind='adaptive', order=5, symplectic=False, implicit=True,
                    projection='call', multistep=True,
                    summary='variable-order BDF/NDF 1-5 for stiff systems (scipy BDF)',
-                   options=_ADAPTIVE_OPTIONS + ('jac',), factory=_adaptive(BDF)),
+                   options=_ADAPTIVE_OPTIONS + ('jac',), factory=_adaptive('BDF')),
     IntegratorSpec(name='lsoda', kind='adaptive', order=12, symplectic=False, implicit=True,
                    projection='call', multistep=True,
                    summary='Adams 1-12 / BDF 1-5 with automatic stiffness switching '
                            '(scipy LSODA)',
-                   options=_ADAPTIVE_OPTIONS + ('jac',), factory=_adaptive(LSODA)),
+                   options=_ADAPTIVE_OPTIONS + ('jac',), factory=_adaptive('LSODA')),
 )}
 
 

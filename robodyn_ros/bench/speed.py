@@ -420,11 +420,11 @@ def best_run(fn, repeat=3) -> tuple:
 
 def _timed_scenes(names, args, notes):
     """The scenes a timing section measures: ``(name, scene, arm, backend, fused, horizon, repeats)``
-    per scene that loads (a scene that does not is a line in ``notes``). backend: what robodyn run
-    and the node use (the tools' backend for arms, numba otherwise); horizon: ``args.duration``,
-    or :data:`NUMPY_SYSTEM_HORIZON` for systems without a compiled fused path (run once)."""
+    per scene that loads (a scene that does not is a line in ``notes``). backend: the fastest
+    kernels (generated for arms, ``--backend generated``; numba otherwise; the numba column beside
+    it is the default of robodyn run and the node); horizon: ``args.duration``, or
+    :data:`NUMPY_SYSTEM_HORIZON` for systems without a compiled fused path (run once)."""
     from ..systems.arm import ArmSystem
-    from ..systems.base import TOOLS_BACKEND
     for name in names:
         try:
             scene = _load(name)
@@ -433,7 +433,7 @@ def _timed_scenes(names, args, notes):
             continue
         arm = type(scene.system) is ArmSystem
         fused = has_fused_path(scene.system)
-        yield (name, scene, arm, TOOLS_BACKEND if arm else 'numba', fused,
+        yield (name, scene, arm, 'generated' if arm else 'numba', fused,
                args.duration if fused else min(args.duration, NUMPY_SYSTEM_HORIZON),
                (args.repeat if args.quick else 3) if fused else 1)
 
@@ -512,7 +512,7 @@ def section_rtf(args, names) -> str:
                 notes.append(f'{name}: no MuJoCo reference ({why})')
         rows.append(row)
     text = [f'### Real-time factor: {dur:g} s simulated, RK4 at {RTF_DT * 1e3:g} ms, headless\n',
-            table(['scene', 'kernels', 'robodyn + MCAP at 100 Hz: wall (CPU)', 'same, numba kernels (CPU)',
+            table(['scene', 'kernels', 'robodyn + MCAP at 100 Hz: wall (CPU)', 'same, numba kernels: the default (CPU)',
                    'same + /tf (CPU)', 'no recording (CPU)', 'integration only (CPU)',
                    f'numpy reference + MCAP ({min(REFERENCE_HORIZON, dur / 10.0):g} s run, CPU)',
                    'Python RK4 loop over pin.aba', 'MuJoCo RK4, mj_step per step from Python',
@@ -521,9 +521,9 @@ def section_rtf(args, names) -> str:
             'which leaves out time other processes held the cores). robodyn runs: Simulator + run_headless with the '
             "scene's scripted commands, the fused compiled loop per 10 ms period, joint_states + /clock + commands + "
             '1 Hz diagnostics written by McapRunSink (no wrenches; "+ /tf" adds the TF of every joint, as '
-            '`robodyn run` records by default); "kernels": those of `robodyn run` and the node (generated = '
-            'specialised per scene for arms; the other systems run their compiled kernels, so the numba column '
-            'is the same); "integration only": `Simulator.advance` per period and nothing else. References '
+            '`robodyn run` records by default); "kernels": the fastest (generated = `--backend generated`, '
+            'specialised per model, for arms; the other systems run their compiled kernels, so the numba column '
+            'is the same); "numba kernels": the default of `robodyn run` and the node; "integration only": `Simulator.advance` per period and nothing else. References '
             'integrate the same arm (URDF export) unforced (gravity + damping), without recording.',
             _kernel_floor(args)] + [f'- {n}' for n in notes]
     return '\n'.join(text)

@@ -3,10 +3,13 @@ from __future__ import annotations
 
 import sys
 
+#: one line for ``robodyn --help``
+HELP = 'which integrator and step/tolerance meet a tolerance at least cost'
+
 
 def add_parser(sub):
     """Register the subcommand and its options."""
-    p = sub.add_parser('advise', help='which integrator and step/tolerance meet a tolerance at least cost',
+    p = sub.add_parser('advise', help=HELP,
                        description='Answers from work-precision measurements of the scene cached per scene and '
                                    'machine (robodyn bench precision); measures the quick ladder first when '
                                    'there are none (about a minute).')

@@ -5,10 +5,13 @@ import json
 import math
 import sys
 
+#: one line for ``robodyn --help``
+HELP = 'read a recording: topics, counts, time range, invariants'
+
 
 def add_parser(sub):
     """Register the subcommand."""
-    p = sub.add_parser('check', help='read a recording: topics, counts, time range, invariants')
+    p = sub.add_parser('check', help=HELP)
     p.add_argument('file', help='MCAP recording')
     p.add_argument('--json', action='store_true', help='print the report as JSON')
     return p

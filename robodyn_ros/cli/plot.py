@@ -3,11 +3,14 @@ from __future__ import annotations
 
 import sys
 
+#: one line for ``robodyn --help``
+HELP = 'plot a recording to PNG (panels chosen from its topics)'
+
 
 def add_parser(sub):
     """Register the subcommand and its options."""
     from ..plotting import PANELS
-    p = sub.add_parser('plot', help='plot a recording to PNG (panels chosen from its topics)',
+    p = sub.add_parser('plot', help=HELP,
                        description='Plot a recording to one PNG of stacked panels. With --panels auto '
                                    '(the default) every panel the recording has data for is drawn.')
     p.add_argument('file', help='MCAP recording')

@@ -19,10 +19,13 @@ from __future__ import annotations
 import sys
 import time
 
+#: one line for ``robodyn --help``
+HELP = 'publish a recording back onto its topics with /clock'
+
 
 def add_parser(sub):
     """Register the subcommand and its options."""
-    p = sub.add_parser('replay', help='publish a recording back onto its topics with /clock')
+    p = sub.add_parser('replay', help=HELP)
     p.add_argument('input', help='MCAP recording')
     p.add_argument('--rate', type=float, default=1.0,
                    help='playback speed: simulated seconds per wall second (0 = as fast as possible)')

@@ -20,12 +20,13 @@ import math
 import os
 import sys
 
-import numpy as np
+#: one line for ``robodyn --help``
+HELP = 're-simulate the commands of a recording and compare the states'
 
 
 def add_parser(sub):
     """Register the subcommand and its options."""
-    p = sub.add_parser('resim', help='re-simulate the commands of a recording and compare the states')
+    p = sub.add_parser('resim', help=HELP)
     p.add_argument('input', help='MCAP recording made by the sim node or robodyn run')
     p.add_argument('--record', required=True, help='MCAP file to write the re-simulation to (an existing file is '
                                                    'refused)')
@@ -51,6 +52,7 @@ def _is_state(rel: str) -> bool:
 
 def _numbers(msg, skip=('header',)) -> np.ndarray:
     """Every number in a decoded message dict, flattened in field order (headers skipped)."""
+    import numpy as np
     out = []
 
     def walk(v):
@@ -81,6 +83,7 @@ def _deviation(type_name, a: bytes, b: bytes) -> float:
         return math.inf
     if xa.size == 0:
         return 0.0
+    import numpy as np
     d = np.abs(xa - xb)
     d[(xa == xb) | (np.isnan(xa) & np.isnan(xb))] = 0.0
     return float(np.max(d))
@@ -114,6 +117,8 @@ class Resim:
         self.tf = '/tf' in self.topics   # recorded with TF (not with robodyn run --no-tf)
 
     def simulator(self):
+        import numpy as np
+
         from ..simulation import Simulator
         st = self.settings
         y0 = np.array(st['y0'], dtype=float) if st.get('y0') is not None else self.scene.y0

@@ -6,10 +6,13 @@ import time
 
 from ..runs import DIAGNOSTICS_PERIOD, resolve_settings, summary
 
+#: one line for ``robodyn --help``
+HELP = 'simulate a scene headless with its scripted commands'
+
 
 def add_parser(sub):
     """Register the subcommand and its options."""
-    p = sub.add_parser('run', help='simulate a scene headless with its scripted commands')
+    p = sub.add_parser('run', help=HELP)
     p.add_argument('scene', help='bundled scene name, path to a scene YAML file, or a URDF file (robot.urdf: '
                                  'the robot on a fixed base, no commands)')
     p.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the scene\'s)')
@@ -23,8 +26,8 @@ def add_parser(sub):
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
     p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
     p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
-                   help='dynamics kernels (default: $ROBODYN_BACKEND, else generated: specialised per scene, '
-                        'compiled once and cached)')
+                   help='dynamics kernels (default: $ROBODYN_BACKEND, else numba: generic, compiled once per '
+                        'install; generated: specialised per model, compiled once per model and cached)')
     p.add_argument('--position-limits', default=None, metavar='K,C[,RETURN]',
                    help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
                         '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
@@ -35,8 +38,10 @@ def add_parser(sub):
 
 
 def main(args) -> int:
-    """Run, record, print a summary; exit 1 with the cause if the simulation fails."""
-    from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
+    """Run, record, print a summary; exit 1 with the cause if the simulation fails.
+
+    Imports what the run uses when it uses it (the recorder only with ``--record``), so a short
+    run starts fast (``robodyn bench startup``)."""
     from ..scene import SceneError, load_scene
     from ..simulation import SimulationError, Simulator, run_headless
     from ..systems.base import backend_scope, tools_backend
@@ -77,6 +82,7 @@ def main(args) -> int:
         return 2
     sinks = []
     if args.record:
+        from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
         sinks.append(McapRunSink(args.record, scene, {**st, 'mode': 'headless'},
                                  record_wrenches=not args.no_wrenches, record_tf=not args.no_tf,
                                  diagnostics_period=args.diagnostics_period, batch=HEADLESS_BATCH))

@@ -1,10 +1,13 @@
 """``robodyn scenes``: list the bundled scenes."""
 from __future__ import annotations
 
+#: one line for ``robodyn --help``
+HELP = 'list the bundled scenes'
+
 
 def add_parser(sub):
     """Register the subcommand."""
-    return sub.add_parser('scenes', help='list the bundled scenes')
+    return sub.add_parser('scenes', help=HELP)
 
 
 def main(args) -> int:

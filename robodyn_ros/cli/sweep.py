@@ -3,10 +3,13 @@ from __future__ import annotations
 
 import sys
 
+#: one line for ``robodyn --help``
+HELP = 'Monte Carlo / grid sweeps of a scene on Dask (Parquet table + plot)'
+
 
 def add_parser(sub):
     """Register the subcommand and its options."""
-    p = sub.add_parser('sweep', help='Monte Carlo / grid sweeps of a scene on Dask (Parquet table + plot)',
+    p = sub.add_parser('sweep', help=HELP,
                        description='Run every run of a sweep spec (grid and seeded random draws of scene keys '
                                    'and run settings) on a Dask cluster; rows are kept in DIR as they finish, '
                                    'so re-running the same command resumes. Spec format: robodyn_ros.sweep.')

@@ -29,13 +29,14 @@ loop), :mod:`.profiles` (command profiles), :mod:`.pfl` (the PFL law), :mod:`.ou
 (scene-specialised code).
 
 Compilation cache. Every kernel is ``@njit(cache=True)``: the first start of a new install
-compiles (a few seconds, see ``robodyn bench speed``) and writes the machine code next to the
-source in ``robodyn_ros/kernels/__pycache__``; later starts load it. If that directory is not
-writable (a system-wide install), the cache goes to ``$NUMBA_CACHE_DIR`` when set, else to
-``$XDG_CACHE_HOME/robodyn_ros/numba`` (``~/.cache/robodyn_ros/numba``); :data:`CACHE_DIR`
-says which one is in use. Set ``ROBODYN_BACKEND=numpy`` to switch the compiled path off, or
-``ROBODYN_BACKEND=generated`` to make ArmSystems use scene-specialised code
-(:mod:`robodyn_ros.kernels.codegen`, cached under ``~/.cache/robodyn_ros/generated``).
+compiles (about a minute for every kernel; ``robodyn warm``, which ``make run`` runs once,
+does it for every function the bundled scenes and URDF robots use) and writes the machine code
+next to the source in ``robodyn_ros/kernels/__pycache__``; later starts load it, for any robot.
+Where the cache goes when that directory is not writable, and why any edit of a kernel module
+invalidates all of them: :mod:`.cache` (:data:`CACHE_DIR` says where it is). Set
+``ROBODYN_BACKEND=numpy`` to switch the compiled path off, or ``ROBODYN_BACKEND=generated`` to
+make ArmSystems use scene-specialised code (:mod:`robodyn_ros.kernels.codegen`, cached under
+``~/.cache/robodyn_ros/generated``).
 """
 from __future__ import annotations
 
@@ -44,31 +45,14 @@ import os
 import numpy as np
 
 from ..model import Model
-
-
-def _cache_dir() -> str:
-    """Where numba's cache goes: in tree if writable, else NUMBA_CACHE_DIR or a user cache dir."""
-    here = os.path.dirname(os.path.abspath(__file__))
-    pycache = os.path.join(here, '__pycache__')
-    if os.environ.get('NUMBA_CACHE_DIR'):
-        return os.environ['NUMBA_CACHE_DIR']
-    probe = pycache if os.path.isdir(pycache) else here
-    if os.access(probe, os.W_OK):
-        return pycache
-    base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
-    path = os.path.join(base, 'robodyn_ros', 'numba')
-    os.environ['NUMBA_CACHE_DIR'] = path
-    return path
-
-
-#: directory holding the compiled kernels' cache (see the module docstring)
-CACHE_DIR = _cache_dir()
-
 from .jit import NUMBA
 
-if NUMBA and CACHE_DIR != os.path.join(os.path.dirname(os.path.abspath(__file__)), '__pycache__'):
-    import numba
-    numba.config.CACHE_DIR = CACHE_DIR  # numba may have been imported before we set the env
+if NUMBA:
+    from . import cache as _cache
+    _cache.install()   # before any kernel is defined: where their cache goes, when it is stale
+
+#: directory holding the compiled kernels' cache (see :mod:`.cache`)
+CACHE_DIR = _cache.cache_root() if NUMBA else ''
 
 try:
     if os.environ.get('ROBODYN_BACKEND', '').lower() == 'numpy':

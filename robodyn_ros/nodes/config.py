@@ -40,8 +40,9 @@ PARAMETERS = {
     'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
     'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
     'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
-    'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else generated "
-                    '(specialised per scene, compiled once and cached)'),
+    'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else numba "
+                    '(generic, compiled once per install); generated = specialised per model, compiled '
+                    'once per model and cached'),
 }
 
 

@@ -22,12 +22,13 @@ def default_backend() -> str:
     return 'numba' if kernels.AVAILABLE else 'numpy'
 
 
-#: backend of ``robodyn run`` and the sim node when neither their option nor ``ROBODYN_BACKEND``
-#: chooses one: scene-specialised arm kernels (:mod:`robodyn_ros.kernels.codegen`), written and
-#: compiled once per model (about 2 s at the first start of a scene, cached on disk), then a faster
-#: start and 2-3x faster arm integration than ``'numba'`` (figures: ``robodyn bench speed``);
-#: systems without a specialisation (free bases, constrained systems) run their compiled kernels.
-TOOLS_BACKEND = 'generated'
+#: backend of ``robodyn run``, the sim node and sweeps when neither their option nor
+#: ``ROBODYN_BACKEND`` chooses one: the generic compiled kernels, compiled once per install (and
+#: cached on disk) for every robot, so a new robot starts without compiling. ``'generated'``
+#: (:mod:`robodyn_ros.kernels.codegen`: arm code specialised per model, 2-4x faster per step)
+#: is on request: its compilation per model (3 s for a 6-DOF arm, 20-40 s for 30-45 DOF) is
+#: repaid only after many simulated minutes (figures: ``robodyn bench startup``).
+TOOLS_BACKEND = 'numba'
 
 
 def tools_backend(requested=None) -> str:

@@ -103,7 +103,6 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, eigh
 
 from .. import dynamics as dyn
 from .. import kernels
@@ -432,6 +431,7 @@ class DiffDriveSystem(System):
         K, _ = self.constraint_jacobian(q, v)
         if np.abs(K @ v).max() > 0.0:
             M, _ = self.mass_and_bias(q, v, bias=False)
+            from scipy.linalg import cho_factor, cho_solve   # numpy backend only
             c = cho_factor(M)
             MinvKt = cho_solve(c, K.T)
             dl = np.linalg.lstsq(K @ MinvKt, K @ v, rcond=KKT_RCOND)[0]
@@ -708,7 +708,9 @@ class DiffDriveSystem(System):
         K, _ = self.constraint_jacobian(q, v)
         C, _ = null_space_basis(K)
         M, _ = self.mass_and_bias(q, v, bias=False)
-        mu = eigh(C.T @ D @ C, C.T @ M @ C, eigvals_only=True)
+        L = np.linalg.cholesky(C.T @ M @ C)   # generalised eigenvalues of (CᵀDC, CᵀMC): those of
+        Li = np.linalg.inv(L)                 # L⁻¹ CᵀDC L⁻ᵀ with CᵀMC = L Lᵀ
+        mu = np.linalg.eigvalsh(Li @ (C.T @ D @ C) @ Li.T)
         if mu.max() > 0.0:
             taus.append(1.0 / mu.max())
         if self.params.baumgarte_alpha > 0.0:

@@ -59,7 +59,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
 
 from .. import dynamics as dyn
 from .. import kernels
@@ -422,6 +421,7 @@ class PrescribedPathSystem(ArmSystem):
         if ratio < self.singular_ratio:
             # damped least squares, μ² scaled by the Schur complement's size and by closeness to
             # the singularity (zero at the threshold, so the switch is continuous)
+            from scipy.linalg import cho_factor, cho_solve   # numpy backend only
             W = cho_solve(cho_factor(A), B.T)
             wmax = float(np.linalg.eigvalsh(B @ W)[-1])
             damping = self.dls_damping * wmax * (1.0 - (ratio / self.singular_ratio) ** 2)

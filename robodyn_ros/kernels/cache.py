@@ -1,0 +1,184 @@
+"""numba's on-disk cache of the kernels: where it lives, when it is stale, what a process compiled.
+
+Every kernel is ``@njit(cache=True)``: the first start of an install compiles each function for
+the argument types it meets and writes the machine code to disk; later starts load it (about
+10 ms a function against 0.1-2 s to compile it). ``robodyn warm`` (run once by ``make run``)
+fills the cache for every function the bundled scenes and URDF robots use, and the types those
+functions take do not depend on the robot (a model is packed into arrays of fixed dtype and
+rank), so a robot never seen before loads the same machine code.
+
+**Where.** In the package, ``robodyn_ros/kernels/__pycache__``, when that directory is
+writable (a source checkout, a user install); else under ``$NUMBA_CACHE_DIR`` when set; else
+``$XDG_CACHE_HOME/robodyn_ros/numba`` (``~/.cache/robodyn_ros/numba``: a system-wide install).
+``$NUMBA_CACHE_DIR`` set explicitly wins over the package directory (a benchmark measuring a
+fresh install points it at an empty directory). Only the kernels' functions are located here:
+other numba users in the same process keep numba's own rules.
+
+**When it is stale.** numba keys a cached function on the source file it is defined in; a kernel
+inlines functions and constants from other kernel modules (``arm.integrate_arm`` calls
+``tree.aba_ws``), so an edit of ``tree.py`` alone would leave ``arm.py``'s cached code running
+the old ``tree.py``. Here every kernel's freshness stamp is :data:`FINGERPRINT`, a hash of the
+source of every module of this package that defines compiled functions and of the joint-type
+codes the kernels take from :mod:`robodyn_ros.model`: any edit of a kernel module invalidates
+every kernel at once, and the next start compiles them again (numba then replaces the stale
+index entries; nothing accumulates). The generated
+modules of :mod:`.codegen` (which import ``arm.py``'s forces and the kernels' constants) are
+stamped with the fingerprint and their own text.
+
+**What a process compiled.** :func:`compiled_here` lists the kernels this process compiled
+rather than loaded: empty after ``robodyn warm`` for any bundled scene or URDF robot (tested).
+"""
+from __future__ import annotations
+
+import functools
+import glob
+import hashlib
+import os
+import re
+import sys
+
+#: the directory of the kernel modules
+HERE = os.path.dirname(os.path.abspath(__file__))
+#: module-name prefixes of the functions whose cache this module locates: the kernels and the
+#: generated modules of :mod:`.codegen`
+PREFIXES = ('robodyn_ros.kernels.', 'robodyn_gen_')
+
+
+#: a line that defines a compiled function: what makes a module part of the fingerprint (with
+#: ``jit.py``, the decorator they use; not this module, the package's Python side or the code
+#: generator, whose generated modules are stamped on their own)
+_KERNEL = re.compile(rb'^@(njit|intrinsic)\b', re.MULTILINE)
+
+
+def _fingerprint(directory: str = HERE) -> str:
+    """sha256 of the source of every module in ``directory`` (the kernels) and of the joint-type
+    codes the kernels compile in."""
+    from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
+    h = hashlib.sha256(repr((FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL)).encode())
+    for path in sorted(glob.glob(os.path.join(directory, '*.py'))):
+        with open(path, 'rb') as f:
+            text = f.read()
+        name = os.path.basename(path)
+        if name == 'jit.py' or (_KERNEL.search(text) and name != 'codegen.py'):   # codegen's are templates
+            h.update(os.path.basename(path).encode() + b'\0' + text)
+    return h.hexdigest()
+
+
+#: freshness stamp of every cached kernel (see the module docstring)
+FINGERPRINT = _fingerprint()
+
+
+def user_cache_dir() -> str:
+    """``$XDG_CACHE_HOME/robodyn_ros/numba`` (default ``~/.cache/robodyn_ros/numba``)."""
+    base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
+    return os.path.join(base, 'robodyn_ros', 'numba')
+
+
+def cache_root() -> str:
+    """The directory the kernels' cache goes to (see "Where" in the module docstring)."""
+    env = os.environ.get('NUMBA_CACHE_DIR')
+    if env:
+        return env
+    pycache = os.path.join(HERE, '__pycache__')
+    if os.access(pycache if os.path.isdir(pycache) else HERE, os.W_OK):
+        return pycache
+    return user_cache_dir()
+
+
+@functools.lru_cache(maxsize=None)
+def _writable(path: str) -> bool:
+    """Create ``path`` if needed; True when a file can be written there (checked once per directory)."""
+    import tempfile
+    try:
+        os.makedirs(path, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+        return True
+    except OSError:
+        return False
+
+
+def _cache_path(py_file: str) -> str:
+    """Cache directory of the functions of ``py_file``: ``__pycache__`` beside it when that is
+    the package's own (or a generated module's) writable directory and no ``$NUMBA_CACHE_DIR`` is
+    set, else a per-source-directory subdirectory of :func:`cache_root`."""
+    from numba.core.caching import _CacheLocator
+    src_dir = os.path.dirname(os.path.abspath(py_file))
+    pycache = os.path.join(src_dir, '__pycache__')
+    if not os.environ.get('NUMBA_CACHE_DIR') and os.access(pycache if os.path.isdir(pycache) else src_dir,
+                                                            os.W_OK):
+        return pycache
+    root = os.environ.get('NUMBA_CACHE_DIR') or user_cache_dir()
+    return os.path.join(root, _CacheLocator.get_suitable_cache_subpath(py_file))
+
+
+@functools.lru_cache(maxsize=None)
+def _generated_stamp(py_file: str) -> str:
+    with open(py_file, 'rb') as f:
+        return hashlib.sha256(FINGERPRINT.encode() + f.read()).hexdigest()
+
+
+def install() -> None:
+    """Put the kernels' cache locator first in numba's list (once; before any kernel is defined)."""
+    from numba.core.caching import CacheImpl, _CacheLocator
+
+    if any(getattr(c, 'ROBODYN', False) for c in CacheImpl._locator_classes):
+        return
+
+    class KernelCacheLocator(_CacheLocator):
+        """numba cache locator of the kernels and generated modules: :func:`_cache_path`, stamped
+        with :data:`FINGERPRINT` (generated modules: with their text too)."""
+
+        ROBODYN = True
+
+        def __init__(self, py_func, py_file):
+            self._py_file = py_file
+            self._lineno = py_func.__code__.co_firstlineno
+            self._generated = py_func.__module__.startswith('robodyn_gen_')
+            self._path = _cache_path(py_file)
+
+        def ensure_cache_path(self):
+            if not _writable(self._path):
+                raise OSError(f'cannot write the kernel cache to {self._path}')
+
+        def get_cache_path(self):
+            return self._path
+
+        def get_source_stamp(self):
+            return _generated_stamp(self._py_file) if self._generated else FINGERPRINT
+
+        def get_disambiguator(self):
+            return str(self._lineno)
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not py_func.__module__.startswith(PREFIXES) or not os.path.exists(py_file):
+                return None
+            self = cls(py_func, py_file)
+            return self if _writable(self._path) else None   # None: numba's own locators decide
+
+    CacheImpl._locator_classes.insert(0, KernelCacheLocator)
+
+
+def dispatchers():
+    """``{'module.function': dispatcher}`` of every compiled kernel imported in this process."""
+    from numba.core.dispatcher import Dispatcher
+    out = {}
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not (name.startswith(PREFIXES) or name == 'robodyn_ros.kernels'):
+            continue
+        for attr, obj in list(vars(mod).items()):
+            if isinstance(obj, Dispatcher) and obj.py_func.__module__ == name:
+                out[f'{name}.{attr}'] = obj
+    return out
+
+
+def compiled_here() -> list:
+    """``'module.function(argument types)'`` of every kernel this process compiled instead of
+    loading it from the cache (a function compiled for two signatures is listed twice)."""
+    return sorted(f'{name}{tuple(str(t) for t in sig)}' for name, d in dispatchers().items()
+                  for sig in d.stats.cache_misses)
+
+
+def loaded_here() -> list:
+    """``'module.function'`` of every kernel this process loaded from the cache."""
+    return sorted(name for name, d in dispatchers().items() for _ in d.stats.cache_hits)

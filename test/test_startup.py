@@ -1,0 +1,192 @@
+"""A run starts without what it does not use, and without compiling what was compiled before.
+
+Properties of our code, not timings (``robodyn bench startup`` measures those):
+
+* ``robodyn run`` imports the adaptive integrators' scipy, the sweeps' Dask and Parquet, the plots'
+  matplotlib, the recorder's mcap and rclpy only when it uses them; ``robodyn --help`` imports
+  neither numpy nor numba;
+* every kernel is cached on disk, stamped with the fingerprint of every kernel module's source
+  (an edit of one invalidates all: they inline each other);
+* the kernels' argument types do not depend on the robot: a robot never run before loads every
+  kernel from a cache that other robots filled, in a new process;
+* ``robodyn warm`` (``make run``) meets every kernel signature the runs of the bundled scenes and of
+  URDF robots use.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from robodyn_ros import kernels
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='numba not installed')
+
+ROOT = Path(__file__).resolve().parents[1]
+#: what a run without recording, plots, sweeps or adaptive integrators must not import
+HEAVY = ('scipy.integrate', 'scipy.optimize', 'scipy.sparse', 'dask', 'distributed', 'pyarrow', 'matplotlib',
+         'mcap', 'mcap_ros2', 'rosbags', 'rclpy', 'yourdfpy', 'pandas')
+
+
+def _modules_after(argv, env=None) -> set:
+    """Top-level and dotted names in sys.modules after ``robodyn ARGV`` in a new process."""
+    code = ('import io, contextlib, json, sys\nfrom robodyn_ros.cli import main\n'
+            'with contextlib.redirect_stdout(io.StringIO()):\n    rc = main(json.loads(sys.argv[1]))\n'
+            'print(json.dumps([rc, sorted(sys.modules)]))\n')
+    r = subprocess.run([sys.executable, '-c', code, json.dumps(argv)], capture_output=True, text=True, env=env,
+                       cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    rc, mods = json.loads(r.stdout.strip().splitlines()[-1])
+    assert rc == 0
+    return set(mods)
+
+
+def _heavy(mods) -> list:
+    return sorted(h for h in HEAVY if h in mods)
+
+
+@pytest.mark.parametrize('scene', ['stanford_arm', 'betancur_platform', 'unfried_free_flyer'])
+def test_run_imports_only_what_it_uses(scene, tmp_path):
+    mods = _modules_after(['run', scene, '--duration', '0.02'])
+    assert 'robodyn_ros.kernels.tree' in mods      # it did run on the compiled kernels
+    assert _heavy(mods) == []
+    mods = _modules_after(['run', scene, '--duration', '0.02', '--record', str(tmp_path / 'r.mcap')])
+    assert _heavy(mods) == ['mcap']                # the recorder, and nothing else heavy
+    # the check sees an import when it happens: an adaptive integrator brings scipy.integrate
+    assert 'scipy.integrate' in _modules_after(['run', scene, '--duration', '0.02', '--integrator', 'rk45'])
+
+
+def test_help_imports_neither_numpy_nor_numba():
+    code = 'import sys\nfrom robodyn_ros.cli import main\ntry:\n    main(["--help"])\nexcept SystemExit:\n    pass\n' \
+           'print("numpy" in sys.modules, "numba" in sys.modules)'
+    r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip().splitlines()[-1] == 'False False'
+    assert 'usage: robodyn' in r.stdout
+
+
+def test_help_lists_every_subcommand_with_the_line_its_parser_registers():
+    import argparse
+
+    from robodyn_ros.cli import SUBCOMMANDS, build_parser
+    full = build_parser()             # every subcommand built with its options
+    short = build_parser(['--help'])  # only names and help lines
+    def choices(p):
+        sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+        return {c.dest: c.help for c in sub._choices_actions}
+    assert choices(full) == choices(short)
+    assert set(choices(full)) == set(SUBCOMMANDS)
+    args = build_parser(['run', 'x', '--duration', '1']).parse_args(['run', 'x', '--duration', '1'])
+    assert args.command == 'run' and args.duration == 1.0
+
+
+def test_every_kernel_is_cached_and_stamped_with_the_fingerprint():
+    import importlib
+    import pkgutil
+
+    from numba.core.caching import NullCache
+
+    from robodyn_ros.kernels import cache
+    for m in pkgutil.iter_modules(kernels.__path__):
+        importlib.import_module(f'robodyn_ros.kernels.{m.name}')
+    disp = cache.dispatchers()
+    assert len(disp) > 100
+    uncached = [n for n, d in disp.items() if isinstance(d._cache, NullCache)]
+    assert not uncached, f'kernels without cache=True: {uncached}'
+    for name, d in disp.items():
+        loc = d._cache._impl.locator
+        assert getattr(loc, 'ROBODYN', False), name
+        generated = name.startswith('robodyn_gen_')   # a generated module other tests loaded: its own text too
+        stamp = cache._generated_stamp(loc._py_file) if generated else cache.FINGERPRINT
+        assert loc.get_source_stamp() == stamp, name
+        if not generated:   # (a generated module's cache is beside it, in the generated-code directory)
+            assert os.path.abspath(loc.get_cache_path()).startswith(os.path.abspath(cache.cache_root())), name
+
+
+def test_the_fingerprint_changes_with_any_kernel_module(tmp_path):
+    from robodyn_ros.kernels import cache
+    for p in Path(cache.HERE).glob('*.py'):
+        shutil.copy(p, tmp_path / p.name)
+    assert cache._fingerprint(str(tmp_path)) == cache.FINGERPRINT
+    for name in ('tree.py', 'linalg.py'):   # a callee's module, edited alone
+        text = (tmp_path / name).read_text()
+        (tmp_path / name).write_text(text + '\n# edited\n')
+        assert cache._fingerprint(str(tmp_path)) != cache.FINGERPRINT
+        (tmp_path / name).write_text(text)
+    assert cache._fingerprint(str(tmp_path)) == cache.FINGERPRINT
+
+
+_COMPILED = ('import io, contextlib, json, sys\nfrom robodyn_ros.cli import main\n'
+             'for argv in json.loads(sys.argv[1]):\n'
+             '    with contextlib.redirect_stdout(io.StringIO()):\n'
+             '        assert main(argv) == 0, argv\n'
+             'from robodyn_ros.kernels.cache import compiled_here, loaded_here\n'
+             'print(json.dumps([compiled_here(), loaded_here()]))\n')
+
+
+def _compiled_in_new_process(runs, env) -> tuple:
+    r = subprocess.run([sys.executable, '-c', _COMPILED, json.dumps(runs)], capture_output=True, text=True,
+                       env=env, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return tuple(json.loads(r.stdout.strip().splitlines()[-1]))
+
+
+def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_path):
+    """One process fills an empty cache with one robot (compiling); a new process runs two
+    robots it never saw (other sizes, joint types, fixed links) and compiles nothing."""
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.urdf import example_robot_data_dir
+    d = example_robot_data_dir()
+    if d is None:
+        pytest.skip('example-robot-data not installed')
+    first = tmp_path / 'stanford_arm.urdf'
+    first.write_text(load_scene('stanford_arm').system.urdf())
+    env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
+    env['NUMBA_CACHE_DIR'] = str(tmp_path / 'cache')
+    compiled, _ = _compiled_in_new_process([['run', str(first), '--duration', '0.05']], env)
+    assert compiled                                   # the cache was empty: this process compiled
+    others = [str(next(d.rglob('go2.urdf'))), str(next(d.rglob('ur5_robot.urdf')))]
+    compiled, loaded = _compiled_in_new_process([['run', p, '--duration', '0.05'] for p in others], env)
+    assert compiled == [] and len(loaded) >= 3, (compiled, loaded)
+
+
+def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
+    """After ``robodyn warm``'s runs, the runs of ``robodyn run`` (every bundled scene, with and
+    without recording) and of example-robot-data robots (friction, mimic joints) add no kernel
+    signature: what warm compiles into the cache is all they load. In one process, whatever the
+    cache holds (the signatures, not the disk, are compared)."""
+    import contextlib
+    import io
+    import warnings
+
+    from robodyn_ros.cli import main
+    from robodyn_ros.cli.warm import _scene_runs, warm_scene
+    from robodyn_ros.kernels.cache import dispatchers
+    from robodyn_ros.systems.base import tools_backend
+    from robodyn_ros.urdf import example_robot_data_dir
+    backend = tools_backend()
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        for _, load in _scene_runs(str(tmp_path)):
+            warm_scene(load, backend, str(tmp_path))
+    warmed = {n: set(d.overloads) for n, d in dispatchers().items()}
+    runs = []
+    from robodyn_ros.scene import list_scenes
+    for name, _ in list_scenes():
+        runs += [['run', name, '--duration', '0.3'],
+                 ['run', name, '--duration', '0.3', '--record', str(tmp_path / 'r.mcap'), '--overwrite']]
+    d = example_robot_data_dir()
+    if d is not None:   # a quadruped, an arm with friction (z1), a humanoid, an arm with a mimic finger
+        runs += [['run', str(next(d.rglob(f))), '--duration', '0.05']
+                 for f in ('go2.urdf', 'z1.urdf', 'human.urdf', 'panda.urdf')]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        for argv in runs:
+            main(argv)
+    after = {n: set(d.overloads) for n, d in dispatchers().items()}
+    new = {n: sorted(map(str, s - warmed.get(n, set()))) for n, s in after.items() if s - warmed.get(n, set())}
+    assert new == {}, new
