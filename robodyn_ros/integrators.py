@@ -6,10 +6,16 @@ float64 vector of shape (n,), from ``t0`` exactly to ``t1``::
     integ = make_integrator('rk4', dt=1e-3)
     y1, cost = integ.advance(f, t0, y0, t1, project=renormalise_quaternions)
 
-* Fixed step (``euler``, ``semi_implicit_euler``, ``rk4``): ``floor((t1 - t0)/dt)`` full steps
+* Fixed step (``euler``, ``semi_implicit_euler``, ``rk4``, ``rosenbrock2``): ``floor((t1 - t0)/dt)`` full steps
   and one final partial step when ``t1`` is not on the grid (round-off in ``t1 - t0`` is
   forgiven, so 1000 steps of 1e-3 reach 1.0 without a spurious extra step).  Step k starts at
   ``t0 + k*dt`` (no accumulated sum).  The step loop works in preallocated buffers.
+* Linearly implicit (``rosenbrock2``): a Rosenbrock-W method of order 2 (ROS2, Verwer et al. 1999)
+  for stiff *passive* forces: two evaluations of f and one linear solve with ``I − γhJ`` per step,
+  J the passive part of ∂f/∂y (``jac``; J = 0 gives Heun's method), L-stable on it, explicit in
+  the rest; order 2 whatever J is. The systems' compiled loops run it on the mass matrix
+  (``M + γhD + γ²h²K``, :mod:`robodyn_ros.kernels.rosenbrock`, where the method, its stability and
+  its cost are written out); :class:`Rosenbrock2` here is the generic form on ``ydot = f(t, y)``.
 * Error-controlled (``rk45``, ``dop853``, ``radau``, ``bdf``, ``lsoda``): the scipy
   ``OdeSolver`` classes that ``scipy.integrate.solve_ivp`` drives, stepped here directly (the
   same loop as ``solve_ivp`` with ``dense_output=False`` and no events) so that the ``project``
@@ -59,6 +65,7 @@ __all__ = [
     'Integrator',
     'IntegratorSpec',
     'IntegratorStats',
+    'Rosenbrock2',
     'SemiImplicitEuler',
     'make_integrator',
 ]
@@ -142,9 +149,12 @@ class IntegratorStats:
     def of_fused_steps(cls, integrator_name: str, n_steps: int, advance_calls: int = 1) -> IntegratorStats:
         """The counters of ``n_steps`` steps of a fused compiled fixed-step loop (the systems'
         ``fused_advance``, the Simulator's block path): each step projected once, 4 evaluations of
-        f per ``rk4`` step, 1 per ``euler`` / ``semi_implicit_euler`` step, as the Python loop counts."""
-        evals = 4 if integrator_name == 'rk4' else 1
-        return cls(steps=n_steps, rhs_evals=evals * n_steps, advance_calls=advance_calls, projections=n_steps)
+        f per ``rk4`` step, 1 per ``euler`` / ``semi_implicit_euler`` step, 2 per ``rosenbrock2`` step
+        with one Jacobian and one factorisation, as the Python loop counts."""
+        evals = {'rk4': 4, 'rosenbrock2': 2}.get(integrator_name, 1)
+        implicit = n_steps if integrator_name == 'rosenbrock2' else 0
+        return cls(steps=n_steps, rhs_evals=evals * n_steps, njev=implicit, nlu=implicit,
+                   advance_calls=advance_calls, projections=n_steps)
 
 
 @dataclass(frozen=True)
@@ -157,7 +167,8 @@ class IntegratorSpec:
         order: order of accuracy of the global error (for the variable-order multistep
             methods ``bdf`` and ``lsoda``: the highest order they use).
         symplectic: preserves the symplectic form of a Hamiltonian system in (q, v) split form.
-        implicit: solves a nonlinear system per step (Newton with Jacobian and LU).
+        implicit: solves a system of equations per step: nonlinear (Newton with Jacobian and LU:
+            radau, bdf, lsoda) or linear (rosenbrock2: one factorisation of I − γhJ).
         projection: ``'step'`` if ``project`` is applied after every accepted step,
             ``'call'`` if after the last step of each ``advance`` call only.
         multistep: variable-order multistep method (bdf, lsoda).  Restarted on every call,
@@ -362,7 +373,11 @@ class FixedStepIntegrator(Integrator):
         delta.rhs_evals += nfev
         if project is not None:
             delta.projections += n_steps
+        self._count_linear_algebra(delta, n_steps)
         return y
+
+    def _count_linear_algebra(self, delta, n_steps):
+        """Add the Jacobians and factorisations of n_steps steps to delta (none for explicit methods)."""
 
     def _step(self, f, t, y, h):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -484,6 +499,68 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
         acc *= h / 6.0
         y += acc
         return 4
+
+
+class Rosenbrock2(FixedStepIntegrator):
+    """Linearly implicit Rosenbrock-W method of order 2 (ROS2, Verwer, Spee, Blom & Hundsdorfer 1999)::
+
+        (I − γhJ) k1 = f(t, y)
+        (I − γhJ) k2 = f(t + h, y + h k1) − 2 k1
+        y += h (3/2 k1 + 1/2 k2),        γ = 1 − 1/√2
+
+    Order 2 for any J (a W-method), L-stable on the part of f that J holds exactly; J = 0 gives
+    Heun's method. The method, its stability function and its cost on a mechanical system are in
+    :mod:`robodyn_ros.kernels.rosenbrock`; the systems' compiled loops run it there. Here it is the
+    generic form, one LU factorisation of ``I − γhJ`` per step (none when ``jac`` is None). f is
+    held autonomous within a step (the Simulator holds its commands constant over a call), so no
+    ∂f/∂t term is needed.
+
+    Args:
+        spec: registry entry.
+        dt: step size h (s), > 0.
+        jac: optional ``jac(t, y) -> J (n, n)``, evaluated once per step at its start: the stiff
+            (passive) part of ∂f/∂y; None: J = 0.
+        gamma: γ, default :data:`GAMMA` (1 − 1/√2); the other L-stable root 1 + 1/√2 is the one the
+            compiled loops take in steps with a joint stop in J (``kernels.rosenbrock.GAMMA_STOP``).
+    """
+
+    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None):
+        super().__init__(spec, dt)
+        self.jac = jac
+        self.gamma = GAMMA if gamma is None else float(gamma)
+
+    def _allocate(self, n):
+        super()._allocate(n)
+        self._Y = np.empty(n)
+        self._k1 = np.empty(n)
+        self._eye = np.eye(n)
+
+    def _step(self, f, t, y, h):
+        from scipy.linalg import lu_factor, lu_solve
+        lu = None
+        if self.jac is not None:
+            J = np.asarray(self.jac(t, y), dtype=np.float64)
+            lu = lu_factor(self._eye - (self.gamma * h) * J, check_finite=False)
+        k1 = self._k1
+        k1[:] = f(t, y)
+        if lu is not None:
+            k1[:] = lu_solve(lu, k1, check_finite=False)
+        np.multiply(k1, h, out=self._Y)
+        self._Y += y
+        k2 = np.asarray(f(t + h, self._Y), dtype=np.float64) - 2.0 * k1
+        if lu is not None:
+            k2 = lu_solve(lu, k2, check_finite=False)
+        y += h * (1.5 * k1 + 0.5 * k2)
+        return 2
+
+    def _count_linear_algebra(self, delta, n_steps):
+        if self.jac is not None:
+            delta.njev += n_steps
+            delta.nlu += n_steps
+
+
+#: γ of :class:`Rosenbrock2` (the L-stable root of 2γ² − 4γ + 1 = 0; kernels.rosenbrock.GAMMA)
+GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
 
 
 # ----------------------------------------------------------------------------------------
@@ -680,6 +757,11 @@ INTEGRATORS: dict[str, IntegratorSpec] = {s.name: s for s in (
                    projection='step', multistep=False,
                    summary='classical fourth-order Runge-Kutta',
                    factory=_fixed(ClassicalRungeKutta4)),
+    IntegratorSpec(name='rosenbrock2', kind='fixed', order=2, symplectic=False, implicit=True,
+                   projection='step', multistep=False,
+                   summary='linearly implicit Rosenbrock-W, order 2, L-stable on the stiff passive forces '
+                           '(damping, friction, joint limits, motor electrics), explicit in the rest',
+                   options=('jac', 'gamma'), factory=_fixed(Rosenbrock2)),
     IntegratorSpec(name='rk45', kind='adaptive', order=5, symplectic=False, implicit=False,
                    projection='step', multistep=False,
                    summary='Dormand-Prince 5(4) explicit Runge-Kutta (scipy RK45)',
@@ -762,6 +844,8 @@ def make_integrator(name: str, dt: float | None = None, rtol: float | None = Non
             kw['nq'] = int(nq)
             if kw.get('qdot') is not None and not callable(kw['qdot']):
                 raise ValueError(f'{spec.name}: qdot must be callable qdot(q, v) -> dq/dt')
+        if kw.get('jac') is not None and not callable(kw['jac']):
+            raise ValueError(f'{spec.name}: jac must be callable jac(t, y) -> (n, n) array')
         return spec.factory(spec, dt, **kw)
 
     if dt is not None:

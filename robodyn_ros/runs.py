@@ -3,12 +3,18 @@ its integrator settings and its human-readable summary.
 
 Settings resolve the same way for all three: the value given for the run (command-line option,
 node parameter, sweep parameter) over the scene's ``simulation`` defaults over the package
-defaults, so a node run and a headless run of the same scene integrate alike.
+defaults, so a node run and a headless run of the same scene integrate alike. The package's default
+integrator is ``auto`` (:mod:`robodyn_ros.integrator_choice`): :func:`resolve_auto` replaces it by the
+method it picks at the run's initial state, and records why under ``auto`` (the summary prints it and
+the recording's metadata keeps it; a run that names its integrator has no ``auto`` key, so its
+recording keeps its bytes).
 """
 from __future__ import annotations
 
 import math
 import os
+
+from .integrator_choice import AUTO, choose_integrator, is_auto
 
 #: simulated seconds between diagnostics messages in a recording (robodyn run, robodyn sweep)
 DIAGNOSTICS_PERIOD = 0.1
@@ -19,11 +25,12 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
 
     scene: a loaded :class:`robodyn_ros.scene.Scene` (its ``settings``); integrator, dt (s),
     rtol, atol, rate (publication rate, Hz), duration (simulated s): None takes the scene's value,
-    else the package default (rk4, 1e-3 s, 100 Hz, 10 s; rtol 1e-8 and atol 1e-10 for an
-    adaptive integrator). Returns a dict with those six keys.
+    else the package default (auto, 1e-3 s, 100 Hz, 10 s; rtol 1e-8 and atol 1e-10 for an
+    adaptive integrator). Returns a dict with those six keys (integrator may be ``'auto'``: see
+    :func:`resolve_auto`).
     """
     s = dict(scene.settings)
-    out = {'integrator': integrator or s.get('integrator', 'rk4'),
+    out = {'integrator': (integrator or s.get('integrator', AUTO)).lower(),
            'dt': dt if dt is not None else s.get('dt', 1e-3),
            'rtol': rtol if rtol is not None else s.get('rtol'),
            'atol': atol if atol is not None else s.get('atol'),
@@ -37,6 +44,17 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
     return out
 
 
+def resolve_auto(st: dict, system, y0, t0: float = 0.0) -> dict:
+    """``st`` (from :func:`resolve_settings`) with an ``'auto'`` integrator replaced by the choice of
+    :func:`robodyn_ros.integrator_choice.choose_integrator` at state y0 (its dt, or rtol/atol for radau)
+    and the reason under ``'auto'``; ``st`` itself when it names an integrator. A new dict."""
+    if not is_auto(st.get('integrator')):
+        return st
+    c = choose_integrator(system, y0, st.get('dt') or 1e-3, st.get('rtol'), st.get('atol'), t0)
+    return {**st, 'integrator': c.integrator, 'dt': c.dt if c.dt is not None else st.get('dt'),
+            'rtol': c.rtol, 'atol': c.atol, 'auto': c.reason}
+
+
 def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     """Human-readable summary of a finished run (cpu: process CPU seconds of the run, if known)."""
     e = sim.energy_report()
@@ -46,6 +64,7 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     lines = [
         f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
         f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, {d.rejected_steps} rejected',
+        *([f'             ({st["auto"]})'] if st.get('auto') else []),
         f'time         simulated {sim.t:.3f} s in {wall:.3f} s wall '
         f'(real-time factor {sim.t / wall if wall > 0 else math.inf:.1f}, {d.wall:.3f} s integrating'
         + (f', {cpu:.3f} s CPU' if cpu is not None else '') + ')',

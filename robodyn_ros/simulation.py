@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .integrators import INTEGRATORS, IntegrationError, IntegratorStats, make_integrator
-from .stability import check_fixed_step, diagnose, preflight
+from .integrator_choice import AUTO, choose_integrator, is_auto
+from .stability import FIXED_STEP, StepWarning, check_fixed_step, diagnose, preflight, step_alternatives
 from .systems.base import System, SystemOutputs
 
 
@@ -111,8 +113,8 @@ def check_step(system: System, integrator: str, dt, y):
     """Refuse a fixed explicit step that the system's fastest time constant makes unstable.
 
     system: supplies ``fastest_time_constant(y)`` (s); integrator: registry name; dt: its step
-    (s); y: the state it starts from. Error-controlled and implicit integrators always pass
-    (they adapt or are stable). Policy: refuse, do not sub-step silently — raises ValueError
+    (s); y: the state it starts from. Error-controlled integrators always pass (they adapt or are
+    stable); rosenbrock2 is checked on what it leaves explicit (``stability.analyse_step``). Policy: refuse, do not sub-step silently — raises ValueError
     naming the time constant, the largest stable step and the alternatives. Beyond the declared
     time constant, :func:`robodyn_ros.stability.check_fixed_step` checks the modes of the
     linearisation at y (finite differences) and the spin of a free base: it refuses a step that
@@ -120,34 +122,32 @@ def check_step(system: System, integrator: str, dt, y):
     (``stability.StepWarning``) on a slow spurious growth (explicit Euler on an oscillation).
     """
     name = str(integrator).lower()
-    limit = STABILITY_LIMIT.get(name)
-    if limit is None or dt is None:
+    if dt is None or name not in FIXED_STEP:
         return
-    tau = float(system.fastest_time_constant(y))
-    if dt > limit * tau:
+    limit = STABILITY_LIMIT.get(name)   # explicit methods: the declared time constant first
+    tau = float(system.fastest_time_constant(y)) if limit is not None else math.inf
+    if limit is not None and dt > limit * tau:
         raise ValueError(f'{name} with dt={dt:g} s is unstable for this system: its fastest time constant is '
                          f'{tau:.3g} s ({type(system).__name__}'
                          f'{getattr(system, "time_constant_words", "") or "; e.g. motor electrics L/R"}), '
-                         f'so a stable {name} step is '
-                         f'at most {limit * tau:.3g} s; use a smaller dt or an implicit integrator (radau, bdf)')
+                         f'so a stable {name} step is at most {limit * tau:.3g} s. '
+                         f'{step_alternatives(system, dt, y)}')
     check_fixed_step(system, name, dt, y)
 
 
 class Simulator:
     """Integrates a :class:`System` in control periods, holding commands between them.
 
-    system: what to simulate; y0: initial state (ny,); integrator: name ('rk4', 'dop853', ...);
-    dt, rtol, atol: step or tolerances for that integrator; command_timeout: seconds of
-    simulation time after which an unrefreshed command goes to zero (None = hold forever);
-    t0: start time (s).
+    system: what to simulate; y0: initial state (ny,); integrator: name ('rk4', 'dop853', ...) or
+    ``'auto'`` (:mod:`robodyn_ros.integrator_choice`: rk4, rosenbrock2 or radau from the step analysis at
+    y0; ``choice`` holds what it chose and why, ``settings`` the chosen method); dt, rtol, atol: step or
+    tolerances for that integrator; command_timeout: seconds of simulation time after which an
+    unrefreshed command goes to zero (None = hold forever); t0: start time (s).
     """
 
-    def __init__(self, system: System, y0, integrator='rk4', dt=1e-3, rtol=None, atol=None,
+    def __init__(self, system: System, y0, integrator=AUTO, dt=1e-3, rtol=None, atol=None,
                  command_timeout=None, t0=0.0):
         self.system = system
-        self.settings = {'integrator': integrator, 'dt': dt, 'rtol': rtol, 'atol': atol,
-                         'command_timeout': command_timeout}
-        self.integrator = build_integrator(system, integrator, dt=dt, rtol=rtol, atol=atol)
         self.command_timeout = command_timeout
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
@@ -157,7 +157,19 @@ class Simulator:
         self._vlim_cache = (None, None)
         self.reset()
         preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
-        check_step(system, integrator, dt, self.y)
+        self.choice = None
+        if is_auto(integrator):
+            self.choice = choose_integrator(system, self.y, dt, rtol, atol, self.t)
+            integrator, dt, rtol, atol = self.choice.integrator, self.choice.dt, self.choice.rtol, self.choice.atol
+            if self.choice.analysis is not None and self.choice.analysis.verdict == 'warn':
+                warnings.warn(StepWarning(self.choice.analysis.message), stacklevel=2)
+        else:
+            check_step(system, integrator, dt, self.y)
+        self.settings = {'integrator': integrator, 'dt': dt, 'rtol': rtol, 'atol': atol,
+                         'command_timeout': command_timeout}
+        if self.choice is not None:
+            self.settings['auto'] = self.choice.reason
+        self.integrator = build_integrator(system, integrator, dt=dt, rtol=rtol, atol=atol)
 
     # -- state ---------------------------------------------------------------------------
     def reset(self):
@@ -275,9 +287,25 @@ class Simulator:
             z[:ny] = sys_.project(z[:ny])
             return z
 
+        if integ.name == 'rosenbrock2':   # its W-matrix: the system's passive Jacobian, inputs held over the call
+            integ.jac = self._passive_jacobian(u, ny, z0.shape[0])
         z1, st = integ.advance(f, self.t, z0, t1, project=project)
         self._parts_z = z1[ny + 1:]
         return z1[:ny], z1[ny], st
+
+    def _passive_jacobian(self, u, ny, n):
+        """``jac(t, z)`` (n, n) for rosenbrock2 on ``z = [y, W, W_parts]``: the system's passive Jacobian
+        in the y block (``System.passive_jacobian`` at the inputs u), zeros elsewhere; None without one."""
+        sys_ = self.system
+        h = self.integrator.dt
+        if sys_.passive_jacobian(self.t, self.y, u, h) is None:
+            return None
+
+        def jac(t, z):
+            out = np.zeros((n, n))
+            out[:ny, :ny] = sys_.passive_jacobian(t, z[:ny], u, h)
+            return out
+        return jac
 
     def advance(self, t1: float):
         """Advance to simulation time ``t1`` (s) holding the current inputs; returns the state.

@@ -60,7 +60,8 @@ import numpy as np
 
 __all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'StepWarning', 'StepAnalysis',
            'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step', 'check_fixed_step',
-           'preflight', 'diagnose', 'stable_step_limit']
+           'preflight', 'diagnose', 'stable_step_limit', 'rosenbrock2_amplification', 'rosenbrock2_step_matrix',
+           'passive_jacobian', 'step_alternatives']
 
 #: spurious amplification per step (eq. S3, as ln ρ) above which a fixed step is refused
 REFUSE_GROWTH = 1e-2
@@ -70,6 +71,12 @@ WARN_DOUBLING_TIME = 1e5
 FD_REL_STEP = 6e-6
 #: fixed explicit methods this module analyses
 FIXED_EXPLICIT = ('euler', 'semi_implicit_euler', 'rk4')
+#: fixed-step methods implicit in the system's passive forces (``System.passive_jacobian``), explicit in the rest
+LINEARLY_IMPLICIT = ('rosenbrock2',)
+#: every fixed-step method this module analyses
+FIXED_STEP = FIXED_EXPLICIT + LINEARLY_IMPLICIT
+#: γ of rosenbrock2 (kernels.rosenbrock.GAMMA, integrators.GAMMA)
+_GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
 
 
 class StepWarning(UserWarning):
@@ -133,11 +140,36 @@ def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_ST
     return J
 
 
+def rosenbrock2_amplification(z: complex, w: complex | None = None) -> complex:
+    """R(z, w) of rosenbrock2 on ``y' = λy`` with J = μ (z = hλ, w = hμ; kernels.rosenbrock eq. R4):
+    ``1 + 3a/2 + (z + z a − 2a)/(2 (1 − γw))`` with ``a = z/(1 − γw)``. w = None: J exact (w = z), the
+    L-stable ``(1 + (1 − 2γ) z)/(1 − γz)²``; w = 0: Heun's ``1 + z + z²/2``."""
+    z = complex(z)
+    w = z if w is None else complex(w)
+    d = 1.0 - _GAMMA * w
+    a = z / d
+    return 1.0 + 1.5 * a + (z + z * a - 2.0 * a) / (2.0 * d)
+
+
+def rosenbrock2_step_matrix(J: np.ndarray, Jp: np.ndarray, h: float) -> np.ndarray:
+    """G (n, n): one rosenbrock2 step on the linear system ``y' = J y`` with the passive part Jp in its
+    W-matrix ``W = I − γh Jp``: ``G = I + 3h/2 W⁻¹J + h/2 W⁻¹(J + h J W⁻¹J − 2 W⁻¹J)`` (R1-R3)."""
+    n = J.shape[0]
+    I = np.eye(n)
+    W = I - (_GAMMA * h) * Jp
+    K1 = np.linalg.solve(W, J)            # k1 = K1 y
+    K2 = np.linalg.solve(W, J + h * J @ K1 - 2.0 * K1)
+    return I + h * (1.5 * K1 + 0.5 * K2)
+
+
 def _scalar_amplification(integrator: str, z: complex) -> float:
     """``|R(z)|`` of a method on the scalar test equation (semi-implicit Euler: on the
-    oscillator/decay pair it is exact for, approximated by its largest root)."""
+    oscillator/decay pair it is exact for, approximated by its largest root; rosenbrock2: on a mode
+    outside its passive Jacobian, where it is Heun's method)."""
     if integrator == 'euler':
         return abs(1 + z)
+    if integrator == 'rosenbrock2':
+        return abs(1 + z + z * z / 2)
     if integrator == 'rk4':
         return abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24)
     if abs(z.imag) <= 1e-12 * abs(z):  # a first-order decay (a motor current): explicit Euler on it
@@ -204,22 +236,34 @@ def spin_rate(system, y) -> float:
     return float(np.linalg.norm(v[0:3]))
 
 
-def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, J=None) -> StepAnalysis:
-    """Analyse a fixed explicit step on ``system`` at state y (module docstring, S1–S3).
+def passive_jacobian(system, y, u=None, t: float = 0.0, h: float | None = None) -> np.ndarray:
+    """The system's implicit Jacobian (ny, ny) at y for step h (``System.passive_jacobian``), zeros when it
+    has none."""
+    u = _zero_inputs(system) if u is None else u
+    fn = getattr(system, 'passive_jacobian', None)
+    Jp = fn(t, np.asarray(y, dtype=float), u, h) if fn is not None else None
+    n = np.asarray(y).size
+    return np.zeros((n, n)) if Jp is None else np.asarray(Jp, dtype=float)
 
-    system: the System; integrator: 'euler' | 'semi_implicit_euler' | 'rk4'; dt: step (s); y:
-    (ny,) state; u: inputs (default zeros); t: time; J: a precomputed Jacobian (optional).
+
+def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, J=None) -> StepAnalysis:
+    """Analyse a fixed step on ``system`` at state y (module docstring, S1–S3; S4 for rosenbrock2).
+
+    system: the System; integrator: 'euler' | 'semi_implicit_euler' | 'rk4' | 'rosenbrock2'; dt: step
+    (s); y: (ny,) state; u: inputs (default zeros); t: time; J: a precomputed Jacobian (optional).
     Returns a :class:`StepAnalysis` whose ``verdict`` is 'ok', 'warn' or 'refuse'.
     """
     name = str(integrator).lower()
-    if name not in FIXED_EXPLICIT:
-        raise ValueError(f'analyse_step is for fixed explicit methods {FIXED_EXPLICIT}, got {integrator!r}')
+    if name not in FIXED_STEP:
+        raise ValueError(f'analyse_step is for fixed-step methods {FIXED_STEP}, got {integrator!r}')
     h = float(dt)
     y = np.asarray(y, dtype=float)
     if J is None:
         J = linearisation(system, y, u, t)
     if not np.all(np.isfinite(J)):
         raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite')
+    if name in LINEARLY_IMPLICIT:
+        return _analyse_linearly_implicit(system, name, h, y, u, t, J)
     lam = np.linalg.eigvals(J) if J.size else np.zeros(0, dtype=complex)
     modes = candidate_modes(lam, spin := spin_rate(system, y))
     sys_tau = float(system.fastest_time_constant(y)) if hasattr(system, 'fastest_time_constant') else math.inf
@@ -247,14 +291,98 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
         a.verdict = 'refuse'
         a.message = (f'{name} with dt={h:g} s is unstable for this system ({type(system).__name__}): {mode}; '
                      f'h·|λ| = {h * abs(worst):.3g} amplifies it by {rho:.3g} per step; {limit}. '
-                     f'Use a smaller dt, or an error-controlled integrator (dop853, rk45) or a stiff one '
-                     f'(radau, bdf, lsoda)')
+                     f'{step_alternatives(system, h, y, u, t, J)}')
     elif growth > 0 and doubling < WARN_DOUBLING_TIME:
         a.verdict = 'warn'
         a.message = (f'{name} with dt={h:g} s amplifies a mode of {type(system).__name__} spuriously: {mode}; '
                      f'numerical growth {growth:.2e} per step doubles it every {doubling:.3g} s of simulated '
                      f'time (energy drifts upward); use semi_implicit_euler, rk4 or an error-controlled integrator '
                      f'for long runs')
+    return a
+
+
+def step_alternatives(system, h, y, u=None, t: float = 0.0, J=None) -> str:
+    """What to use instead of a refused explicit step of h (s) at y, as a sentence: rosenbrock2 first
+    when it is stable there (the stiffness is passive), then a smaller dt and the error-controlled methods."""
+    if J is None:
+        J = linearisation(system, np.asarray(y, dtype=float), u, t)
+    tail = 'or an error-controlled integrator (dop853, rk45) or a stiff one (radau, bdf, lsoda)'
+    try:
+        ok = _analyse_linearly_implicit(system, 'rosenbrock2', h, y, u, t, J).verdict != 'refuse'
+    except (ValueError, np.linalg.LinAlgError):
+        ok = False
+    if ok:
+        return (f'Use rosenbrock2 (linearly implicit in the passive forces, stable at this step; integrator: auto '
+                f'picks it), a smaller dt, {tail}')
+    return f'Use a smaller dt, {tail} (rosenbrock2 is not stable here either: the stiffness is not passive)'
+
+
+def _analyse_linearly_implicit(system, name, h, y, u, t, J) -> StepAnalysis:
+    """rosenbrock2 at step h (S4): the step matrix G of the linearisation J with the passive part
+    ``Jp = system.passive_jacobian`` in its W-matrix (:func:`rosenbrock2_step_matrix`); each eigenvalue ν of
+    G is paired with the mode λ of J whose true growth e^{hλ} it is nearest, and its spurious growth
+    ``ln|ν| − h max(0, Re λ)`` (less the true growth of a saddle the run starts on) refuses.
+    What stays explicit is Heun's method on the modes of J without the passive forces (``J − Jp`` on the
+    rows after the configuration, whose Jp rows are the kinematics; S2's candidates), on a free base's
+    spin ``±i ω/2`` and on the declared time constant the passive part does not hold
+    (``System.explicit_time_constant``), which J may blur: those refuse too. A slow growth warns when
+    both G on the modes that do not grow and Heun's on the explicit modes show it (G's eigenvalues near
+    1 carry the round-off of J's finite differences amplified by near-defective zero modes, ~1e-7 per
+    step; the explicit modes alone leave out the damping that holds them)."""
+    Jp = passive_jacobian(system, y, u, t, h)
+    lam = np.linalg.eigvals(J) if J.size else np.zeros(0, dtype=complex)
+    nu = np.linalg.eigvals(rosenbrock2_step_matrix(J, Jp, h)) if J.size else np.zeros(0, dtype=complex)
+    # each eigenvalue ν of G against the true growth e^{hλ} of the mode it approximates (the nearest)
+    exact = np.exp(h * lam)
+    paired = lam[np.argmin(np.abs(nu[:, None] - exact[None, :]), axis=1)] if nu.size else lam
+    log_nu = np.log(np.maximum(np.abs(nu), 1e-300))
+    g_matrix = float(np.max(log_nu - h * np.maximum(paired.real, 0.0))) if nu.size else -math.inf
+    settled = paired.real <= 0.0    # modes that do not grow: any growth of theirs is the method's
+    g_settled = float(np.max(log_nu[settled])) if np.any(settled) else -math.inf
+    spin = spin_rate(system, y)
+    Je = J.copy()   # the linearisation without the passive forces (Jp's configuration rows are kinematics)
+    nq = int(getattr(system, 'nq', 0))
+    Je[nq:] -= Jp[nq:]
+    explicit = candidate_modes(np.linalg.eigvals(Je) if J.size else np.zeros(0, dtype=complex), spin)
+    tau_e = float(system.explicit_time_constant(y)) if hasattr(system, 'explicit_time_constant') else math.inf
+    declared = [0.5j * spin, -0.5j * spin] if spin > 0 else []
+    if math.isfinite(tau_e) and tau_e > 0:
+        declared.append(-1.0 / tau_e)
+    explicit = np.concatenate([explicit, np.array(declared, dtype=complex)])
+
+    def heun_growth(ms):
+        return max((math.log(max(_scalar_amplification(name, h * m), 1e-300)) for m in ms), default=-math.inf)
+    g_declared = heun_growth(declared)
+    refuse_growth = max(g_matrix, g_declared)
+    growth = max(min(g_settled, heun_growth(explicit)), g_declared)
+    k = int(np.argmax(np.abs(explicit))) if explicit.size else -1
+    worst = complex(explicit[k]) if k >= 0 else 0j
+    modes = candidate_modes(lam, spin)
+    lam_max = float(np.max(np.abs(modes))) if modes.size else 0.0
+    sys_tau = float(system.fastest_time_constant(y)) if hasattr(system, 'fastest_time_constant') else math.inf
+    dt_limit = stable_step_limit(name, worst) if worst != 0 else math.inf
+    shown = refuse_growth if refuse_growth > REFUSE_GROWTH else growth
+    doubling = h * math.log(2.0) / shown if shown > 0 else math.inf
+    a = StepAnalysis(integrator=name, dt=h, eigenvalues=modes, lam_max=lam_max,
+                     tau=1.0 / lam_max if lam_max > 0 else math.inf, spin=spin, system_tau=sys_tau,
+                     rho=math.exp(shown), growth=shown, doubling_time=doubling, dt_limit=dt_limit, worst=worst,
+                     extra={'passive_lam_max': float(np.max(np.abs(np.linalg.eigvals(Jp)))) if Jp.size else 0.0,
+                            'explicit_lam_max': abs(worst), 'step_matrix_growth': g_matrix,
+                            'settled_growth': g_settled})
+    mode = (f'its fastest mode outside the passive forces has |λ| = {abs(worst):.3g} 1/s '
+            f'(λ = {worst.real:.3g}{worst.imag:+.3g}i)')
+    if refuse_growth > REFUSE_GROWTH:
+        a.verdict = 'refuse'
+        a.message = (f'{name} with dt={h:g} s is unstable for this system ({type(system).__name__}): it is implicit '
+                     f'only in the passive forces (damping, friction, joint limits, motor electrics) and {mode}; '
+                     f'a mode grows by {math.exp(refuse_growth):.3g} per step; a stable step on that mode is at most '
+                     f'{dt_limit:.3g} s. Use a smaller dt or a stiff error-controlled integrator (radau, bdf, lsoda)')
+    elif growth > 0 and doubling < WARN_DOUBLING_TIME:
+        a.verdict = 'warn'
+        a.message = (f'{name} with dt={h:g} s amplifies a mode of {type(system).__name__} spuriously: outside the '
+                     f'passive forces it is Heun\'s method, which lets an undamped oscillation of frequency ω grow '
+                     f'by (ωh)⁴/8 per step; numerical growth {growth:.2e} per step doubles it every {doubling:.3g} s '
+                     f'of simulated time; use rk4 or a smaller dt for long undamped runs')
     return a
 
 
@@ -276,7 +404,7 @@ def check_fixed_step(system, integrator: str, dt, y, u=None, t: float = 0.0) -> 
     implicit) or when dt is None.
     """
     name = str(integrator).lower()
-    if name not in FIXED_EXPLICIT or dt is None or getattr(system, 'ny', 0) == 0:
+    if name not in FIXED_STEP or dt is None or getattr(system, 'ny', 0) == 0:
         return None
     a = analyse_step(system, name, dt, y, u, t)
     if a.verdict == 'refuse':

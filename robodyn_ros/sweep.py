@@ -99,9 +99,11 @@ TRACE_ENV = 'ROBODYN_SWEEP_TRACE'
 # runs
 # ---------------------------------------------------------------------------------------------
 def run_settings(scene, overrides: dict, duration: float) -> dict:
-    """Integrator settings of one run: ``overrides`` over the scene's, resolved as ``robodyn run`` does."""
-    from .runs import resolve_settings
-    return resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
+    """Integrator settings of one run: ``overrides`` over the scene's, resolved as ``robodyn run`` does
+    (``auto`` replaced by the method it picks at the scene's initial state)."""
+    from .runs import resolve_auto, resolve_settings
+    st = resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
+    return resolve_auto(st, scene.system, scene.y0)
 
 
 class _Figures:
@@ -256,6 +258,9 @@ def execute_run(task: dict) -> dict:
         st = run_settings(scene, task['params'], task['duration'])
     except SceneError as e:
         row.update(status='invalid', message=str(e))
+        st = None
+    except ValueError as e:   # integrator auto could not analyse the initial state
+        row.update(status='refused', message=str(e))
         st = None
     if st is not None:
         from .integrators import INTEGRATORS

@@ -66,10 +66,10 @@ def test_registry_holds_the_cli_names_with_their_properties():
         assert name in INTEGRATORS
         assert INTEGRATORS[name].name == name
     assert {n: INTEGRATORS[n].order for n in FIXED} == {
-        'euler': 1, 'semi_implicit_euler': 1, 'rk4': 4}
+        'euler': 1, 'semi_implicit_euler': 1, 'rk4': 4, 'rosenbrock2': 2}
     assert [n for n, s in INTEGRATORS.items() if s.symplectic] == ['semi_implicit_euler']
-    assert {n for n, s in INTEGRATORS.items() if s.implicit} == {'radau', 'bdf', 'lsoda'}
-    assert set(FIXED) == {'euler', 'semi_implicit_euler', 'rk4'}
+    assert {n for n, s in INTEGRATORS.items() if s.implicit} == {'radau', 'bdf', 'lsoda', 'rosenbrock2'}
+    assert set(FIXED) == {'euler', 'semi_implicit_euler', 'rk4', 'rosenbrock2'}
     for name in INTEGRATORS:
         assert type(build(name)).__name__ != 'Integrator'
 
@@ -155,7 +155,7 @@ def test_exponential_decay_against_exact_solution(name):
     def f(t, y):
         return -lam * y
 
-    dt, bound = {'euler': (1e-4, 1e-3), 'rk4': (1e-2, 1e-8)}.get(name, (None, 1e-6))
+    dt, bound = {'euler': (1e-4, 1e-3), 'rk4': (1e-2, 1e-8), 'rosenbrock2': (1e-3, 1e-5)}.get(name, (None, 1e-6))
     integ = build(name, dt=dt, rtol=1e-9, atol=1e-12)
     y, _ = integ.advance(f, 0.0, y0, T)
     exact = y0 * np.exp(-lam * T)
@@ -168,6 +168,7 @@ def test_exponential_decay_against_exact_solution(name):
     ('euler', 1, [2.0 / 2 ** k for k in range(6, 12)]),
     ('semi_implicit_euler', 1, [2.0 / 2 ** k for k in range(6, 12)]),
     ('rk4', 4, [2.0 / 2 ** k for k in range(3, 8)]),
+    ('rosenbrock2', 2, [2.0 / 2 ** k for k in range(5, 11)]),   # J = 0: Heun's method
 ])
 def test_measured_convergence_order(name, order, ladder):
     errors = [global_error(name, h) for h in ladder]

@@ -1,7 +1,7 @@
 """``robodyn bench precision``: what every integrator costs and achieves, per scene.
 
 For each scene, every integrator runs over a ladder of fixed steps (euler,
-semi_implicit_euler, rk4) or tolerances (rk45, dop853, radau, bdf, lsoda; ``atol = rtol``),
+semi_implicit_euler, rk4, rosenbrock2) or tolerances (rk45, dop853, radau, bdf, lsoda; ``atol = rtol``),
 and, where the scene has more than one formulation (a free base: minimal / augmented; a
 prescribed end point: complement / kkt), once per formulation. A run is the product's own loop:
 a :class:`~robodyn_ros.simulation.Simulator` advanced in publication periods of the scene
@@ -73,8 +73,10 @@ DEFAULT_SCENES = ('betancur_pendulum', 'huston_p19_2_3', 'stanford_arm', 'betanc
 FIXED_LADDERS = {
     'full': {'euler': (1e-2, 3e-3, 1e-3, 3e-4, 1e-4),
              'semi_implicit_euler': (1e-2, 3e-3, 1e-3, 3e-4, 1e-4),
-             'rk4': (2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4)},
-    'quick': {'euler': (1e-2, 1e-3), 'semi_implicit_euler': (1e-2, 1e-3), 'rk4': (1e-2, 3e-3, 1e-3)},
+             'rk4': (2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4),
+             'rosenbrock2': (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4)},
+    'quick': {'euler': (1e-2, 1e-3), 'semi_implicit_euler': (1e-2, 1e-3), 'rk4': (1e-2, 3e-3, 1e-3),
+              'rosenbrock2': (1e-2, 3e-3, 1e-3)},
 }
 #: relative tolerances of the error-controlled methods (atol = ATOL_FACTOR * rtol)
 ADAPTIVE_LADDERS = {'full': (1e-3, 1e-5, 1e-7, 1e-9, 1e-11), 'quick': (1e-4, 1e-6, 1e-8, 1e-10)}
@@ -93,7 +95,7 @@ SAMPLES = 20
 FORMULATION_KEYS = {'free_base': ('minimal', 'augmented'), 'prescribed_arm': ('complement', 'kkt')}
 #: error-controlled methods
 ADAPTIVE = ('rk45', 'dop853', 'radau', 'bdf', 'lsoda')
-FIXED = ('euler', 'semi_implicit_euler', 'rk4')
+FIXED = ('euler', 'semi_implicit_euler', 'rk4', 'rosenbrock2')
 
 @dataclass
 class Reference:

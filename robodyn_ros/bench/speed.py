@@ -24,6 +24,10 @@ Sections (each can be skipped with ``--skip``):
 * ``compile``  first-run cost of the compiled kernels (cold numba cache) against a warm start,
   in child processes;
 * ``node``     the ROS node's figures from ``robodyn_ros.bench.node.bench_node()`` when present;
+* ``stiff``    stiff robots at 1 ms (:mod:`robodyn_ros.bench.stiff`): xarm7 by rosenbrock2 beside MuJoCo's
+  implicitfast, implicit and Euler integrators stepped from Python, errors against Pinocchio + Radau;
+  human17 and the inductive-motor platform at 1 ms (the example-robot-data table is
+  ``robodyn bench stiff``);
 * ``targets``  the speed targets against the figures measured above (met or not, by how much).
 
 Per-call timings are CPU time of this process, the minimum over interleaved repeats; run
@@ -33,6 +37,7 @@ to read, never asserted by tests.
 from __future__ import annotations
 
 import contextlib
+import math
 import json
 import os
 import subprocess
@@ -47,7 +52,7 @@ from .references import (RTF_DT, RTF_RATE, mujoco_loop, mujoco_model, mujoco_rec
 from .timing import best_of, fmt_ratio, fmt_time, machine_line, peak_rss_bytes, per_call, rss_bytes, table
 
 HELP = 'per-call ID/M/FD, real-time factors, O(n) scaling, memory and compile cost vs Pinocchio/MuJoCo'
-SECTIONS = ('kernels', 'systems', 'rtf', 'recording', 'scaling', 'memory', 'compile', 'node', 'targets')
+SECTIONS = ('kernels', 'systems', 'rtf', 'recording', 'scaling', 'memory', 'compile', 'node', 'stiff', 'targets')
 #: simulated seconds of the numpy-reference RTF run (it is ~100x slower than the compiled one)
 REFERENCE_HORIZON = 0.5
 #: simulated seconds for systems without a compiled path (their numpy constraint solvers are slow)
@@ -936,6 +941,17 @@ def section_node(args, names) -> str:
 # ----------------------------------------------------------------------------------------------
 # the issue's targets against the figures above
 # ----------------------------------------------------------------------------------------------
+def section_stiff(args, names) -> str:
+    """xarm7 against MuJoCo's implicit integrators, human17 and the inductive platform (bench.stiff)."""
+    from types import SimpleNamespace
+
+    from . import stiff
+    ns = SimpleNamespace(repeat=args.repeat, robots=None, skip=['robots'])
+    args.figures['stiff'] = {}
+    return '### Stiff robots at 1 ms\n\n' + stiff.section_mujoco(ns, args.figures['stiff']) + '\n' \
+        + stiff.section_scenes(ns)
+
+
 def section_targets(args, names) -> str:
     """One row per target of issue 7: the figure measured in this run, the target, met or not."""
     f = getattr(args, 'figures', {})
@@ -987,6 +1003,15 @@ def section_targets(args, names) -> str:
                 f'{r["batched_period"] / r["zstd_period"]:.1f} ({r["batched_period"] * 1e6:.1f} µs / '
                 f'{r["zstd_period"] * 1e6:.1f} µs)', 'a small multiple', None,
                 f'{r["messages"]:.0f} messages per period; message by message {r["message_period"] * 1e6:.1f} µs')
+    st = f.get('stiff', {})
+    ours = next((v for k, v in st.items() if k.startswith('robodyn')), None)
+    mj = st.get('MuJoCo implicitfast')
+    if ours:
+        add('xarm7 (damping only) 1 s at 1 ms: error', f'{ours[0]:.2g} rad', '<= 1e-5 rad', ours[0] <= 1e-5,
+            f'MuJoCo implicitfast {mj[0]:.2g} rad' if mj else 'MuJoCo not measured')
+        if mj and math.isfinite(mj[1]):
+            add('xarm7 RTF / MuJoCo implicitfast from Python', f'{ours[1] / mj[1]:.2f} ({ours[1]:.0f} / {mj[1]:.0f})',
+                '>= 1', ours[1] >= mj[1], 'wall time, same run, best of --repeat')
     m = f.get('memory')
     if m:
         add(f'memory growth after warm-up ({m["duration"]:g} s recorded run)', f'{m["growth"]:+.2f} %', '< 10 %',

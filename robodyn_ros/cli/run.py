@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 import time
 
-from ..runs import DIAGNOSTICS_PERIOD, resolve_settings, summary
+from ..runs import DIAGNOSTICS_PERIOD, resolve_auto, resolve_settings, summary
 
 #: one line for ``robodyn --help``
 HELP = 'simulate a scene headless with its scripted commands'
@@ -18,7 +18,9 @@ def add_parser(sub):
     p.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the scene\'s)')
     p.add_argument('--record', default=None, help='MCAP file to write (default: none); an existing file is refused')
     p.add_argument('--overwrite', action='store_true', help='replace the --record file if it exists')
-    p.add_argument('--integrator', default=None, help='euler, semi_implicit_euler, rk4, rk45, dop853, radau, ...')
+    p.add_argument('--integrator', default=None,
+                   help='auto (default unless the scene names one: rk4, else rosenbrock2 for stiff passive forces, '
+                        'else radau), euler, semi_implicit_euler, rk4, rosenbrock2, rk45, dop853, radau, ...')
     p.add_argument('--dt', type=float, default=None, help='fixed step (s) for fixed-step integrators')
     p.add_argument('--rtol', type=float, default=None, help='relative tolerance (adaptive integrators)')
     p.add_argument('--atol', type=float, default=None, help='absolute tolerance (adaptive integrators)')
@@ -75,6 +77,7 @@ def main(args) -> int:
     st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration)
     st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
+        st = resolve_auto(st, scene.system, scene.y0)   # integrator auto: the method it picks, and why
         sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
                         atol=st['atol'])
     except ValueError as e:

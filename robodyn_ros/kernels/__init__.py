@@ -71,7 +71,7 @@ except ImportError as _e:  # the compiled path is off: the systems use the numpy
 __all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_model', 'FUSED_METHODS', 'warmup']
 
 #: integrator names the fused loop implements -> method code in :mod:`.fixed_step`
-FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2}
+FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2, 'rosenbrock2': 3}
 
 
 def merge_fixed(model: Model) -> dict:
@@ -168,6 +168,9 @@ class CompiledModel:
         self.mi_r, self.mf_r = pack_model(model, merge=True)
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
+        from ..urdf import COULOMB_VELOCITY
+        self.friction = np.ascontiguousarray(model.friction, dtype=float).reshape(self.nv)
+        self.v_s = float(COULOMB_VELOCITY)   # regularisation speed of the Coulomb friction (kernels.passive)
         from ..model import limit_table
         self.lim = limit_table(model)   # joint-limit moments (Huston eq. 20.2.1), 0 rows = none
         self._zf = np.zeros((self.nb, 6))
@@ -288,8 +291,25 @@ class CompiledModel:
         index of the first non-finite step or -1.
         """
         run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
-        return run(self.mi_r, self.mf_r, self.damping, self.lim, tau_app, self.nq, FUSED_METHODS[method],
-                   z, float(dt), int(n_full), float(h_last), self.cpl)
+        return run(self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, self.lim, tau_app, self.nq,
+                   FUSED_METHODS[method], z, float(dt), int(n_full), float(h_last), self.cpl)
+
+    def passive_jacobian(self, q, v, h=None):
+        """``(D, K)`` (nv, nv) of the linearly implicit step at (q, v), tangent coordinates, as
+        ``arm.arm_rosenbrock_step`` assembles them: the damping ``−∂τ_p/∂v`` and stiffness ``−∂τ_p/∂q`` of the
+        passive forces (``arm.passive_jacobian``: damping, friction slope, joint-limit moments on their
+        branches at (q, v)) and, with a step h (s), the gravity stiffness ``∂g/∂q`` of the 1-DOF joints
+        (``tree.gravity_stiffness_ws``)."""
+        D = np.zeros((self.nv, self.nv))
+        K = np.zeros((self.nv, self.nv))
+        q = np.ascontiguousarray(q, dtype=float)
+        arm.passive_jacobian(self.damping, self.friction, self.v_s, self.lim, q,
+                              np.ascontiguousarray(v, dtype=float), q, False, D, K)
+        if h is not None:
+            G = np.empty((self.nv, self.nv))
+            tree.gravity_stiffness_into(self.mi_r, self.mf_r, q, G)
+            K += G
+        return D, K
 
 
 class CompiledSystem:
@@ -317,6 +337,9 @@ class CompiledSystem:
             self.tree = (mi, mf, mi, mf)
         self.stat = np.zeros(4)
         self._evaluate, self._project, self._integrate = fixed_step.ENTRY_POINTS[self.kind]
+        #: integrator names its fused loop runs: the linearly implicit one only where the kind has a
+        #: passive Jacobian (the differential drive's motors); elsewhere rosenbrock2 takes the generic path
+        self.methods = tuple(m for m in FUSED_METHODS if m != 'rosenbrock2' or self.kind == fixed_step.DIFFDRIVE)
 
     def evaluate(self, t, y, u):
         """``[dy/dt; input power]`` (ny + 1,) at (t, y) under the input vector u.

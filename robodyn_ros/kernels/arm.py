@@ -13,26 +13,34 @@ import math
 import numpy as np
 from numba import njit
 
-from .fixed_step import M_RK4, M_SEMI_IMPLICIT_EULER
+from .coupled import couple_into, coupled_fd_ws, reduce_into
+from .fixed_step import M_RK4, M_ROSENBROCK2, M_SEMI_IMPLICIT_EULER
+from .linalg import chol_solve, cholesky
+from .passive import add_coulomb_friction, friction_jacobian_add
 from .profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval
-from .coupled import couple_into, coupled_fd_ws
-from .tree import (_JIT, aba_ws, joint_wrenches, limit_forces_add, normalize_into, qdot_into, rnea_into, transforms,
-                   workspace)
+from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_velocity
+from ..model import SPHERICAL
+from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
+                   limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
+                   rnea_ws, tangent_rate_into, transforms, workspace)
 
 
 # ----------------------------------------------------------------------------------------------
 # fused fixed-step integration of an arm with its work quadrature
 # ----------------------------------------------------------------------------------------------
 @njit(**_JIT)
-def arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv):
-    """``tauv = B u − D v + τ_lim`` at ``z = [q, v, W(, W_lim)]``; returns the power ``vᵀ tauv``.
+def arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv):
+    """``tauv = B u − D v − F tanh(v / v_s) + τ_lim`` at ``z = [q, v, W(, W_lim)]``; returns the power
+    ``vᵀ tauv``. F: Coulomb joint friction (``passive.add_coulomb_friction``; zeros = none).
     With W_lim in z, ``dz[nq + nv + 1] = vᵀ τ_lim`` (the limit forces are formed alone in
     ``dz[nq:nq + nv]``, which the caller's ABA overwrites; one row per joint, so tauv gets the
-    same sums as :func:`limit_forces_add` on it). Shared by :func:`arm_rhs` and the generated one."""
+    same sums as :func:`limit_forces_add` on it). The sums are those of ``ArmSystem.generalized_forces``
+    in its order. Shared by :func:`arm_rhs` and the generated one."""
     q = z[:nq]
     v = z[nq:nq + nv]
     for k in range(nv):
         tauv[k] = tau_app[k] - damping[k] * v[k]
+    add_coulomb_friction(friction, v_s, v, tauv)
     if z.shape[0] > nq + nv + 1:
         tl = dz[nq:nq + nv]
         for k in range(nv):
@@ -53,11 +61,13 @@ def arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv):
 
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
-    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v + τ_lim``;
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
+    """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v − F tanh(v/v_s) +
+    τ_lim``;
     for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
 
-    tau_app (nv,) = B u held over the call; damping (nv,) = D; lim: the joint-limit table
+    tau_app (nv,) = B u held over the call; damping (nv,) = D; friction (nv,) = F, v_s its
+    regularisation speed; lim: the joint-limit table
     (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch; cpl: None, or ``(mimic table,
     col, mul)`` of a tree with mimic joints (:mod:`.coupled`), whose v̇ is then the coupled
     dynamics (:func:`.coupled.coupled_fd_ws`, scratch cs) instead of ABA.
@@ -66,7 +76,7 @@ def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
-    P = arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
+    P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
     transforms(mi, mf, q, W)
     if cpl is not None:   # a None argument prunes this branch at compile time: no coupled code for other trees
         coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
@@ -76,11 +86,12 @@ def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl):
+def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl):
     """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
     ``n_full`` steps of dt and one of h_last (if > 0).
 
-    method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER`` or ``M_RK4``, with the arithmetic of
+    method: ``M_EULER``, ``M_SEMI_IMPLICIT_EULER``, ``M_RK4`` or ``M_ROSENBROCK2`` (the linearly implicit
+    step :func:`arm_rosenbrock_step`), with the arithmetic of
     :mod:`robodyn_ros.integrators` (RK4: ``acc = k1 + 2 k2 + 2 k3 + k4`` folded stage by
     stage, ``y += h/6 acc``; symplectic Euler: ``[v, W] += h f[nq:]``, then ``q += h q̇(q,
     v_new)``); free-joint quaternions are renormalised and mimic joints set from their sources
@@ -88,15 +99,15 @@ def integrate_arm(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_la
     Returns the index of the first step whose result is non-finite (z then holds that result), or -1.
     """
     if cpl is None:
-        return arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None)
+        return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None)
     nv = damping.shape[0]
     nr = nv - cpl[0].shape[0]
     cs = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nr, nr)), np.zeros((nr, nr)), np.zeros(nr), np.zeros(nr))
-    return arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs)
+    return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs)
 
 
 @njit(**_JIT)
-def arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs):
+def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs):
     """The steps of :func:`integrate_arm` (cs: the coupled dynamics' scratch, None with cpl)."""
     nb = mi.shape[0]
     n = z.shape[0]
@@ -108,36 +119,59 @@ def arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, 
     acc = buf[2 * n:3 * n]
     tauv = buf[3 * n:3 * n + nv]
     qd = buf[3 * n + nv:]
+    if method == M_ROSENBROCK2:
+        vec = np.empty((ROS_VECTORS, nv))
+        mat = np.empty((ROS_MATRICES, nv, nv))
+        nr = nv if cpl is None else nv - cpl[0].shape[0]
+        red = (np.empty((2, nr, nr)), np.empty((2, nr)))   # the iteration matrix in independent joints
     n_steps = n_full + (1 if h_last > 0.0 else 0)
     for k in range(n_steps):
         h = dt if k < n_full else h_last
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
+        elif method == M_ROSENBROCK2:
+            rest = h            # one step, or several where it enters a stiff stop (limit_event)
+            splits = 0
+            while rest > 0.0:
+                hs = rest
+                taken = -1.0
+                while taken < 0.0:
+                    taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs,
+                                                splits < MAX_SPLITS, W, K, Y, acc, tauv, vec, mat, cpl, cs, red)
+                    if taken == -math.inf:
+                        break
+                    if taken < 0.0:
+                        hs = -taken
+                        splits += 1
+                if taken == -math.inf:
+                    z[nq] = math.nan   # the iteration matrix was not positive definite: a failed step
+                    break
+                rest = 0.0 if hs >= rest else rest - hs
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
             for a in range(n):
                 z[a] += K[a] * h
         normalize_into(mi, z[:nq])
@@ -150,13 +184,313 @@ def arm_steps(mi, mf, damping, lim, tau_app, nq, method, z, dt, n_full, h_last, 
 
 
 @njit(**_JIT)
-def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_start, n_full, h_last,
+def passive_jacobian(damping, friction, v_s, lim, q, v, qs, use_qs, Dm, Km):
+    """The passive Jacobian of a tree at (q, v) added to Dm, Km: ``Dm += −∂τ_p/∂v``, ``Km += −∂τ_p/∂q``
+    (nv, nv, tangent coordinates; the caller starts them at zero, or K at the gravity stiffness), as the
+    sum of named contributions (:mod:`robodyn_ros.kernels.rosenbrock`):
+    joint damping ``diag(d)``, the Coulomb friction's slope (``passive.friction_jacobian_add``,
+    regularisation speed v_s), the joint-limit moments' spring and damper on their branches at (q, v)
+    (returns how many stop terms it added)
+    (:func:`~robodyn_ros.kernels.tree.limit_jacobian_add`; with use_qs also the stops the stage configuration qs is beyond).
+    A new passive element (a compliant contact: ``Jᶜᵀ K_c Jᶜ``, ``Jᶜᵀ D_c Jᶜ``) adds its own term here."""
+    for i in range(Dm.shape[0]):
+        Dm[i, i] += damping[i]
+    friction_jacobian_add(friction, v_s, v, Dm)
+    if lim.shape[0]:
+        return limit_jacobian_add(lim, q, v, qs, use_qs, Dm, Km)
+    return 0
+
+
+#: a stop is resolved explicitly over a time t when ``γ² t² k <= LIMIT_EXPLICIT · M_jj`` (its mode
+#: ω t <~ 0.2: the stage point may then meet it without J); stiffer stops entered within a step are events
+LIMIT_EXPLICIT = 0.05
+#: time to contact below which (as a fraction of the step) a stop counts as met: it joins J at once
+LIMIT_CONTACT = 1e-6
+
+
+@njit(**_JIT)
+def _first_root(x0, x1, x2):
+    """The smallest t > 0 with ``x0 + x1 t + x2 t² = 0`` (x0 < 0: inside), or inf."""
+    if x2 == 0.0:
+        return -x0 / x1 if x1 > 0.0 else math.inf
+    disc = x1 * x1 - 4.0 * x2 * x0
+    if disc < 0.0:
+        return math.inf
+    sq = math.sqrt(disc)
+    # roots (-x1 ± sq) / (2 x2), written to avoid cancellation: t = 2 x0 / (-x1 ∓ sq)
+    best = math.inf
+    for den in (-x1 - sq, -x1 + sq):
+        if den != 0.0:
+            t = 2.0 * x0 / den
+            if t > 0.0 and t < best:
+                best = t
+    return best
+
+
+@njit(**_JIT)
+def _entry_step(x0, xd, xs, h, k, m):
+    """Sub-step of a step h that meets a stop (stiffness k, inertia m) whose signed penetration is
+    x0 < 0 at its start, xd its rate, xs > 0 at the stage point ``h kq1`` (= ``h xd + γh² xa``): h when
+    the stop is explicit over h; 0 when the joint is at contact (the stop joins J); else the time to
+    contact t_c (``x0 + xd t + ½ xa t² = 0``) when the stop is explicit over t_c, or the longest step
+    whose stage point stays short of the stop (``x0 + xd t + γ xa t² = 0``), which the next one resumes from."""
+    gk = GAMMA * GAMMA * k
+    if gk * h * h <= LIMIT_EXPLICIT * m:
+        return h
+    xa = (xs - x0 - h * xd) / (GAMMA * h * h)
+    tc = _first_root(x0, xd, 0.5 * xa)
+    if tc <= LIMIT_CONTACT * h:
+        return 0.0
+    if tc < h and gk * tc * tc <= LIMIT_EXPLICIT * m:
+        return tc
+    return min(_first_root(x0, xd, GAMMA * xa), h)
+
+
+@njit(**_JIT)
+def limit_event(lim, q, v, h, qs, H):
+    """The step to take when the stage point qs (nq,) of a step h from (q, v) is beyond a stop the branch
+    at q left out of J: h (no such stop, or every one explicit over h: :data:`LIMIT_EXPLICIT`), 0 (at
+    contact: the stops join J, ``use_qs`` of :func:`~robodyn_ros.kernels.tree.limit_jacobian_add`), or a shorter step that lands the
+    joint on the stop, or short of it with its stage point outside (:func:`_entry_step`; the smallest
+    over the stops met). H (nv, nv): the mass matrix, whose diagonal is the inertia each stop acts on."""
+    phi = np.empty(3)
+    phs = np.empty(3)
+    Jm = np.empty((3, 3))
+    d = np.empty(3)
+    ds = np.empty(3)
+    step = h
+    for r in range(lim.shape[0]):
+        jt = int(lim[r, 0])
+        qi = int(lim[r, 1])
+        vi = int(lim[r, 2])
+        k = lim[r, 10]
+        n = 1 if jt != SPHERICAL else 3
+        if jt == SPHERICAL:
+            _limit_frame(lim, r, q, v, phi, Jm, d)
+            _limit_frame(lim, r, qs, v, phs, Jm, ds)
+        for e in range(n):
+            lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
+            if jt != SPHERICAL:
+                th, thd, ths = q[qi], v[vi], qs[qi]
+            else:
+                th, thd, ths = phi[e], d[e], phs[e]
+            if th > hi or th < lo:
+                continue        # already beyond: its branch is in J
+            if ths > hi:
+                s = _entry_step(th - hi, thd, ths - hi, h, k, H[vi + e, vi + e])
+            elif ths < lo:
+                s = _entry_step(lo - th, -thd, lo - ths, h, k, H[vi + e, vi + e])
+            else:
+                continue
+            if s < step:
+                step = s
+    return step
+
+
+@njit(**_JIT)
+def arm_bias_mass(mi, mf, q, v, zero, bias, H, G, W):
+    """``bias (nv,) = C(q, v) + g(q)`` (:func:`rnea_ws` at zero acceleration), ``H (nv, nv) = M(q)``
+    (:func:`crba_ws`) and the gravity stiffness ``G (nv, nv) = ∂g/∂q``
+    (:func:`~robodyn_ros.kernels.tree.gravity_stiffness_ws`, from the CRBA's composite inertias) at one
+    transform pass; zero (nv,) zeros. The generated modules (:mod:`robodyn_ros.kernels.codegen`) have
+    their own, specialised to the model."""
+    transforms(mi, mf, q, W)
+    rnea_ws(mi, mf, q, v, zero, W, False, bias, W)
+    nv = H.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            H[a, b] = 0.0
+    crba_ws(mi, mf, H, W)
+    gravity_stiffness_ws(mi, mf, W, G)
+
+
+@njit(**_JIT)
+def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red):
+    """The iteration matrix ``A = M + γh D + γ²h² K`` (R5) of :func:`arm_rosenbrock_step` and its Cholesky
+    factor, into ``mat = [H (= M, given), D, K, A, L, G (given)]``: D, K from :func:`passive_jacobian`
+    (stops at the stage configuration qs too with use_qs) plus the gravity stiffness G = ∂g/∂q of the
+    1-DOF joints (:func:`arm_bias_mass`), which is dropped when A is not positive
+    definite with it (a load above its axis stiff enough to matter at this step). Returns the γ of the
+    step: ``GAMMA`` (1 − 1/√2), or ``GAMMA_STOP`` (1 + 1/√2) when a joint stop is in J, whose law switches
+    its damper within a step (:mod:`robodyn_ros.kernels.rosenbrock`); 0.0 when A is not positive definite
+    without the gravity part either.
+
+    Why gravity is in J: with the passive forces alone a stiffly damped joint under gravity converges at
+    order 1 (its velocity is the balance ``D v = τ − g(q)`` at a lagging q), and an undamped swinging
+    link gets Heun's error constant 1/6 instead of the method's 0.040 (a pendulum at 1 ms: 5.1e-5
+    against 3.5e-6)."""
+    H, Dm, Km, A, L, G = mat[0], mat[1], mat[2], mat[3], mat[4], mat[5]
+    nv = Km.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            Dm[a, b] = 0.0
+            Km[a, b] = G[a, b]
+    gamma = GAMMA_STOP if passive_jacobian(damping, friction, v_s, lim, q, v, qs, use_qs, Dm, Km) else GAMMA
+    if factor_stage_matrix(H, Dm, Km, gamma * h, A, L, cpl, red):
+        return gamma
+    for a in range(nv):   # without the gravity part
+        for b in range(nv):
+            Km[a, b] -= G[a, b]
+    return gamma if factor_stage_matrix(H, Dm, Km, gamma * h, A, L, cpl, red) else 0.0
+
+
+@njit(**_JIT)
+def factor_stage_matrix(H, Dm, Km, gh, A, L, cpl, red):
+    """Factor the iteration matrix (:func:`robodyn_ros.kernels.rosenbrock.factor_iteration_matrix`); for a
+    tree with mimic joints (cpl, :mod:`.coupled`) its reduction to the independent joints,
+    ``A_r = Gᵀ A G`` (:func:`.coupled.reduce_into`), into ``red[0] = [A_r, L_r]``. False if not positive
+    definite."""
+    if cpl is None:
+        return factor_iteration_matrix(H, Dm, Km, gh, A, L)
+    nv = H.shape[0]
+    gh2 = gh * gh
+    for i in range(nv):
+        for j in range(nv):
+            A[i, j] = H[i, j] + gh * Dm[i, j] + gh2 * Km[i, j]
+    Ar, Lr = red[0][0], red[0][1]
+    reduce_into(A, H[0], cpl[1], cpl[2], Ar, red[1][0])
+    return cholesky(Ar, Ar.shape[0], Lr)
+
+
+@njit(**_JIT)
+def solve_stage(L, Km, gh, force, bq, kv, tmp, cpl, red):
+    """kv (nv,) of one stage (R6): :func:`robodyn_ros.kernels.rosenbrock.stage_velocity`; with mimic joints
+    in the independent ones, ``A_r kv_r = Gᵀ (force − γh K bq)``, ``kv = G kv_r``."""
+    if cpl is None:
+        stage_velocity(L, Km, gh, force, bq, kv, tmp)
+        return
+    nv = kv.shape[0]
+    for i in range(nv):
+        s = 0.0
+        for j in range(nv):
+            s += Km[i, j] * bq[j]
+        tmp[i] = force[i] - gh * s
+    col, mul = cpl[1], cpl[2]
+    fr, xr = red[1][0], red[1][1]
+    for a in range(fr.shape[0]):
+        fr[a] = 0.0
+    for k in range(nv):
+        fr[col[k]] += mul[k] * tmp[k]
+    chol_solve(red[0][1], fr.shape[0], fr, xr)
+    for k in range(nv):
+        kv[k] = mul[k] * xr[col[k]]
+
+
+#: sub-steps a step may be cut into where it enters stiff stops (then the stops join J at once)
+MAX_SPLITS = 16
+#: rows of the vector (nv,) and matrix (nv, nv) work arrays of :func:`arm_rosenbrock_step`
+ROS_VECTORS, ROS_MATRICES = 9, 6
+
+
+@njit(**_JIT)
+def tangent_rate(mi, simple, q, v, out):
+    """:func:`~robodyn_ros.kernels.tree.tangent_rate_into`, or ``out = v`` when ``simple`` (1-DOF joints only)."""
+    if simple:
+        for a in range(v.shape[0]):
+            out[a] = v[a]
+    else:
+        tangent_rate_into(mi, q, v, out)
+
+
+@njit(**_JIT)
+def retract(mi, simple, q, dq, h, out):
+    """:func:`~robodyn_ros.kernels.tree.retract_into`, or ``out = q + h dq`` when ``simple`` (1-DOF joints only)."""
+    if simple:
+        for a in range(q.shape[0]):
+            out[a] = q[a] + h * dq[a]
+    else:
+        retract_into(mi, q, dq, h, out)
+
+
+@njit(**_JIT)
+def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, h, split, W, dz, Y, k1, tauv, vec,
+                        mat, cpl, cs, red):
+    """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R6)) of an arm,
+    ``z = [q, v, W(, W_lim)]`` in place. Returns h when taken; ``−s`` (z untouched) when the step meets a
+    stiff stop it should enter as a shorter step s (with split; :func:`limit_event`: the caller takes s,
+    then the rest); ``−inf`` (z untouched) when the iteration matrix is not positive definite.
+
+    J (:func:`arm_implicit_matrix`) holds the passive forces at zₙ (damping, friction slope, the
+    joint-limit spring and damper of the branches at zₙ) and the gravity stiffness of the 1-DOF joints.
+    A stage point beyond a stiff stop that J left out is an event: the step is cut where the joint meets
+    the stop (or short of it), and at contact the stop joins J and stage 1 is redone. Coriolis forces,
+    the gravity of free and spherical joints and the commands are explicit. Stage 1 solves
+    ``A kv1 = r(zₙ) − γh K fq`` with the force residual ``r = τ − RNEA(q, v, 0)`` (no M⁻¹); stage 2
+    evaluates :func:`arm_rhs` (ABA) at ``Y = zₙ ⊕ h k1`` and solves ``A kv2 = M (f_v(Y) − 2 kv1) −
+    γh K (fq(Y) − 2 kq1)``. Increments of q are tangent vectors (:func:`~robodyn_ros.kernels.tree.tangent_rate_into`, applied by
+    :func:`~robodyn_ros.kernels.tree.retract_into`); the work entries W (no J rows) take ``k = P`` (the power) and
+    ``k2 = P(Y) − 2 k1``. With mimic joints (cpl, cs: see :func:`arm_rhs`) the stages are solved in the
+    independent joints (:func:`factor_stage_matrix`, :func:`solve_stage`; red: their work arrays) and
+    f(Y) is the coupled dynamics. dz, Y, k1 (n,), tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat
+    (ROS_MATRICES, nv, nv): work arrays.
+    """
+    n = z.shape[0]
+    q = z[:nq]
+    v = z[nq:nq + nv]
+    H, Dm, Km, A, L = mat[0], mat[1], mat[2], mat[3], mat[4]
+    r, fq, kq1, kv1, kq2, kv2, x, y, zero = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7], vec[8]
+    # stage 1 at z_n: τ and the powers (W, W_lim), the bias C + g, M, the passive Jacobian, A = L Lᵀ
+    P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    for a in range(nq + nv, n):
+        k1[a] = dz[a]
+    k1[nq + nv] = P
+    for a in range(nv):
+        zero[a] = 0.0
+    arm_bias_mass(mi, mf, q, v, zero, y, H, mat[5], W)
+    for a in range(nv):
+        r[a] = tauv[a] - y[a]
+    simple = nq == nv   # only 1-DOF joints: tangent coordinates are q itself
+    tangent_rate(mi, simple, q, v, fq)
+    use_qs = False
+    for attempt in range(2):   # a second time with the stops the stage point met (limit_event)
+        gh = h * arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, Y[:nq], use_qs, W, mat, cpl, red)
+        if gh == 0.0:
+            return -math.inf
+        solve_stage(L, Km, gh, r, fq, kv1, x, cpl, red)
+        tangent_rate(mi, simple, q, kv1, kq1)
+        for a in range(nv):
+            kq1[a] = fq[a] + gh * kq1[a]
+        retract(mi, simple, q, kq1, h, Y[:nq])   # stage 2 at Y = z_n ⊕ h k1
+        if attempt or not lim.shape[0]:
+            break
+        s = limit_event(lim, q, v, h, Y[:nq], H)
+        if s >= h:
+            break
+        if s > 0.0 and split:
+            return -s           # retake the step as a shorter one (z untouched)
+        use_qs = True
+    for a in range(nv):
+        Y[nq + a] = v[a] + h * kv1[a]
+    for a in range(nq + nv, n):
+        Y[a] = z[a] + h * k1[a]
+    arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs)
+    tangent_rate(mi, simple, Y[:nq], Y[nq:nq + nv], fq)
+    for a in range(nv):
+        fq[a] += C21 * kq1[a]                       # bq of stage 2
+        x[a] = dz[nq + a] + C21 * kv1[a]            # bv of stage 2
+    mat_vec(H, x, r)                                # M bv
+    solve_stage(L, Km, gh, r, fq, kv2, x, cpl, red)
+    tangent_rate(mi, simple, q, kv2, kq2)
+    for a in range(nv):
+        kq2[a] = fq[a] + gh * kq2[a]
+    # z_{n+1} = z_n ⊕ h (3/2 k1 + 1/2 k2)
+    for a in range(nv):
+        x[a] = B1 * kq1[a] + B2 * kq2[a]
+        v[a] += h * (B1 * kv1[a] + B2 * kv2[a])
+    retract(mi, simple, q, x, h, q)
+    for a in range(nq + nv, n):
+        z[a] += h * (B1 * k1[a] + B2 * (dz[a] + C21 * k1[a]))
+    return h
+
+
+@njit(**_JIT)
+def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, method, z, dt, t_start, n_full, h_last,
                     kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f):
     """K publication periods of an arm in one call: per period k the scripted command at its
     start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), ``τ_app = B u``,
     :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
     ``Zs[k] = z``, ``Us[k] = u``, ``TAUs[k] = τ_app`` and, with want_f, the joint wrenches
-    ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v + τ_lim``, :func:`arm_forces`) -- the
+    ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v − F tanh(v/v_s) + τ_lim``, :func:`arm_forces`) -- the
     numbers the Simulator's per-period path computes with the same functions.
 
     z: ``[q, v, W(, W_lim)]`` in place; u (n,) the command held before period 0. Returns
@@ -192,7 +526,8 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
                 acc += B[r, i] * u[i]
             tau_app[r] = acc
         # (the block path declines trees with mimic joints: ArmSystem.fused_periods)
-        if integrate_arm(mi_r, mf_r, damping, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k], None) >= 0:
+        if integrate_arm(mi_r, mf_r, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full[k],
+                         h_last[k], None) >= 0:
             return k, 2
         for a in range(n):
             Zs[k, a] = z[a]
@@ -201,7 +536,7 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, lim, B, nq, method, z, dt, t_st
         for r in range(nv):
             TAUs[k, r] = tau_app[r]
         if want_f:
-            arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
+            arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
             _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, False)
             for b in range(f.shape[0]):
                 for c in range(6):

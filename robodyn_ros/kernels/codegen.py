@@ -12,9 +12,11 @@ Coefficients within ``SNAP`` (about 4.5 machine epsilon) of 0 or ±1 — the rou
 ``cos(π/2)`` in a DH table — are snapped to exactly 0 or ±1 before folding; the result then
 differs from the reference by rounding only (tested to 1e-12 with the other kernels).
 
-The generated module (``aba(q, v, tau, qdd)``, and ``arm_rhs``/``integrate_arm``/``arm_steps`` —
-the latter two the unchanged source of :func:`robodyn_ros.kernels.arm.integrate_arm`, bound to the
-generated ``arm_rhs``) is written once per model to :data:`GENERATED_DIR` under a name made from a
+The generated module (``aba(q, v, tau, qdd)``; ``rnea_bias(q, v, out)`` and ``crba(q, H, G)`` -- the
+mass matrix and the gravity stiffness -- for models whose code stays within :data:`MASS_LINES`; and
+``arm_rhs``/``arm_bias_mass``/``integrate_arm``/``arm_steps``/``arm_rosenbrock_step`` — the last three
+the unchanged source of :mod:`robodyn_ros.kernels.arm`, bound to the generated ``arm_rhs`` and
+``arm_bias_mass``) is written once per model to :data:`GENERATED_DIR` under a name made from a
 hash of the packed model, this generator and the kernels' source (``tree.py``, ``arm.py``, ...),
 and numba caches its machine code beside it, so the second start of the same scene loads it.
 Trees with FREE or SPHERICAL joints, with mimic joints (:mod:`robodyn_ros.kernels.coupled`), or
@@ -34,9 +36,12 @@ import numpy as np
 
 from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
 
+#: generated lines of the bias and mass matrix above which a model keeps the generic ones (numba's
+#: compile time grows faster than the code: tiago's 16 000 lines took minutes; xarm7's 1 750 seconds)
+MASS_LINES = 4000
 #: relative distance to 0 or ±1 under which a model coefficient is snapped
 SNAP = 1e-15
-VERSION = '1'
+VERSION = '2'
 
 
 def _generated_dir() -> str:
@@ -234,28 +239,167 @@ def _joint(Z, jt, k, Et, rt, qk):
     return E, [_snap(x, scale) for x in rt]
 
 
-def aba_source(model) -> str | None:
-    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE or SPHERICAL
-    joints, or a joint whose articulated inertia ``d = Sᵀ IA S`` is the constant 0: its mass matrix is
-    singular everywhere, which the generic kernels' caller reports)."""
+def _body(Z, a, i):
+    """Body i of the merged tree ``a``: ``(E, r)`` of ``Xup(q)`` (its joint's lines emitted), the motion
+    subspace S (6-list, None for FIXED), the spatial inertia (6x6 lists, snapped) and the v index."""
+    jt = int(a['jtype'][i])
+    X = a['Xtree'][i]
+    Et = X[:3, :3]
+    rx = -(Et.T @ X[3:, :3])
+    rt = np.array([rx[2, 1], rx[0, 2], rx[1, 0]])
+    k = np.array([_snap(x) for x in a['axis'][i]])
+    qi, vi = int(a['q_idx'][i]), int(a['v_idx'][i])
+    E, r = _joint(Z, jt, k, Et, rt, f'q[{qi}]' if jt != FIXED else None)
+    S = (list(k) + [0.0] * 3 if jt == REVOLUTE else [0.0] * 3 + list(k)) if jt != FIXED else None
+    Ii = [[_snap(x, max(1.0, np.abs(a['I'][i]).max())) for x in row] for row in a['I'][i]]
+    return E, r, S, Ii, vi
+
+
+def _merged_or_none(model):
+    """The merged tree (:func:`merge_fixed`) of a model without FREE or SPHERICAL joints, else None."""
     from . import merge_fixed
     a = merge_fixed(model)
     if np.any(a['jtype'] == FREE) or np.any(a['jtype'] == SPHERICAL):
         return None  # the generic kernels compute these trees
+    return a
+
+
+def _assign(target: str, value) -> str:
+    """A line ``target = value`` of the generated function body."""
+    return f'    {target} = {value!r}' if isinstance(value, float) else f'    {target} = {value}'
+
+
+def bias_source(model) -> str | None:
+    """Source of ``rnea_bias(q, v, out)``: ``out = C(q, v) + g(q)`` = RNEA at zero acceleration (book
+    Table 5.1, gravity as the base acceleration), specialised to ``model``; None for FREE/SPHERICAL trees."""
+    a = _merged_or_none(model)
+    if a is None:
+        return None
+    nb = len(a['parent'])
+    Z = _Zs()
+    g = a['gravity']
+    a0 = [0.0, 0.0, 0.0, -float(g[0]), -float(g[1]), -float(g[2])]
+    E, r, S, vb, ab, f = [None] * nb, [None] * nb, [None] * nb, [None] * nb, [None] * nb, [None] * nb
+    vidx = [0] * nb
+    for i in range(nb):
+        jt, p = int(a['jtype'][i]), int(a['parent'][i])
+        E[i], r[i], S[i], Ii, vidx[i] = _body(Z, a, i)
+        vJ = [Z.mul(S[i][x], f'v[{vidx[i]}]') for x in range(6)] if jt != FIXED else [0.0] * 6
+        if p < 0:
+            vb[i], ab[i] = vJ, _xmot(Z, E[i], r[i], a0)
+        else:
+            vm = _xmot(Z, E[i], r[i], vb[p])
+            vb[i] = [Z.add(vm[x], vJ[x]) for x in range(6)]
+            am = _xmot(Z, E[i], r[i], ab[p])
+            cm = _cross_motion(Z, vb[i], vJ)
+            ab[i] = [Z.add(am[x], cm[x]) for x in range(6)]
+        Ia = _mat_vec6(Z, Ii, ab[i])
+        fv = _cross_force(Z, vb[i], _mat_vec6(Z, Ii, vb[i]))
+        f[i] = [Z.add(Ia[x], fv[x]) for x in range(6)]
+    out = []
+    for i in range(nb - 1, -1, -1):
+        jt, p = int(a['jtype'][i]), int(a['parent'][i])
+        if jt != FIXED:
+            out.append(_assign(f'out[{vidx[i]}]', Z.sp([(1.0, S[i][x], f[i][x]) for x in range(6)])))
+        if p >= 0:
+            fp = _xforce_T(Z, E[i], r[i], f[i])
+            f[p] = [Z.add(f[p][x], fp[x]) for x in range(6)]
+    head = ['@njit(**_JIT)', 'def rnea_bias(q, v, out):',
+            f'    """C(q, v) + g(q) of {model.name!r} (RNEA at zero acceleration): {Z.n} intermediates."""']
+    return '\n'.join(head + Z.lines + out) + '\n'
+
+
+def _gravity_stiffness(Z, a, E, S, IC, vidx) -> dict:
+    """``{(i, j): G_ij}`` of ``G = ∂g/∂q`` from the composite inertias IC (6x6 lists), the formulas of
+    :func:`robodyn_ros.kernels.tree.gravity_stiffness_ws` on symbols (γ per body, x carried to the root)."""
+    nb = len(a['parent'])
+    g = [float(x) for x in a['gravity']]
+    gb = [None] * nb
+    for i in range(nb):
+        p = int(a['parent'][i])
+        gb[i] = _mat3_vec(Z, E[i], g if p < 0 else gb[p])
+    G = {}
+    for i in range(nb):
+        jt = int(a['jtype'][i])
+        if jt not in (REVOLUTE, PRISMATIC):
+            continue
+        k = S[i][:3] if jt == REVOLUTE else S[i][3:]
+        if jt == REVOLUTE:   # IC = [Ī, h×; h×ᵀ, m 1]: h = (−IC[1][5], IC[0][5], −IC[0][4])
+            h = [Z.sp([(-1.0, IC[i][1][5], None)]), IC[i][0][5], Z.sp([(-1.0, IC[i][0][4], None)])]
+            x = _cross(Z, k, h)
+        else:
+            x = [Z.mul(k[c], IC[i][3][3]) for c in range(3)]
+        j = i
+        while j >= 0:
+            if int(a['jtype'][j]) == REVOLUTE:
+                ax = _cross(Z, S[j][:3], x)
+                val = Z.sp([(-1.0, gb[j][c], ax[c]) for c in range(3)])
+                for key in {(vidx[i], vidx[j]), (vidx[j], vidx[i])}:
+                    G[key] = val if key not in G else Z.add(G[key], val)
+            p = int(a['parent'][j])
+            if p >= 0:
+                x = _mat3_vec(Z, E[j], x, transpose=True)
+            j = p
+    return G
+
+
+def crba_source(model) -> str | None:
+    """Source of ``crba(q, H)``: the joint-space inertia matrix M(q) (nv, nv) by the composite-rigid-body
+    algorithm (book Table 6.2), specialised to ``model``; every entry written; None for FREE/SPHERICAL trees."""
+    a = _merged_or_none(model)
+    if a is None:
+        return None
+    nb = len(a['parent'])
+    Z = _Zs()
+    E, r, S, IC = [None] * nb, [None] * nb, [None] * nb, [None] * nb
+    vidx = [0] * nb
+    for i in range(nb):
+        E[i], r[i], S[i], Ii, vidx[i] = _body(Z, a, i)
+        IC[i] = [list(row) for row in Ii]
+    for i in range(nb - 1, -1, -1):
+        p = int(a['parent'][i])
+        if p >= 0:
+            T = _xinertia_T(Z, E[i], r[i], IC[i])
+            IC[p] = [[Z.add(IC[p][x][y], T[x][y]) if y >= x else None for y in range(6)] for x in range(6)]
+            for x in range(6):
+                for y in range(x):
+                    IC[p][x][y] = IC[p][y][x]
+    H = {}
+    for i in range(nb):
+        if int(a['jtype'][i]) == FIXED:
+            continue
+        F = [Z.sp([(1.0, IC[i][x][y], S[i][y]) for y in range(6)]) for x in range(6)]
+        H[vidx[i], vidx[i]] = Z.sp([(1.0, S[i][x], F[x]) for x in range(6)])
+        j = i
+        while int(a['parent'][j]) >= 0:
+            F = _xforce_T(Z, E[j], r[j], F)
+            j = int(a['parent'][j])
+            if int(a['jtype'][j]) != FIXED:
+                H[vidx[j], vidx[i]] = H[vidx[i], vidx[j]] = Z.sp([(1.0, S[j][x], F[x]) for x in range(6)])
+    G = _gravity_stiffness(Z, a, E, S, IC, vidx)
+    nv = model.nv
+    out = [_assign(f'H[{x}, {y}]', H.get((x, y), 0.0)) for x in range(nv) for y in range(nv)]
+    out += [_assign(f'G[{x}, {y}]', G.get((x, y), 0.0)) for x in range(nv) for y in range(nv)]
+    head = ['@njit(**_JIT)', 'def crba(q, H, G):',
+            f'    """M(q) of {model.name!r} (composite-rigid-body algorithm) and the gravity stiffness G = ∂g/∂q '
+            f'(tree.gravity_stiffness_ws): {Z.n} intermediates."""']
+    return '\n'.join(head + Z.lines + out) + '\n'
+
+
+def aba_source(model) -> str | None:
+    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE or SPHERICAL
+    joints, or a joint whose articulated inertia ``d = Sᵀ IA S`` is the constant 0: its mass matrix is
+    singular everywhere, which the generic kernels' caller reports)."""
+    a = _merged_or_none(model)
+    if a is None:
+        return None
     nb = len(a['parent'])
     Z = _Zs()
     E, r, vb, c, IA, pA = [None] * nb, [None] * nb, [None] * nb, [None] * nb, [None] * nb, [None] * nb
     S = [None] * nb
     for i in range(nb):                         # pass 1
         jt, p = int(a['jtype'][i]), int(a['parent'][i])
-        X = a['Xtree'][i]
-        Et = X[:3, :3]
-        rx = -(Et.T @ X[3:, :3])
-        rt = np.array([rx[2, 1], rx[0, 2], rx[1, 0]])
-        k = np.array([_snap(x) for x in a['axis'][i]])
-        qi, vi = int(a['q_idx'][i]), int(a['v_idx'][i])
-        E[i], r[i] = _joint(Z, jt, k, Et, rt, f'q[{qi}]' if jt != FIXED else None)
-        S[i] = (list(k) + [0.0] * 3 if jt == REVOLUTE else [0.0] * 3 + list(k)) if jt != FIXED else None
+        E[i], r[i], S[i], Ii, vi = _body(Z, a, i)
         vJ = [Z.mul(S[i][x], f'v[{vi}]') for x in range(6)] if jt != FIXED else [0.0] * 6
         if p < 0:
             vb[i], c[i] = vJ, [0.0] * 6
@@ -263,7 +407,6 @@ def aba_source(model) -> str | None:
             vm = _xmot(Z, E[i], r[i], vb[p])
             vb[i] = [Z.add(vm[x], vJ[x]) for x in range(6)]
             c[i] = _cross_motion(Z, vb[i], vJ)
-        Ii = [[_snap(x, max(1.0, np.abs(a['I'][i]).max())) for x in row] for row in a['I'][i]]
         IA[i] = [list(row) for row in Ii]
         pA[i] = _cross_force(Z, vb[i], _mat_vec6(Z, Ii, vb[i]))
     U, d, u = [None] * nb, [None] * nb, [None] * nb
@@ -321,15 +464,27 @@ def aba_source(model) -> str | None:
 _RHS = '''
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
     """``dz/dt`` for ``z = [q, v, W]`` or ``[q, v, W, W_lim]`` with the specialised ``aba`` (see arm.arm_rhs;
     a tree with mimic joints is never specialised, so cpl and cs go unused)."""
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
-    P = arm_forces(damping, lim, tau_app, nq, nv, z, dz, tauv)
+    P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
     aba(q, v, tauv, dz[nq:nq + nv])
     dz[nq + nv] = P
+
+
+'''
+
+_BIAS_MASS = '''
+
+@njit(**_JIT)
+def arm_bias_mass(mi, mf, q, v, zero, bias, H, G, W):
+    """``bias = C(q, v) + g(q)``, ``H = M(q)`` and ``G = ∂g/∂q`` with the specialised ``rnea_bias`` and ``crba``
+    (see arm.arm_bias_mass)."""
+    rnea_bias(q, v, bias)
+    crba(q, H, G)
 
 
 '''
@@ -341,29 +496,32 @@ def module_source(model) -> str | None:
     body = aba_source(model)
     if body is None:
         return None
+    mass = bias_source(model) + '\n\n' + crba_source(model)
+    if mass.count('\n') <= MASS_LINES:   # else the generic arm_bias_mass (from arm.py) serves
+        body += '\n\n' + mass + _BIAS_MASS
     head = (f'"""Generated by robodyn_ros.kernels.codegen {VERSION} for {model.name!r}; do not edit."""\n'
             'import math\n\nimport numpy as np\nfrom numba import njit\n\n'
-            'from robodyn_ros.kernels.arm import arm_forces  # noqa: F401\n'
-            'from robodyn_ros.kernels.coupled import couple_into  # noqa: F401\n'
-            'from robodyn_ros.kernels.fixed_step import M_RK4, M_SEMI_IMPLICIT_EULER  # noqa: F401\n'
-            'from robodyn_ros.kernels.profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval  # noqa: F401\n'
-            'from robodyn_ros.kernels.tree import (_JIT, joint_wrenches, limit_forces_add,  # noqa: F401\n'
-            '                                      normalize_into, qdot_into, rnea_into, workspace)\n\n\n')
-    # the fused loops are arm.py's source, compiled here against the generated aba / integrate_arm
-    return head + body + _RHS + '\n\n'.join(inspect.getsource(f) for f in (arm.integrate_arm, arm.arm_steps,
-                                                                               arm.run_arm_periods))
+            '# the fused loops below are the source of arm.py: every name they call comes from there (their own\n'
+            '# arm_rhs, arm_bias_mass, integrate_arm, arm_steps, arm_rosenbrock_step, run_arm_periods are here)\n'
+            'from robodyn_ros.kernels.arm import *  # noqa: F401,F403\n'
+            'from robodyn_ros.kernels.tree import _JIT\n\n\n')
+    # the fused loops are arm.py's source, compiled here against the generated aba, bias and crba
+    return head + body + _RHS + '\n\n'.join(inspect.getsource(f) for f in (
+        arm.integrate_arm, arm.arm_steps, arm.arm_rosenbrock_step, arm.run_arm_periods))
 
 
 def _key(model) -> str:
     """Hash of everything the generated code depends on: packed model, generator, the kernels it
-    imports or copies (tree.py, arm.py, profiles.py, fixed_step.py, coupled.py)."""
-    from . import arm, coupled, fixed_step, pack_model, profiles, tree
+    imports or copies (tree.py, arm.py, profiles.py, fixed_step.py, coupled.py, passive.py, rosenbrock.py,
+    linalg.py)."""
+    from . import arm, coupled, fixed_step, linalg, pack_model, passive, profiles, rosenbrock, tree
     mi, mf = pack_model(model, merge=True)
     h = hashlib.sha256()
     with open(__file__, 'rb') as f:
         generator = f.read()
     for part in (mi.tobytes(), mf.tobytes(), VERSION.encode(), *(inspect.getsource(m).encode() for m in
-                                                                  (tree, arm, profiles, fixed_step, coupled)),
+                                                                  (tree, arm, profiles, fixed_step, coupled,
+                                                                   passive, rosenbrock, linalg)),
                  generator):
         h.update(part)
     return h.hexdigest()[:20]

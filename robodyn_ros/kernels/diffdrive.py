@@ -11,6 +11,7 @@ from numba import njit
 
 from .frames import frames_ws
 from .linalg import NINFO, OK, flag, fma, kkt_solve, project_velocities
+from .rosenbrock import B1, B2, C21, GAMMA
 from .tree import P_, _JIT, crba_ws, energies, rnea_ws, transforms, workspace
 
 
@@ -180,6 +181,121 @@ def dd_evaluate(ip, fp, mi_r, mf_r, u, y, dz):
             s += y[nv + j] * u[2 + j]
         P += s
     dz[ny] = P
+    return OK
+
+
+@njit(**_JIT)
+def dd_passive(ip, fp, y, gh, Dm, ce):
+    """The passive part of the differential drive's Jacobian at y for γh = gh (the linearly implicit
+    step, :mod:`robodyn_ros.kernels.rosenbrock`), as named contributions: Dm (nv, nv, overwritten) =
+    joint damping ``diag(d)`` + each motor's friction slope at its wheel ``N² (b + τ_c sech²(N ω/ω_s)/ω_s)``
+    + for a motor without a current state (L = 0) its back-EMF damping ``N² K² / R``; a motor with a
+    current state (L > 0, ``L di/dt = V − R i − K N ω``, torque ``N K i``) writes ``ce[k] = [N K, L, R]``
+    (else ``[0, 0, 0]``): :func:`dd_rosenbrock_step` eliminates its current from the stage equations."""
+    nv = ip[DD_NV]
+    for i in range(nv):
+        for j in range(nv):
+            Dm[i, j] = 0.0
+        Dm[i, i] = fp[DD_ARMATURE + nv + i]
+    for k in range(2):
+        o = DD_MOTOR + MOT_SIZE * k
+        Kt, Nn, Rr, Ll = fp[o + MOT_K], fp[o + MOT_N], fp[o + MOT_R], fp[o + MOT_L]
+        th = math.tanh(Nn * y[nv + _IL + k] / fp[o + MOT_WS])
+        j = _IL + k
+        Dm[j, j] += Nn * Nn * (fp[o + MOT_B] + fp[o + MOT_TC] * (1.0 - th * th) / fp[o + MOT_WS])
+        if ip[DD_CUR + k] >= 0:
+            ce[k, 0], ce[k, 1], ce[k, 2] = Nn * Kt, Ll, Rr
+        else:
+            Dm[j, j] += (Nn * Kt) ** 2 / Rr
+            ce[k, 0], ce[k, 1], ce[k, 2] = 0.0, 0.0, 0.0
+
+
+@njit(**_JIT)
+def dd_rosenbrock_step(ip, fp, mi_r, mf_r, u, z, h, dz, Y, k1):
+    """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R3)) of the differential
+    drive, ``z = [q, v, currents, W]`` in place; returns OK, or SINGULAR (z untouched).
+
+    J at zₙ holds the passive forces (:func:`dd_passive`: damping, friction slopes, back-EMF) and the
+    motor electrics with their back-EMF coupling; the rolling constraints enter through the
+    constrained mobility ``Y`` (``J_vv = −Y D``, ``J_vi = Y N K``, ``J_iv = −N K / L``, ``J_ii = −R/L``). Each
+    stage ``(I − γhJ) k = b`` is then, with the current eliminated
+    (``k_i = (L b_i − γh N K k_ω)/(L + γh R)``), one KKT solve with the mass matrix and constraint rows at qₙ::
+
+        [M + γh D + Σ γ²h² (N K)²/(L + γh R) e_ω e_ωᵀ,  Kᵀ] [kv]   [M bv + Σ γh N K L b_i/(L + γh R) e_ω]
+        [K,                                             0] [·ᵀ] = [K bv]
+
+    (``M kv + γh (D kv − N K k_i) = M bv + Kᵀ μ``, ``K kv = K bv`` is ``kv = bv − γh Y (D kv − N K k_i)``).
+    bv = the constrained acceleration at the stage point (:func:`dd_evaluate`; stage 2 less 2 kv1);
+    the work entry takes the power. dz, Y, k1 (ny + 1,): scratch."""
+    nv = ip[DD_NV]
+    n = z.shape[0]
+    ny = n - 1
+    nc = ny - 2 * nv
+    gh = GAMMA * h
+    M = np.empty((nv, nv))
+    hb = np.empty(nv)
+    dd_mass(ip, fp, mi_r, mf_r, z[:nv], z[nv:2 * nv], M, hb, flag(0))
+    Kc = np.empty((4, nv))
+    kdv = np.empty(4)
+    dd_constraints(fp, nv, z[:nv], z[nv:2 * nv], Kc, kdv)
+    Dm = np.empty((nv, nv))
+    ce = np.empty((2, 3))
+    dd_passive(ip, fp, z, gh, Dm, ce)
+    A = np.empty((nv, nv))
+    for i in range(nv):
+        for j in range(nv):
+            A[i, j] = M[i, j] + gh * Dm[i, j]
+    for m in range(2):
+        if ce[m, 1] > 0.0:
+            A[_IL + m, _IL + m] += gh * gh * ce[m, 0] ** 2 / (ce[m, 1] + gh * ce[m, 2])
+    bv = np.empty(nv)
+    rhs = np.empty(nv)
+    crhs = np.empty(4)
+    kv = np.empty(nv)
+    lam = np.empty(4)
+    info = np.empty(NINFO)
+    k2 = np.empty(n)
+    for s in range(2):
+        st = dd_evaluate(ip, fp, mi_r, mf_r, u, z[:ny] if s == 0 else Y[:ny], dz)
+        if st != OK:
+            return st
+        kk = k1 if s == 0 else k2
+        for a in range(nv):   # b of this stage (stage 2: f(Y) − 2 k1)
+            kk[a] = dz[a] if s == 0 else dz[a] + C21 * k1[a]
+            bv[a] = dz[nv + a] if s == 0 else dz[nv + a] + C21 * k1[nv + a]
+        for a in range(2 * nv, n):
+            kk[a] = dz[a] if s == 0 else dz[a] + C21 * k1[a]
+        for i in range(nv):
+            acc = 0.0
+            for j in range(nv):
+                acc += M[i, j] * bv[j]
+            rhs[i] = acc
+        for m in range(2):
+            cur = ip[DD_CUR + m]
+            if cur >= 0:
+                L_, R_ = ce[m, 1], ce[m, 2]
+                rhs[_IL + m] += gh * ce[m, 0] * L_ * kk[2 * nv + cur] / (L_ + gh * R_)
+        for i in range(4):
+            acc = 0.0
+            for j in range(nv):
+                acc += Kc[i, j] * bv[j]
+            crhs[i] = acc
+        st = kkt_solve(A, nv, rhs, Kc, crhs, fp[DD_RCOND], 0.0, flag(0), kv, lam, info)
+        if st != OK:
+            return st
+        for a in range(nv):
+            kk[nv + a] = kv[a]
+            kk[a] += gh * kv[a]             # kq = bq + γh kv
+        for m in range(2):
+            cur = ip[DD_CUR + m]
+            if cur >= 0:
+                L_, R_ = ce[m, 1], ce[m, 2]
+                kk[2 * nv + cur] = (L_ * kk[2 * nv + cur] - gh * ce[m, 0] * kv[_IL + m]) / (L_ + gh * R_)
+        if s == 0:
+            for a in range(n):
+                Y[a] = z[a] + h * k1[a]
+    for a in range(n):
+        z[a] += h * (B1 * k1[a] + B2 * k2[a])
     return OK
 
 

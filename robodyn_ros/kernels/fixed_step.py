@@ -37,7 +37,7 @@ import numpy as np
 from numba import njit
 
 from .augmented import au_config_rate, au_evaluate, au_project
-from .diffdrive import dd_evaluate, dd_project
+from .diffdrive import dd_evaluate, dd_project, dd_rosenbrock_step
 from .freeflyer import ff_evaluate, ff_project
 from .linalg import OK
 from .prescribed import pr_evaluate
@@ -45,7 +45,7 @@ from .tree import _JIT, qdot_into
 
 
 # fused-integrator method codes (see integrate_arm; kernels.FUSED_METHODS maps names to them)
-M_EULER, M_SEMI_IMPLICIT_EULER, M_RK4 = 0, 1, 2
+M_EULER, M_SEMI_IMPLICIT_EULER, M_RK4, M_ROSENBROCK2 = 0, 1, 2, 3
 
 DIFFDRIVE, FREEFLYER, AUGMENTED, PRESCRIBED = 1, 2, 3, 4
 
@@ -169,7 +169,9 @@ def integrate_dd(ip, fp, mi, mf, mi_r, mf_r, u, nq, method, z, t0, dt, n_full, h
     for k in range(n_full + (1 if h_last > 0.0 else 0)):
         t = t0 + k * dt
         h = dt if k < n_full else h_last
-        for s in range(4 if method == M_RK4 else 1):
+        if method == M_ROSENBROCK2 and dd_rosenbrock_step(ip, fp, mi_r, mf_r, u, z, h, K, Y, acc) != OK:
+            return -2 - k
+        for s in range(4 if method == M_RK4 else (0 if method == M_ROSENBROCK2 else 1)):
             if evaluate_dd(ip, fp, mi, mf, mi_r, mf_r, u, nq, _stage_time(method, s, t, h),
                            z if s == 0 else Y, K, stat) != OK:
                 return -2 - k

@@ -1,4 +1,4 @@
-"""Passive joint elements beyond viscous damping, compiled (numba): Coulomb joint friction.
+"""Passive joint elements beyond viscous damping, compiled (numba): Coulomb joint friction and its slope.
 
 Coulomb friction ``f`` (N·m or N) at a joint of velocity ``q̇`` is regularised as the DC motor's
 (:mod:`robodyn_ros.systems.motor`): ``τ = −f tanh(q̇ / v_s)`` with the regularisation speed
@@ -19,3 +19,14 @@ def add_coulomb_friction(friction, v_s, v, tau):
     for k in range(v.shape[0]):
         if friction[k] != 0.0:
             tau[k] -= friction[k] * math.tanh(v[k] / v_s)
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def friction_jacobian_add(friction, v_s, v, Dm):
+    """``Dm[k, k] += f_k sech²(v_k / v_s) / v_s``: minus the derivative of :func:`add_coulomb_friction`'s
+    torque with respect to v_k, the friction's share of the passive damping of the linearly implicit
+    step (:mod:`robodyn_ros.kernels.rosenbrock`); Dm (nv, nv)."""
+    for k in range(v.shape[0]):
+        if friction[k] != 0.0:
+            th = math.tanh(v[k] / v_s)
+            Dm[k, k] += friction[k] * (1.0 - th * th) / v_s

@@ -838,6 +838,60 @@ def normalize_into(mi, q):
                 q[s + a] /= n
 
 
+@njit(**_JIT)
+def tangent_rate_into(mi, q, v, out):
+    """The configuration rate of (q, v) in tangent coordinates, out (nv,): v for 1-DOF joints, the
+    body angular velocity ω for spherical joints, ``[ω; R(q) v_lin]`` for a free joint (its position
+    rate in the world frame). Linear in v: with v = x it is the map T of
+    :mod:`robodyn_ros.kernels.rosenbrock` (R6) at q."""
+    for i in range(mi.shape[0]):
+        jt = mi[i, JTYPE]
+        s = mi[i, VIDX]
+        if jt == FREE:
+            q0 = mi[i, QIDX]
+            x, y, z, w = q[q0 + 3], q[q0 + 4], q[q0 + 5], q[q0 + 6]
+            l0, l1, l2 = v[s + 3], v[s + 4], v[s + 5]
+            out[s], out[s + 1], out[s + 2] = v[s], v[s + 1], v[s + 2]
+            out[s + 3] = (1 - 2 * (y * y + z * z)) * l0 + 2 * (x * y - z * w) * l1 + 2 * (x * z + y * w) * l2
+            out[s + 4] = 2 * (x * y + z * w) * l0 + (1 - 2 * (x * x + z * z)) * l1 + 2 * (y * z - x * w) * l2
+            out[s + 5] = 2 * (x * z - y * w) * l0 + 2 * (y * z + x * w) * l1 + (1 - 2 * (x * x + y * y)) * l2
+        elif jt == SPHERICAL:
+            out[s], out[s + 1], out[s + 2] = v[s], v[s + 1], v[s + 2]
+        elif jt != FIXED:
+            out[s] = v[s]
+
+
+@njit(**_JIT)
+def retract_into(mi, q, dq, h, out):
+    """``out (nq,) = q ⊕ h dq`` for a tangent increment dq (nv,) (:func:`tangent_rate_into`'s
+    coordinates): ``q + h dq`` for 1-DOF joints and a free joint's position; ``quat ⊗ exp(h ω/2)`` for
+    quaternions (ω in the child frame, as ``q̇ = ½ quat ⊗ [ω; 0]``), unit length to round-off.
+    out may be q itself."""
+    for i in range(mi.shape[0]):
+        jt = mi[i, JTYPE]
+        q0 = mi[i, QIDX]
+        s = mi[i, VIDX]
+        if jt == FREE or jt == SPHERICAL:
+            o = 0
+            if jt == FREE:
+                for a in range(3):
+                    out[q0 + a] = q[q0 + a] + h * dq[s + 3 + a]
+                o = 3
+            x, y, z, w = q[q0 + o], q[q0 + o + 1], q[q0 + o + 2], q[q0 + o + 3]
+            b0, b1, b2 = 0.5 * h * dq[s], 0.5 * h * dq[s + 1], 0.5 * h * dq[s + 2]
+            th = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            c = math.cos(th)
+            f = math.sin(th) / th if th > 1e-8 else 1.0 - th * th / 6.0
+            a0, a1, a2 = f * b0, f * b1, f * b2
+            # quat ⊗ (a0, a1, a2, c)
+            out[q0 + o] = w * a0 + x * c + y * a2 - z * a1
+            out[q0 + o + 1] = w * a1 - x * a2 + y * c + z * a0
+            out[q0 + o + 2] = w * a2 + x * a1 - y * a0 + z * c
+            out[q0 + o + 3] = w * c - x * a0 - y * a1 - z * a2
+        elif jt != FIXED:
+            out[q0] = q[q0] + h * dq[s]
+
+
 # ----------------------------------------------------------------------------------------------
 # joint-limit moments (Huston eq. 20.2.1)
 # ----------------------------------------------------------------------------------------------
@@ -915,6 +969,166 @@ def limit_forces_add(lim, q, v, tau):
         tau[vi] += J00 * m0 + J10 * m1 + J20 * m2
         tau[vi + 1] += J01 * m0 + J11 * m1 + J21 * m2
         tau[vi + 2] += J02 * m0 + J12 * m1 + J22 * m2
+
+
+@njit(**_JIT)
+def limit_slopes(th, thd, lo, hi, k, c, mode):
+    """``(k_a, c_a)``: the stop's share of the stiffness and damping of the linearly implicit step
+    (:mod:`robodyn_ros.kernels.rosenbrock`), ``−∂M/∂θ`` and ``−∂M/∂θ̇`` of :func:`limit_moment` on the branch
+    at angle th, rate thd: beyond a limit k and c, or k alone when the joint moves back under the return
+    spring (mode 2: M is continuous through θ̇ = 0 there); mode 1 moving back has M = 0 but jumps to
+    ``−k Δ`` the moment the joint turns outward again, so it gets k and c ahead of the jump (where the
+    force is in fact zero the extra J only slows that DOF's response within the step; the method stays
+    order 2 for any J). Inside the range: nothing (a stop entered within a step is an event,
+    :func:`robodyn_ros.kernels.arm.limit_event`)."""
+    if th > hi:
+        return (k, 0.0) if (thd < 0.0 and mode == 2) else (k, c)
+    if th < lo:
+        return (k, 0.0) if (thd > 0.0 and mode == 2) else (k, c)
+    return 0.0, 0.0
+
+
+@njit(**_JIT)
+def _limit_frame(lim, r, q, v, phi, Jm, d):
+    """Rotation vector φ (3,) of a spherical limit row r at q, ``J = J_r⁻¹(φ)`` into Jm (3, 3) and
+    ``φ̇ = J ω`` into d (3,) (see :func:`limit_forces_add`)."""
+    qi = int(lim[r, 1])
+    vi = int(lim[r, 2])
+    bb = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
+    p0, p1, p2 = phi[0], phi[1], phi[2]
+    pp = p0 * p0 + p1 * p1 + p2 * p2
+    Jm[0, 0], Jm[0, 1], Jm[0, 2] = 1.0 + bb * (p0 * p0 - pp), -0.5 * p2 + bb * p0 * p1, 0.5 * p1 + bb * p0 * p2
+    Jm[1, 0], Jm[1, 1], Jm[1, 2] = 0.5 * p2 + bb * p1 * p0, 1.0 + bb * (p1 * p1 - pp), -0.5 * p0 + bb * p1 * p2
+    Jm[2, 0], Jm[2, 1], Jm[2, 2] = -0.5 * p1 + bb * p2 * p0, 0.5 * p0 + bb * p2 * p1, 1.0 + bb * (p2 * p2 - pp)
+    for e in range(3):
+        d[e] = Jm[e, 0] * v[vi] + Jm[e, 1] * v[vi + 1] + Jm[e, 2] * v[vi + 2]
+
+
+@njit(**_JIT)
+def limit_jacobian_add(lim, q, v, qs, use_qs, Dm, Km):
+    """``Km += −∂τ_lim/∂q``, ``Dm += −∂τ_lim/∂v`` (nv, nv) of :func:`limit_forces_add` on the branches at
+    (q, v) (:func:`limit_slopes`) -- with use_qs also the outward branch of every stop the configuration
+    qs (nq,) is beyond (the stage point of a step that enters it) -- in tangent coordinates. A spherical
+    joint's moments act through the rotation vector φ with ``φ̇ = J_r⁻¹(φ) ω`` (and ``δφ = J_r⁻¹ δ`` for a
+    tangent increment δ), so it adds ``J_r⁻ᵀ diag(k_a) J_r⁻¹`` and ``J_r⁻ᵀ diag(c_a) J_r⁻¹`` (the change of
+    J_r⁻¹ itself is left out: any J keeps the method's order). Returns the number of stop terms added."""
+    phi = np.empty(3)
+    phs = np.empty(3)
+    Jm = np.empty((3, 3))
+    Js = np.empty((3, 3))
+    d = np.empty(3)
+    ka = np.empty(3)
+    ca = np.empty(3)
+    active = 0
+    for r in range(lim.shape[0]):
+        jt = int(lim[r, 0])
+        qi = int(lim[r, 1])
+        vi = int(lim[r, 2])
+        mode = int(lim[r, 3])
+        k = lim[r, 10]
+        c = lim[r, 11]
+        if jt != SPHERICAL:
+            a, b = limit_slopes(q[qi], v[vi], lim[r, 4], lim[r, 5], k, c, mode)
+            if use_qs and a == 0.0 and (qs[qi] > lim[r, 5] or qs[qi] < lim[r, 4]):
+                a, b = k, c
+            Km[vi, vi] += a
+            Dm[vi, vi] += b
+            active += a != 0.0 or b != 0.0
+            continue
+        _limit_frame(lim, r, q, v, phi, Jm, d)
+        if use_qs:
+            _limit_frame(lim, r, qs, v, phs, Js, ka)
+        for e in range(3):
+            lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
+            ka[e], ca[e] = limit_slopes(phi[e], d[e], lo, hi, k, c, mode)
+            if use_qs and ka[e] == 0.0 and (phs[e] > hi or phs[e] < lo):
+                ka[e], ca[e] = k, c
+            active += ka[e] != 0.0 or ca[e] != 0.0
+        for a in range(3):
+            for b in range(3):
+                sk = 0.0
+                sc = 0.0
+                for e in range(3):
+                    sk += Jm[e, a] * ka[e] * Jm[e, b]
+                    sc += Jm[e, a] * ca[e] * Jm[e, b]
+                Km[vi + a, vi + b] += sk
+                Dm[vi + a, vi + b] += sc
+    return active
+
+
+@njit(**_JIT)
+def gravity_stiffness_ws(mi, mf, W, G):
+    """``G = ∂g/∂q`` (nv, nv, overwritten) over the 1-DOF joints, from the composite inertias that
+    :func:`crba_ws` leaves in W (call it first): the Hessian of the gravitational potential V, with
+    g = ∂V/∂q the gravity part of the bias (:func:`rnea_ws` at v = 0, a = 0). Symmetric, not definite
+    (negative where a joint holds a load above its axis).
+
+    With joint i's axis ``a_i`` through its body's origin, the subtree's mass ``m_i`` and first moment
+    ``h_i = m_i (c_i − p_i)`` about that origin (the composite inertia's, body coordinates) and gravity γ
+    (body coordinates), ``g_i = −γᵀ (a_i × h_i)`` (revolute) or ``−γᵀ m_i a_i`` (prismatic). Turning a
+    joint j ⪯ i (an ancestor, or i itself) turns ``x_i = a_i × h_i`` (or ``m_i a_i``) rigidly, so for a
+    revolute j::
+
+        G_ij = G_ji = −γ_jᵀ (a_j × x_i)        (x_i and γ in body j's coordinates)
+
+    and turning a descendant moves ``h_i`` by what the same formula gives with i and j swapped; a
+    prismatic j translates the subtree rigidly (G_ij = 0 for j ⪯ i), separate branches do not couple.
+    FREE and SPHERICAL joints get no rows (their gravity stays explicit) but carry their subtrees'
+    frames. O(nb · depth). Scratch: ``W[:, A_:A_+6]`` (γ per body, then x carried up the tree)."""
+    nb = mi.shape[0]
+    nv = G.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            G[a, b] = 0.0
+    gi = mf.shape[0] - 1
+    for i in range(nb):          # gravity in body coordinates: γ_i = E_i γ_parent
+        p = mi[i, PARENT]
+        if p < 0:
+            g0, g1, g2 = mf[gi, 0], mf[gi, 1], mf[gi, 2]
+        else:
+            g0, g1, g2 = W[p, A_], W[p, A_ + 1], W[p, A_ + 2]
+        for a in range(3):
+            W[i, A_ + a] = W[i, E_ + 3 * a] * g0 + W[i, E_ + 3 * a + 1] * g1 + W[i, E_ + 3 * a + 2] * g2
+    for i in range(nb):
+        jt = mi[i, JTYPE]
+        if jt != REVOLUTE and jt != PRISMATIC:
+            continue
+        si = mi[i, VIDX]
+        k0, k1, k2 = mf[i, AX], mf[i, AX + 1], mf[i, AX + 2]
+        m = W[i, IA_]
+        if jt == REVOLUTE:
+            h0, h1, h2 = W[i, IA_ + 1], W[i, IA_ + 2], W[i, IA_ + 3]
+            x0, x1, x2 = k1 * h2 - k2 * h1, k2 * h0 - k0 * h2, k0 * h1 - k1 * h0
+        else:
+            x0, x1, x2 = m * k0, m * k1, m * k2
+        j = i
+        while j >= 0:            # j ⪯ i: i itself, then its ancestors; x in body j's coordinates
+            if mi[j, JTYPE] == REVOLUTE:
+                sj = mi[j, VIDX]
+                a0, a1, a2 = mf[j, AX], mf[j, AX + 1], mf[j, AX + 2]
+                gg = -(W[j, A_] * (a1 * x2 - a2 * x1) + W[j, A_ + 1] * (a2 * x0 - a0 * x2)
+                       + W[j, A_ + 2] * (a0 * x1 - a1 * x0))
+                G[si, sj] += gg
+                if sj != si:
+                    G[sj, si] += gg
+            p = mi[j, PARENT]
+            if p >= 0:           # to the parent's coordinates: Eᵀ x
+                y0 = W[j, E_] * x0 + W[j, E_ + 3] * x1 + W[j, E_ + 6] * x2
+                y1 = W[j, E_ + 1] * x0 + W[j, E_ + 4] * x1 + W[j, E_ + 7] * x2
+                y2 = W[j, E_ + 2] * x0 + W[j, E_ + 5] * x1 + W[j, E_ + 8] * x2
+                x0, x1, x2 = y0, y1, y2
+            j = p
+
+
+@njit(**_JIT)
+def gravity_stiffness_into(mi, mf, q, G):
+    """``G = ∂g/∂q`` (nv, nv) at q (:func:`gravity_stiffness_ws` after :func:`crba_ws`), one call."""
+    nv = G.shape[0]
+    W = workspace(mi.shape[0])
+    transforms(mi, mf, q, W)
+    H = np.zeros((nv, nv))
+    crba_ws(mi, mf, H, W)
+    gravity_stiffness_ws(mi, mf, W, G)
 
 
 @njit(**_JIT)

@@ -21,7 +21,7 @@ PARAMETERS = {
     'robot_description_file': ('', "a URDF file to simulate on a fixed base instead of 'scene' ('' = use 'scene')"),
     'robot_description_timeout': (10.0, "with scene:='' and no robot_description_file: wall seconds to wait for "
                                         "the URDF on robot_description (transient local)"),
-    'integrator': ('', "integrator name (rk4, dop853, ...); '' = the scene's"),
+    'integrator': ('', "integrator name (auto, rk4, rosenbrock2, dop853, ...); '' = the scene's (default auto)"),
     'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
     'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
     'atol': (0.0, "absolute tolerance of error-controlled integrators; 0 = the scene's or the default"),
@@ -72,6 +72,7 @@ class Config:
     y0: np.ndarray
     publish_tf: bool = True
     backend: str = ''
+    auto: str = ''   # why integrator auto chose ``integrator`` ('' when the settings named it)
 
     def settings(self, namespace: str) -> dict:
         """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
@@ -79,7 +80,8 @@ class Config:
                 'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
                 'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
                 'scripted_commands': self.scripted_commands, 'namespace': namespace,
-                'y0': [float(x) for x in self.y0], 'backend': self.backend}
+                'y0': [float(x) for x in self.y0], 'backend': self.backend,
+                **({'auto': self.auto} if self.auto else {})}
 
 
 def check_number(name, v, positive=False, minimum=None) -> float:
@@ -112,18 +114,17 @@ def resolve_config(p: dict, scene) -> Config:
     ``robodyn run`` does (:func:`robodyn_ros.runs.resolve_settings`), so a node run and a
     headless run of the same scene use the same defaults.
     """
+    from ..integrator_choice import is_auto
     from ..integrators import INTEGRATORS
-    from ..runs import resolve_settings
+    from ..runs import resolve_auto, resolve_settings
     if not isinstance(p['integrator'], str):
         raise ConfigError(f"parameter 'integrator' must be a string, got {p['integrator']!r}")
-    if p['integrator'] and p['integrator'].lower() not in INTEGRATORS:
+    if p['integrator'] and p['integrator'].lower() not in INTEGRATORS and not is_auto(p['integrator']):
         raise ConfigError(f"parameter 'integrator': unknown integrator {p['integrator']!r}; "
-                          f"valid names: {', '.join(INTEGRATORS)}")
+                          f"valid names: auto, {', '.join(INTEGRATORS)}")
     opt = {k: (check_number(k, p[k], minimum=0.0) or None) for k in ('dt', 'rtol', 'atol', 'publish_rate')}
     st = resolve_settings(scene, p['integrator'].lower() or None, opt['dt'], opt['rtol'], opt['atol'],
                           opt['publish_rate'])
-    kind = INTEGRATORS[st['integrator']].kind
-    dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
@@ -172,7 +173,15 @@ def resolve_config(p: dict, scene) -> Config:
             raise ConfigError(f'initial_positions/initial_velocities: {e}') from None
     if p['initial_state'] is not None:
         y0 = check_vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
-    return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol,
+    try:   # integrator auto: the method it picks at the initial state, and why (Config.auto)
+        st = resolve_auto(st, system, y0)
+    except ValueError as e:
+        raise ConfigError(f"parameter 'integrator': auto: {e}") from None
+    if st['integrator'] not in INTEGRATORS:
+        raise ConfigError(f"scene {scene.name!r}: unknown integrator {st['integrator']!r}")
+    kind = INTEGRATORS[st['integrator']].kind
+    dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
+    return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol, auto=st.get('auto', ''),
                   publish_rate=float(st['rate']), mode=mode,
                   rate_factor=check_number('rate_factor', p['rate_factor'], positive=True),
                   max_lag=check_number('max_lag', p['max_lag'], positive=True),

@@ -205,7 +205,8 @@ def make_node_class():
                 + (f' x{cfg.rate_factor:g}' if cfg.mode == 'realtime' else '')
                 + (', scripted commands' if cfg.scripted_commands else
                    f', commands on {", ".join(t for t, _ in command_topics(self.scene.system).values())}')
-                + (f', recording to {self.recorder.path}' if self.recorder else ''))
+                + (f', recording to {self.recorder.path}' if self.recorder else '')
+                + (f' ({cfg.auto})' if cfg.auto else ''))
             # the run (real-time schedule, summary wall time) starts now, after the set-up
             self._wall_start = self._anchor_wall = self._rtf_wall = self._pause_began = time.monotonic()
             self._cpu_start = time.process_time()   # CPU of the run (paused spinning costs next to none)
@@ -544,7 +545,7 @@ def make_node_class():
             now = time.monotonic()
             wall = now - self._wall_start - self._paused_wall - (now - self._pause_began if self.paused else 0.0)
             st = {'integrator': self.cfg.integrator, 'dt': self.cfg.dt, 'rtol': self.cfg.rtol,
-                  'atol': self.cfg.atol}
+                  'atol': self.cfg.atol, 'auto': self.cfg.auto}
             record = self.recorder.path if self.recorder else None
             return summary(self.scene, self.sim, st, wall, record, self.recorders,
                            cpu=time.process_time() - self._cpu_start)

@@ -9,7 +9,7 @@ from ..validation import SceneContext
 from ..validation import key_path as _key
 
 #: run settings a scene's ``simulation`` section may override (the CLI/node may override again)
-DEFAULT_SETTINGS = {'integrator': 'rk4', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
+DEFAULT_SETTINGS = {'integrator': 'auto', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
 _SETTING_KEYS = ('integrator', 'dt', 'rtol', 'atol', 'publish_rate', 'duration')
 
 
@@ -64,12 +64,12 @@ def _stop_condition(ctx: SceneContext, v, system):
 
 
 def _known_integrators():
-    """Integrator names the package registers (None when the registry is unavailable)."""
+    """Integrator names the package registers, and ``auto`` (None when the registry is unavailable)."""
     try:
         from ..integrators import INTEGRATORS
     except ImportError:
         return None
-    return tuple(INTEGRATORS)
+    return ('auto',) + tuple(INTEGRATORS)
 
 
 def _settings(ctx: SceneContext, v) -> dict:

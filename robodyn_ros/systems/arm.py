@@ -94,7 +94,7 @@ class ArmSystem(System):
         self.inputs = {'effort': port}
         self._B = np.ascontiguousarray(self.B, dtype=np.float64)
         self._B_is_selection = _is_selection(self.B)   # fused_periods' condition
-        # Coulomb joint friction (URDF <dynamics friction>): compiled kernel, reference path only
+        # Coulomb joint friction (URDF <dynamics friction>): compiled kernel (kernels.passive), in the fused loop too
         self._friction = np.ascontiguousarray(model.friction)
         self._has_friction = bool(np.any(self._friction > 0.0))
         if self._has_friction and not kernels.AVAILABLE:
@@ -205,6 +205,35 @@ class ArmSystem(System):
                                     f'sqrt(I/k) = {np.sqrt(inertia / k) if k else float("inf"):.3g} s')
         return tau
 
+    def passive_jacobian(self, t, y, u, h=None):
+        """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``): ``[[0, Q], [−M⁻¹K Φ,
+        −M⁻¹D]]`` with D, K from ``CompiledModel.passive_jacobian`` (damping, friction slope, joint-limit
+        moments, and at a step h the gravity stiffness of the 1-DOF joints; the reference backend:
+        damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent coordinates of a change of q). The
+        fused loop assembles the same D and K itself."""
+        q, v = self.split(np.asarray(y, dtype=float))
+        nq, nv = self.nq, self.nv
+        if self._km is not None:
+            D, K = self._km.passive_jacobian(q, v, h)
+            M = self._km.crba(np.ascontiguousarray(q))
+        else:
+            D, K = np.diag(self.model.damping.astype(float)), np.zeros((nv, nv))
+            M = dyn.crba(self.model, q)
+        J = np.zeros((self.ny, self.ny))
+        if nq == nv:
+            Q = np.eye(nv)
+        else:
+            Q = np.column_stack([self.config_rate(q, e) for e in np.eye(nv)])
+        J[:nq, nq:] = Q
+        MinvDK = np.linalg.solve(M, np.hstack([D, K]))
+        J[nq:, nq:] = -MinvDK[:, :nv]
+        J[nq:, :nq] = -MinvDK[:, nv:] @ (np.eye(nv) if nq == nv else np.linalg.pinv(Q))
+        return J
+
+    def explicit_time_constant(self, y):
+        """inf: the declared fastest modes (joint limits) are in :meth:`passive_jacobian`."""
+        return float('inf')
+
     def urdf(self) -> str:
         """URDF for ``robot_description``: a free root's floating joint and world link are left out
         (``odom`` publishes that pose, REP 105), as for the free-flyer."""
@@ -312,7 +341,7 @@ class ArmSystem(System):
         Fs = np.empty((K, nb, 6) if wrenches else (0, nb, 6))
         km = self._km
         run = karm.run_arm_periods if km.gen is None else km.gen.run_arm_periods
-        k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.lim, self._B, self.nq,
+        k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.friction, km.v_s, km.lim, self._B, self.nq,
                       kernels.FUSED_METHODS[integrator_name], z, float(dt), np.ascontiguousarray(t_start, dtype=float),
                       n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches))
         steps = n_full + (h_last > 0.0)
@@ -322,9 +351,9 @@ class ArmSystem(System):
     def _fuses(self, integrator_name, z) -> bool:
         """True when the fused loop computes what the Python path would for this integrator and
         ``z``: compiled kernels, a method it implements, this class's dynamics (:meth:`_fused_exact`),
-        viscous damping only (no Coulomb friction), ``z = [y, W]`` or ``[y, W, W_lim]``."""
+        ``z = [y, W]`` or ``[y, W, W_lim]``."""
         return self._km is not None and integrator_name in kernels.FUSED_METHODS and self._fused_exact() \
-            and not self._has_friction and z.shape in ((self.ny + 1,), (self.ny + 2,))
+            and z.shape in ((self.ny + 1,), (self.ny + 2,))
 
     def _fused_exact(self) -> bool:
         """True when this object computes dy/dt, power, projection and q̇ exactly as ArmSystem

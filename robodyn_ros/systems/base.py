@@ -123,7 +123,7 @@ def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_v
     when the state becomes non-finite, ``numpy.linalg.LinAlgError`` for a singular mass matrix.
     """
     kernels, IntegrationError, IntegratorStats, make_integrator = _FUSED_DEPS or _fused_deps()
-    if integrator_name not in kernels.FUSED_METHODS:
+    if integrator_name not in cs.methods:
         return None
     z = np.array(z0, dtype=np.float64)
     if z.shape != (ny + 1,):
@@ -309,6 +309,18 @@ class System:
     def fastest_time_constant(self, y: np.ndarray) -> float:
         """An estimate (s) of the fastest time constant at state y, for step-size checks."""
         return float('inf')
+
+    def passive_jacobian(self, t: float, y: np.ndarray, u: dict, h: float | None = None):
+        """The stiff part J (ny, ny) of ``∂(dy/dt)/∂y`` at (t, y) that the linearly implicit ``rosenbrock2``
+        treats implicitly at step h (s): the passive forces (damping, friction slope, joint-limit springs
+        and dampers, motor electrics) and the parts of the rest it can afford (the gravity stiffness); or None:
+        J = 0 (the method is then Heun's). Also used by the step preflight (:mod:`robodyn_ros.stability`)."""
+        return None
+
+    def explicit_time_constant(self, y: np.ndarray) -> float:
+        """The part of :meth:`fastest_time_constant` (s) that :meth:`passive_jacobian` does not hold
+        (``rosenbrock2`` must resolve it explicitly): all of it by default."""
+        return self.fastest_time_constant(y)
 
     def urdf(self) -> str:
         """URDF of the system for ``robot_description`` (names equal those in joint_states)."""

@@ -717,6 +717,38 @@ class DiffDriveSystem(System):
             taus.append(1.0 / self.params.baumgarte_alpha)
         return float(min(taus)) if taus else float('inf')
 
+    def passive_jacobian(self, t, y, u, h=None):
+        """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``; the compiled loop,
+        ``kernels.diffdrive.dd_rosenbrock_step``, solves its stages as KKT systems instead): ``q̇ = v``; the
+        passive damping D (joint damping, the motors' friction slopes, the back-EMF damping of L = 0
+        motors) through the constrained mobility ``Y = M⁻¹ − M⁻¹Kᵀ (K M⁻¹ Kᵀ)⁺ K M⁻¹``, ``J_vv = −Y D``; and
+        the L > 0 motors' electrics with their coupling, ``J_vi = Y N K e_ω``, ``J_iω = −N K/L``, ``J_ii = −R/L``."""
+        q, v = self.split(np.asarray(y, dtype=float))
+        nv = self.nv
+        M, _ = self.mass_and_bias(q, v, bias=False)
+        K, _ = self.constraint_jacobian(q, v)
+        D = np.diag(self.model.damping.astype(float))
+        for mot, j in zip(self.motors, (_IL, _IR)):
+            D[j, j] += mot.friction_slope(v[j]) + (0.0 if mot.has_current_state else mot.electrical_damping())
+        Minv = np.linalg.inv(M)
+        Y = Minv - Minv @ K.T @ np.linalg.pinv(K @ Minv @ K.T) @ K @ Minv
+        J = np.zeros((self.ny, self.ny))
+        J[:nv, nv:2 * nv] = np.eye(nv)
+        J[nv:2 * nv, nv:2 * nv] = -Y @ D
+        for n, k in enumerate(self._cur):
+            mot, j, c = self.motors[k], (_IL, _IR)[k], 2 * nv + n
+            NK = mot.gear_ratio * mot.torque_constant
+            J[nv:2 * nv, c] = Y[:, j] * NK
+            J[c, nv + j] = -NK / mot.inductance
+            J[c, c] = -mot.resistance / mot.inductance
+        return J
+
+    def explicit_time_constant(self, y):
+        """``1/α`` of a Baumgarte term (not in :meth:`passive_jacobian`), else inf: the motors' L/R and the
+        damping are passive."""
+        a = self.params.baumgarte_alpha
+        return 1.0 / a if a > 0.0 else float('inf')
+
     def urdf(self):
         """URDF rooted at base_link (chassis, payload, wheels, contact frames, arm)."""
         return to_urdf(self.urdf_model)

@@ -1,0 +1,284 @@
+"""rosenbrock2, the linearly implicit step for stiff passive forces (kernels.rosenbrock), against closed forms.
+
+* an overdamped joint at h·λ from 1 to 1e6: the discrete solution the method's stability function
+  predicts, ``v_n = v∞ + R(−hλ)ⁿ (v0 − v∞)`` with ``R(z) = (1 + (1 − 2γ) z)/(1 − γz)²``, and its error
+  against the closed form within the predicted ``|R(z)ⁿ − e^{nz}| |v0 − v∞|``;
+* order 2, measured as the log–log slope of the error against step size, on a non-stiff pendulum,
+  on a stiffly damped one, and on quaternion coordinates (a tumbling free body, a spherical joint);
+* a stiff stop (k = 1e5) holding a joint driven into it at the static penetration ``τ/k``;
+* with damping as the only passive force, the energy never rises from one step to the next;
+* the step preflight's stability function for it, and ``integrator: auto``'s ladder.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from robodyn_ros import kernels
+from robodyn_ros.integrator_choice import choose_integrator
+from robodyn_ros.model import LinkSpec, build_model
+from robodyn_ros.simulation import Simulator
+from robodyn_ros.stability import analyse_step, rosenbrock2_amplification
+from robodyn_ros.systems.arm import ArmSystem
+
+assert kernels.AVAILABLE, kernels.UNAVAILABLE_REASON
+
+GAMMA = 1.0 - 1.0 / math.sqrt(2.0)   # written out here (the L-stable root with the smaller error constant)
+H = 1e-3
+
+
+def R_exact(z):
+    """ROS2's stability function with J exact (Verwer et al. 1999): ``(1 + (1 − 2γ) z)/(1 − γz)²``."""
+    return (1.0 + (1.0 - 2.0 * GAMMA) * z) / (1.0 - GAMMA * z) ** 2
+
+
+def hinge(I=0.01, damping=0.0, gravity=(0.0, 0.0, 0.0), **kw):
+    """One body turning about z; its inertia about the axis is exactly I (com on the axis)."""
+    link = LinkSpec(name='arm', joint='hinge', parent=None, axis=(0, 0, 1), mass=1.0, com=(0.0, 0.0, 0.0),
+                    inertia=np.diag([I, I, I]), damping=damping, **kw)
+    return ArmSystem(build_model([link], gravity=gravity, name='hinge'), backend='numba')
+
+
+# ------------------------------------------------------------------------------ overdamped joint
+@pytest.mark.parametrize('hlam', [1.0, 10.0, 1e2, 1e3, 1e4, 1e5, 1e6])
+def test_overdamped_joint_follows_the_predicted_discrete_solution(hlam):
+    I = 0.01
+    lam = hlam / H
+    d = lam * I
+    v0, v_inf = 1.0, 0.5
+    tau = d * v_inf
+    system = hinge(I, damping=d)
+    sim = Simulator(system, [0.3, v0], integrator='rosenbrock2', dt=H)
+    sim.set_command('effort', [tau])
+    z = -hlam
+    assert abs(R_exact(z)) < 1.0 and (R_exact(z) > 0.0) == (z > -1.0 / (1.0 - 2.0 * GAMMA))
+    for n in (1, 2, 3, 25):
+        sim.advance(n * H)
+        q, v = sim.y
+        rn = R_exact(z) ** n
+        # the method is exact on the particular solution (q linear in t, v = v∞): only the decaying mode
+        # is multiplied by R(z) per step; the closed form multiplies it by e^{z} per step
+        v_pred = v_inf + rn * (v0 - v_inf)
+        q_pred = 0.3 + (v0 - v_inf) / lam + v_inf * n * H - rn * (v0 - v_inf) / lam
+        v_true = v_inf + math.exp(n * z) * (v0 - v_inf)
+        q_true = 0.3 + (v0 - v_inf) / lam + v_inf * n * H - math.exp(n * z) * (v0 - v_inf) / lam
+        assert abs(v - v_pred) <= 4e-15, (n, v, v_pred)
+        assert abs(q - q_pred) <= 2e-15, (n, q, q_pred)
+        bound = abs(rn - math.exp(n * z)) * abs(v0 - v_inf)
+        assert abs(v - v_true) <= bound * (1 + 1e-9) + 4e-15
+        assert abs(q - q_true) <= bound / lam * (1 + 1e-9) + 2e-15
+
+
+@pytest.mark.parametrize('hlam', [1.0, 1e2, 1e6])
+def test_auto_never_refuses_the_overdamped_joint(hlam):
+    d = hlam / H * 0.01
+    sim = Simulator(hinge(0.01, damping=d), [0.0, 1.0], dt=H)   # integrator: auto (the default)
+    assert sim.settings['integrator'] == ('rk4' if hlam * 1.0 < 2.78 else 'rosenbrock2'), sim.choice.reason
+    sim.advance(0.1)
+    assert np.all(np.isfinite(sim.y)) and abs(sim.y[1]) < 1e-3
+    with pytest.raises(ValueError, match='Use rosenbrock2') if hlam > 2.78 else _nothing():
+        Simulator(hinge(0.01, damping=d), [0.0, 1.0], integrator='rk4', dt=H)
+
+
+class _nothing:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_stability_function_is_L_stable_and_heun_without_J():
+    for z in (-1e-3, -1.0, -10.0, -1e3, -1e8, 2j, -3 + 40j):
+        assert abs(rosenbrock2_amplification(z) - R_exact(z)) <= 1e-14 * max(1.0, abs(R_exact(z)))
+        assert abs(rosenbrock2_amplification(z)) <= 1.0 + 1e-15        # A-stable
+    assert abs(R_exact(-1e12)) < 1e-11                                    # L-stable: R(∞) = 0
+    for x in (0.1, 0.5, 1.0):                                            # J = 0: Heun, |R(ix)|² = 1 + x⁴/4
+        assert abs(abs(rosenbrock2_amplification(1j * x, 0.0)) ** 2 - (1 + x ** 4 / 4)) < 1e-14
+
+
+# ------------------------------------------------------------------------------ order 2
+def pendulum(d):
+    """A rod pivoting about y under gravity, com 0.5 m out (I about the pivot = 0.251 kg·m²), damping d."""
+    link = LinkSpec(name='arm', joint='hinge', parent=None, axis=(0, 1, 0), mass=1.0, com=(0.5, 0.0, 0.0),
+                    inertia=np.diag([1e-3, 1e-3, 1e-3]), damping=d)
+    return ArmSystem(build_model([link], name='pendulum'), backend='numba')
+
+
+def floating_pair(damping=0.5):
+    """A free-floating body carrying a second one on a damped spherical joint, both tumbling under gravity."""
+    links = [LinkSpec(name='base', joint='root', parent=None, joint_type='free', mass=2.0, com=(0.1, 0.05, 0.0),
+                      inertia=np.diag([0.1, 0.2, 0.3])),
+             LinkSpec(name='arm', joint='ball', parent='base', joint_type='spherical', origin_xyz=(0.3, 0, 0),
+                      mass=1.0, com=(0.2, 0.0, 0.1), inertia=np.diag([0.02, 0.05, 0.04]), damping=damping)]
+    system = ArmSystem(build_model(links, name='pair'), backend='numba')
+    y0 = system.initial_state()
+    y0[system.nq:] = [1.0, 2.0, -0.5, 0.3, -0.2, 0.4, 1.0, -2.0, 0.5]
+    return system, y0
+
+
+def measured_order(system, y0, ladder, T=1.0):
+    """Log–log slope of the max-norm error at T against the step (reference: DOP853 at rtol 1e-13 on the
+    system's own right-hand side, the ODE the method discretises)."""
+    u = system.zero_inputs()
+    ref = solve_ivp(lambda t, y: system.rhs(t, y, u), (0.0, T), y0, method='DOP853', rtol=1e-13, atol=1e-14).y[:, -1]
+    errors = []
+    for h in ladder:
+        sim = Simulator(system, y0, integrator='rosenbrock2', dt=h)
+        sim.advance(T)
+        errors.append(np.abs(sim.y - ref).max())
+    return np.polyfit(np.log(ladder), np.log(errors), 1)[0], errors
+
+
+def test_order_two_on_a_swinging_pendulum():
+    slope, errors = measured_order(pendulum(0.0), np.array([1.0, 0.0]), [4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4])
+    assert abs(slope - 2.0) < 0.1, (slope, errors)
+
+
+def test_order_two_on_a_stiffly_damped_double_pendulum():
+    """A double pendulum whose light second link is damped stiffly (its mode |λ| = 1.65e4 1/s: h·|λ| from 132
+    down to 8 over the ladder; rk4 is refused): it creeps quasi-statically while the first link swings.
+    (Without the gravity stiffness in J a stiffly damped joint under gravity converges at order 1.)"""
+    links = [LinkSpec(name='a', joint='j0', parent=None, axis=(0, 1, 0), mass=1.0, com=(0.25, 0, 0),
+                      inertia=np.diag([1e-3] * 3), damping=0.2),
+             LinkSpec(name='b', joint='j1', parent='a', origin_xyz=(0.5, 0, 0), axis=(0, 1, 0), mass=0.2,
+                      com=(0.1, 0, 0), inertia=np.diag([1e-4] * 3), damping=20.0)]
+    system = ArmSystem(build_model(links, name='chain2'), backend='numba')
+    y0 = np.array([1.0, 0.5, 0.0, 0.0])
+    assert analyse_step(system, 'rk4', 1e-3, y0).verdict == 'refuse'
+    slope, errors = measured_order(system, y0, [8e-3, 4e-3, 2e-3, 1e-3, 5e-4])
+    assert abs(slope - 2.0) < 0.1, (slope, errors)
+
+
+def test_order_two_in_quaternion_coordinates():
+    """Tangent-space stages (q ⊗ exp(h ω/2)) without the dexp⁻¹ correction keep order 2."""
+    system, y0 = floating_pair()
+    slope, errors = measured_order(system, y0, [4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4])
+    assert abs(slope - 2.0) < 0.1, (slope, errors)
+
+
+# ------------------------------------------------------------------------------ a stiff stop
+def test_stiff_stop_holds_a_driven_joint_at_the_static_penetration():
+    """k = 1e5 N·m/rad on I = 1e-3 kg·m² (ω = 1e4 rad/s, h·ω = 10 at 1 ms: rk4 is refused, auto runs
+    rosenbrock2); a torque τ drives the joint into its upper stop at 30 rad/s: it rests at θmax + τ/k.
+    (With the printed law's return, ``none``, a joint rests at its deepest penetration instead.)"""
+    k, c, tau, hi = 1e5, 10.0, 5.0, 0.5
+    system = hinge(1e-3, limits=(-hi, hi), limit_stiffness=k, limit_damping=c, limit_return='spring')
+    sim = Simulator(system, [0.4, 0.0], dt=H)
+    assert sim.settings['integrator'] == 'rosenbrock2', sim.choice.reason
+    sim.set_command('effort', [tau])
+    sim.advance(1.0)
+    q, v = sim.y
+    assert abs(q - (hi + tau / k)) < 1e-12, q - (hi + tau / k)
+    assert abs(v) < 1e-9
+    sim.advance(1.1)                                   # and it stays there
+    assert abs(sim.y[0] - (hi + tau / k)) < 1e-12
+
+
+# ------------------------------------------------------------------------------ energy
+def test_energy_never_rises_with_damping_the_only_passive_force():
+    """Three links in zero gravity, every joint damped (one stiffly: h·|λ| ≈ 20), thrown with random rates:
+    the kinetic energy may only fall, step after step."""
+    rng = np.random.default_rng(7)
+    links, parent = [], None
+    for k, d in enumerate((0.3, 2.0, 300.0)):
+        links.append(LinkSpec(name=f'l{k}', joint=f'j{k}', parent=parent, origin_xyz=(0.4 if k else 0.0, 0, 0),
+                              axis=tuple(rng.normal(size=3)), mass=1.0 - 0.3 * k, com=(0.2, 0.05, 0.0),
+                              inertia=np.diag([0.01, 0.02, 0.02]) * (1 - 0.3 * k), damping=d))
+        parent = f'l{k}'
+    system = ArmSystem(build_model(links, gravity=(0, 0, 0), name='chain'), backend='numba')
+    sim = Simulator(system, np.concatenate([[0.1, -0.4, 0.7], rng.normal(scale=3.0, size=3)]), dt=H)
+    assert sim.settings['integrator'] == 'rosenbrock2', sim.choice.reason
+    E = [system.total_energy(sim.y)]
+    for k in range(1, 2001):
+        sim.advance(k * H)
+        E.append(system.total_energy(sim.y))
+    E = np.array(E)
+    assert E[-1] < 0.2 * E[0]
+    rises = np.diff(E)
+    assert rises.max() <= 1e-15 * E[0], (rises.max(), int(np.argmax(rises)))
+
+
+# ------------------------------------------------------------------------------ two forms of one step
+def _one_step_both_ways(system, y0, u, h, gamma=None):
+    """One rosenbrock2 step of the compiled loop (Simulator, fused path) and of the generic
+    :class:`robodyn_ros.integrators.Rosenbrock2` on the system's right-hand side with its passive Jacobian
+    in state coordinates (an LU of I − γhJ): two formulations of the same W-method step."""
+    from robodyn_ros.integrators import make_integrator
+    sim = Simulator(system, y0, integrator='rosenbrock2', dt=h)
+    for port, value in u.items():
+        sim.set_command(port, value)
+    fused = sim.advance(h).copy()
+    integ = make_integrator('rosenbrock2', dt=h, jac=lambda t, y: system.passive_jacobian(t, y, u, h), gamma=gamma)
+    generic, _ = integ.advance(lambda t, y: system.rhs(t, y, u), 0.0, y0, h, project=system.project)
+    return fused, generic
+
+
+def test_compiled_arm_step_is_the_generic_w_method_step():
+    """A three-link arm under gravity with damping (one joint stiffly), Coulomb friction and a stop it
+    already presses: the compiled stage algebra (RNEA residual, M, Cholesky of M + γhD + γ²h²K, the
+    gravity stiffness in K; γ = 1 + 1/√2 with a stop in J) gives the generic LU step on [q, v] to round-off;
+    the same arm off its stop takes γ = 1 − 1/√2."""
+    links, parent = [], None
+    for k, (d, f) in enumerate(((0.5, 0.2), (40.0, 0.0), (0.1, 0.05))):
+        links.append(LinkSpec(name=f'l{k}', joint=f'j{k}', parent=parent, origin_xyz=(0.3 if k else 0.0, 0, 0),
+                              axis=(0, 1, 0) if k != 2 else (0.3, 0.8, 0.5), mass=1.0 - 0.3 * k,
+                              com=(0.15, 0.02, 0.0), inertia=np.diag([0.01, 0.012, 0.011]) * (1 - 0.3 * k),
+                              damping=d, friction=f, **({'limits': (-0.2, 0.2), 'limit_stiffness': 500.0,
+                                                          'limit_damping': 2.0} if k == 2 else {})))
+        parent = f'l{k}'
+    system = ArmSystem(build_model(links, name='chain3'), backend='numba')
+    u = {'effort': np.array([0.5, -0.2, 0.1])}
+    for y0, gamma in ((np.array([0.4, -0.3, 0.25, 0.7, -0.2, 0.3]), 1.0 + 1.0 / math.sqrt(2.0)),
+                      (np.array([0.4, -0.3, 0.05, 0.7, -0.2, 0.3]), GAMMA)):
+        fused, generic = _one_step_both_ways(system, y0, u, 2e-3, gamma)
+        assert np.abs(fused - generic).max() < 1e-12 * (1 + np.abs(y0 - fused).max() / 2e-3), fused - generic
+        assert np.abs(fused - y0).max() > 1e-4
+
+
+def test_compiled_platform_step_is_the_generic_w_method_step():
+    """The differential drive with geared inductive motors: the compiled KKT stages with the currents
+    eliminated give the generic LU step with J = [[0, I, 0], [0, −Y D, Y N K], [0, −N K/L, −R/L]]."""
+    from robodyn_ros.bench.extremes import _scene_variant
+    scene = _scene_variant('betancur_platform', ('inductance: 0.0', 'inductance: 1.0e-3, gear_ratio: 30.0'))
+    system = scene.system
+    y0 = scene.y0.copy()
+    y0[system.nv + 3: system.nv + 5] = [0.8, 1.1]          # wheels turning (the chassis follows: projected)
+    y0 = system.project(y0)
+    fused, generic = _one_step_both_ways(system, y0, {'wheel_voltage': np.array([6.0, 4.0])}, 1e-3)
+    assert np.abs(fused - generic).max() < 1e-11 * (1 + np.abs(fused).max()), fused - generic
+    assert np.abs(fused - y0).max() > 1e-3
+
+
+@pytest.mark.parametrize('scene_name', ['stanford_arm', 'huston_p19_4_1'])
+def test_gravity_stiffness_is_the_derivative_of_the_gravity_torques(scene_name):
+    """G = ∂g/∂q of the iteration matrix (the CRBA's composites, and the generated code) against central
+    differences of the numpy reference's RNEA at zero velocity and acceleration (a prismatic joint in
+    the Stanford arm, revolute ones in both)."""
+    from robodyn_ros import dynamics as dyn
+    from robodyn_ros.kernels import tree
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.systems.base import backend_scope
+    with backend_scope('generated'):
+        scene = load_scene(scene_name)
+    km, model = scene.system._km, scene.system.model
+    nv = km.nv
+    zero = np.zeros(nv)
+    for q in np.random.default_rng(3).uniform(-1.5, 1.5, size=(3, km.nq)):
+        G = np.empty((nv, nv))
+        tree.gravity_stiffness_into(km.mi_r, km.mf_r, q, G)
+        Gfd = np.empty((nv, nv))
+        for j in range(nv):
+            d = np.zeros(nv)
+            d[j] = 1e-6
+            Gfd[:, j] = (dyn.rnea(model, q + d, zero, zero) - dyn.rnea(model, q - d, zero, zero)) / 2e-6
+        scale = np.abs(Gfd).max()
+        assert scale > 1.0
+        assert np.abs(G - Gfd).max() < 1e-7 * scale, np.abs(G - Gfd).max()
+        H, Gg = np.empty((nv, nv)), np.empty((nv, nv))
+        km.gen.crba(q, H, Gg)
+        assert np.abs(Gg - G).max() < 1e-12 * scale
+        assert np.abs(H - dyn.crba(model, q)).max() < 1e-12 * np.abs(H).max()
