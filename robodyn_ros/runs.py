@@ -14,7 +14,9 @@ from __future__ import annotations
 import math
 import os
 
-from .integrator_choice import AUTO, choose_integrator, is_auto
+#: the integrator name that asks for the choice (:data:`robodyn_ros.integrator_choice.AUTO`; here so that
+#: ``robodyn --help`` imports no numpy)
+AUTO = 'auto'
 
 #: simulated seconds between diagnostics messages in a recording (robodyn run, robodyn sweep)
 DIAGNOSTICS_PERIOD = 0.1
@@ -48,6 +50,7 @@ def resolve_auto(st: dict, system, y0, t0: float = 0.0) -> dict:
     """``st`` (from :func:`resolve_settings`) with an ``'auto'`` integrator replaced by the choice of
     :func:`robodyn_ros.integrator_choice.choose_integrator` at state y0 (its dt, or rtol/atol for radau)
     and the reason under ``'auto'``; ``st`` itself when it names an integrator. A new dict."""
+    from .integrator_choice import choose_integrator, is_auto
     if not is_auto(st.get('integrator')):
         return st
     c = choose_integrator(system, y0, st.get('dt') or 1e-3, st.get('rtol'), st.get('atol'), t0)

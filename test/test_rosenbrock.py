@@ -282,3 +282,29 @@ def test_gravity_stiffness_is_the_derivative_of_the_gravity_torques(scene_name):
         km.gen.crba(q, H, Gg)
         assert np.abs(Gg - G).max() < 1e-12 * scale
         assert np.abs(H - dyn.crba(model, q)).max() < 1e-12 * np.abs(H).max()
+
+
+def test_mimic_joints_solve_the_stages_in_the_independent_joints():
+    """A double pendulum whose second joint follows the first (``<mimic multiplier="-0.5">``) with stiff
+    damping on it (reduced to the first joint, h·|λ| ≈ 20 at 1 ms): auto picks rosenbrock2, the stages are solved with ``Gᵀ A G``; the
+    coupling holds to the last bit and the method keeps order 2 against DOP853 on the coupled dynamics."""
+    from robodyn_ros.kernels import CompiledModel
+    from robodyn_ros.scene import parse_scene
+    pm = ('<inertial><origin xyz="0 0 -0.5"/><mass value="1.0"/>'
+          '<inertia ixx="1e-3" iyy="1e-3" izz="1e-3" ixy="0" ixz="0" iyz="0"/></inertial>')
+    text = (f'<robot name="coupled"><link name="base"/><link name="l1">{pm}</link><link name="l2">{pm}</link>'
+            '<joint name="j1" type="continuous"><parent link="base"/><child link="l1"/><axis xyz="0 1 0"/></joint>'
+            '<joint name="j2" type="continuous"><parent link="l1"/><child link="l2"/>'
+            '<origin xyz="0 0 -0.5"/><axis xyz="0 1 0"/><dynamics damping="1.0e5"/>'
+            '<mimic joint="j1" multiplier="-0.5" offset="0.1"/></joint></robot>')
+    scene = parse_scene('name: p\nparts:\n  - kind: urdf\n    name: p\n    urdf: |\n      ' + text + '\n')
+    system = scene.system
+    y0 = system.initial_state(q0=[1.0, 0.0], v0=[0.0, 0.0])
+    sim = Simulator(system, y0, dt=1e-3)
+    assert sim.settings['integrator'] == 'rosenbrock2', sim.choice.reason
+    sim.advance(0.5)
+    table = CompiledModel(system.model).mimic
+    for qj, vj, qi, vi, m, o in table:
+        assert sim.y[int(qj)] == m * sim.y[int(qi)] + o and sim.y[2 + int(vj)] == m * sim.y[2 + int(vi)]
+    slope, errors = measured_order(system, y0, [8e-3, 4e-3, 2e-3, 1e-3, 5e-4])
+    assert abs(slope - 2.0) < 0.1, (slope, errors)

@@ -46,8 +46,9 @@ def _scene_runs(scratch):
 
     def urdf_robot(variant):
         """stanford_arm's arm as a URDF file: as it is, with Coulomb friction and effort limits on
-        every joint (the right-hand side of URDF robots with ``<dynamics friction>``), or with its
-        last joint following the one before (``<mimic>``: the coupled dynamics)."""
+        every joint (the right-hand side of URDF robots with ``<dynamics friction>``), with its last
+        joint following the one before (``<mimic>``: the coupled dynamics), or with stiff joint damping
+        (integrator auto runs it with rosenbrock2, the linearly implicit step)."""
         path = os.path.join(scratch, f'robot_{variant}.urdf')
         if not os.path.exists(path):
             m = load_scene('stanford_arm').system.model
@@ -55,6 +56,8 @@ def _scene_runs(scratch):
             if variant == 'friction':
                 specs = [replace(s, friction=1e-3, effort_limit=100.0) if s.joint_type != 'fixed' else s
                          for s in m.specs]
+            elif variant == 'damped':
+                specs = [replace(s, damping=50.0, friction=1e-3) if s.joint_type != 'fixed' else s for s in m.specs]
             elif variant == 'mimic':
                 specs = [replace(s, mimic=(moving[-2].joint, 0.5, 0.0)) if s is moving[-1] else s for s in m.specs]
             else:
@@ -63,7 +66,7 @@ def _scene_runs(scratch):
                 f.write(to_urdf(build_model(specs, gravity=m.gravity, name=m.name, root=m.root)))
         return load_scene(path)
     return runs + [(f'stanford_arm as URDF{"" if v == "plain" else ", " + v}', lambda v=v: urdf_robot(v))
-                   for v in ('plain', 'friction', 'mimic')]
+                   for v in ('plain', 'friction', 'mimic', 'damped')]
 
 
 def warm_scene(load, backend, scratch) -> None:

@@ -209,8 +209,9 @@ class ArmSystem(System):
         """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``): ``[[0, Q], [−M⁻¹K Φ,
         −M⁻¹D]]`` with D, K from ``CompiledModel.passive_jacobian`` (damping, friction slope, joint-limit
         moments, and at a step h the gravity stiffness of the 1-DOF joints; the reference backend:
-        damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent coordinates of a change of q). The
-        fused loop assembles the same D and K itself."""
+        damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent coordinates of a change of q); with
+        mimic joints M⁻¹ is the coupled one, ``G (Gᵀ M G)⁻¹ Gᵀ``. The fused loop assembles the same D and K
+        itself."""
         q, v = self.split(np.asarray(y, dtype=float))
         nq, nv = self.nq, self.nv
         if self._km is not None:
@@ -225,7 +226,12 @@ class ArmSystem(System):
         else:
             Q = np.column_stack([self.config_rate(q, e) for e in np.eye(nv)])
         J[:nq, nq:] = Q
-        MinvDK = np.linalg.solve(M, np.hstack([D, K]))
+        if self._km is not None and self._km.cpl is not None:   # mimic joints: v̇ = G M_r⁻¹ Gᵀ (...)
+            Gc = np.zeros((nv, self._km.nr))
+            Gc[np.arange(nv), self._km.col] = self._km.mul
+            MinvDK = Gc @ np.linalg.solve(Gc.T @ M @ Gc, Gc.T @ np.hstack([D, K]))
+        else:
+            MinvDK = np.linalg.solve(M, np.hstack([D, K]))
         J[nq:, nq:] = -MinvDK[:, :nv]
         J[nq:, :nq] = -MinvDK[:, nv:] @ (np.eye(nv) if nq == nv else np.linalg.pinv(Q))
         return J
