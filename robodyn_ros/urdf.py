@@ -77,6 +77,7 @@ parents, a loop, several roots, an unknown joint type, a moving link whose subtr
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import warnings
@@ -521,7 +522,9 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
     except ModelError as e:
         where, _, reason = str(e).partition(': ')
         raise UrdfError(where, reason) if reason else UrdfError(f'robot {name!r}', str(e)) from None
-    _check_masses(specs, no_inertial, resolve_mimics(specs))
+    bare = _massless(specs, no_inertial, resolve_mimics(specs))
+    if bare:
+        return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare)
     vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
     return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
 
@@ -685,10 +688,12 @@ def _lock(s: LinkSpec, name: str, q) -> LinkSpec:
                    damping=0.0, friction=0.0, effort_limit=None, limits=None, velocity_limit=None)
 
 
-def _check_masses(specs, no_inertial, mimics):
-    """Refuse a moving joint whose subtree (the link and everything below it) has no mass, nor
-    the subtree of any joint that mimics it (mimics: :func:`robodyn_ros.model.resolve_mimics`;
-    a mimic joint moves with its source, which is the one that needs something to accelerate)."""
+def _massless(specs, no_inertial, mimics) -> list:
+    """``[(spec, where, reason)]`` of the moving joints whose subtree (the link and everything below
+    it) has no mass, nor the subtree of any joint that mimics them (mimics:
+    :func:`robodyn_ros.model.resolve_mimics`; a mimic joint moves with its source, which is the one
+    that needs something to accelerate). Such a joint has no dynamics: its row of the mass matrix is
+    zero."""
     sub = {s.name: s.mass for s in specs}
     by_parent = {}
     for s in specs:
@@ -700,8 +705,9 @@ def _check_masses(specs, no_inertial, mimics):
     for s in specs:
         if s.joint in mimics:
             followers.setdefault(mimics[s.joint][0], []).append(s.name)
+    out = []
     for s in specs:
-        if s.joint_type == 'fixed' or s.joint in mimics or sub[s.name] > 0.0 or \
+        if s.joint_type in ('fixed', 'free') or s.joint in mimics or sub[s.name] > 0.0 or \
                 any(sub[f] > 0.0 for f in followers.get(s.joint, [])):
             continue
         leaf = not by_parent.get(s.name)
@@ -710,6 +716,36 @@ def _check_masses(specs, no_inertial, mimics):
             (' (nor have those of the joints that mimic it)' if s.joint in followers else '') + \
             '; its joint would have no inertia to accelerate'
         if s.name in no_inertial:
-            raise UrdfError(where, f'missing <inertial> on a moving link{rest} (give it an <inertial> or make the '
-                                   'joint fixed)')
-        raise UrdfError(where, f'zero-mass moving link{rest} (give it a mass or make the joint fixed)')
+            out.append((s, where, f'missing <inertial> on a moving link{rest} (give it an <inertial> or make the '
+                                  'joint fixed)'))
+        else:
+            out.append((s, where, f'zero-mass moving link{rest} (give it a mass or make the joint fixed)'))
+    return out
+
+
+def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) -> UrdfRobot:
+    """The robot read again with the massless moving joints of ``bare`` (:func:`_massless`) locked as
+    fixed joints at 0 (or the limit nearest 0), and the joints that mimic them with them, with one
+    note naming them (vendor URDFs carry such joints: a hand's massless finger links, a sensor on a
+    continuous joint). A joint with nothing to accelerate has no dynamics (Pinocchio's ABA divides
+    by its zero articulated inertia; MuJoCo refuses a moving body without mass; Gazebo's URDF import
+    drops such links). Refused with the first joint's reason when nothing would be left to move."""
+    s0, where, reason = bare[0]
+    independent = {s.joint for s in specs if s.joint_type not in ('fixed', 'free') and s.mimic is None}
+    at = {}
+    for s, _, _ in bare:
+        lo, hi = s.limits if s.limits is not None else (-math.inf, math.inf)
+        at[s.joint] = min(max(0.0, lo), hi)
+    if not floating and independent <= set(at):
+        raise UrdfError(where, reason)
+    fresh = []
+    try:
+        robot = _read(data, base_dir, label, floating, {**locked, **at}, fresh)
+    except UrdfError:
+        raise UrdfError(where, reason) from None
+    names = ', '.join(f'{j} at {q:.6g}' for j, q in at.items())
+    notes[:] = fresh + [f'{len(at)} moving joint{"s" if len(at) > 1 else ""} with no mass below '
+                        f'{"them" if len(at) > 1 else "it"} (nor below the joints that mimic '
+                        f'{"them" if len(at) > 1 else "it"}) locked as fixed: {names} (a joint with nothing '
+                        'to accelerate has no dynamics); give the links an <inertial> to move them']
+    return robot

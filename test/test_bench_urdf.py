@@ -12,15 +12,20 @@ from robodyn_ros.bench import urdf as bench_urdf
 from robodyn_ros.urdf import example_robot_data_dir
 
 DOC = Path(__file__).resolve().parent.parent / 'docs' / 'urdf_robots.md'
-ROW = re.compile(r'^\| ([^|]+) \| `([^`]+)` \| (\d+|—) \| (runs|refused|failed|timeout) \| (.*) \|$')
+ROW = re.compile(r'^\| ([^|]+) \| `([^`]+)` \| (\d+|—) \| (runs|refused|failed|timeout) \| ([\w—?]+) \| (.*) \|$')
 
 
 def parse(text: str):
-    """``(summary counts {'runs': n, 'total': n, cause words: n}, rows [(robot, file, dof, verdict, text)])``."""
-    m = re.search(r'\*\*(\d+) of (\d+) run\.\*\* Refused: (.*?)\.(?: Failed or timed out: (\d+)\.)?\n', text)
+    """``(summary counts {'runs': n, 'total': n, cause words: n, 'with <method>': n}, rows [(robot, file,
+    dof, verdict, text, method)])``."""
+    m = re.search(r'\*\*(\d+) of (\d+) run\*\* \((.*?)\)\. Refused: (.*?)\.(?: Failed or timed out: (\d+)\.)?\n',
+                  text)
     assert m, 'summary line missing'
-    counts = {'runs': int(m.group(1)), 'total': int(m.group(2)), 'failed': int(m.group(4) or 0)}
+    counts = {'runs': int(m.group(1)), 'total': int(m.group(2)), 'failed': int(m.group(5) or 0)}
     for part in m.group(3).split(', '):
+        n, words = part.split(' ', 1)
+        counts[words] = int(n)
+    for part in m.group(4).split(', '):
         if part != 'none':
             n, words = part.split(' ', 1)
             counts[words] = int(n)
@@ -29,13 +34,17 @@ def parse(text: str):
         r = ROW.match(line)
         if r:
             rows.append((r.group(1), r.group(2), None if r.group(3) == '—' else int(r.group(3)), r.group(4),
-                         r.group(5)))
+                         r.group(6), r.group(5)))
     return counts, rows
 
 
 def _consistent(counts, rows):
     assert counts['total'] == len(rows)
     assert counts['runs'] == sum(r[3] == 'runs' for r in rows)
+    methods = {r[5] for r in rows if r[3] == 'runs'}
+    assert methods <= {'rk4', 'rosenbrock2', 'radau'}, methods
+    for m in methods:
+        assert counts[f'with {m}'] == sum(r[3] == 'runs' and r[5] == m for r in rows)
     assert counts['failed'] == sum(r[3] in ('failed', 'timeout') for r in rows)
     refused = [r for r in rows if r[3] == 'refused']
     by_words = {words: key for key, words, _ in bench_urdf.CAUSES}
@@ -74,14 +83,16 @@ def test_the_script_on_four_robots_tabulates_runs_refusals_and_their_words(tmp_p
     assert bench_urdf.main(args) == 0
     counts, rows = parse(out.read_text())
     _consistent(counts, rows)
-    assert counts['runs'] == 2 and counts['total'] == 4
+    assert counts['runs'] == 3 and counts['total'] == 4
     by = {r[0]: r for r in rows}
     solo = example_robot_data_dir() / by['solo12'][1]
     assert by['solo12'][2:4] == (pin.buildModelFromUrdf(str(solo)).nv, 'runs')  # on a fixed base, as robodyn run
     assert by['double_pendulum_simple'][2:4] == (2, 'runs')
     assert by['double_pendulum_simple'][4] == '`effort="0" read as no limit (2 joints)`'
     assert by['ur3'][3] == 'refused' and by['ur3'][4] == "`robot 'ur3': no <link> element: nothing to simulate`"
-    assert by['xarm7'][3] == 'refused' and by['xarm7'][4].startswith('stiff at the default step: fastest mode')
+    # xarm7's damping (2-10 N·m·s/rad on light links, |λ| = 1.6e5 1/s) is stiff at 1 ms: auto runs it implicitly
+    assert by['xarm7'][3] == 'runs' and by['xarm7'][5] == 'rosenbrock2', by['xarm7']
+    assert by['solo12'][5] == 'rk4' and by['double_pendulum_simple'][5] == 'rk4'
     assert out.read_text() in capsys.readouterr().out
 
 

@@ -347,3 +347,47 @@ def test_the_node_logs_each_warning_once_and_runs(tmp_path):
     assert len(warned) == 3, log
     assert sum('effort="0"' in ln for ln in warned) == 1 and sum('triangle' in ln for ln in warned) == 1
     assert 'Traceback' not in log
+
+
+def test_a_massless_hand_is_locked_with_one_note_and_the_rest_moves_as_pinocchio_with_it_fixed():
+    """A 'hand' joint whose finger links carry no mass, with a finger that mimics it (romeo's hands in
+    example-robot-data): the joint has nothing to accelerate, so it is locked at 0 as a fixed joint
+    with its follower (at multiplier · 0 + offset), one note naming it; the arm that carries them
+    moves. Oracle: Pinocchio on the same text with those two joints written as fixed at those
+    positions (the follower's offset folded into its origin), M and ABA at random states."""
+    lim = '<limit effort="0" lower="-1" upper="1" velocity="0"/>'
+    fingers = ('<link name="f1"/><link name="f2"/>'
+               + _joint('hand', 'b', 'f1', extra='<origin xyz="0 0 0.5"/><axis xyz="1 0 0"/>' + lim)
+               + _joint('finger', 'f1', 'f2', extra='<origin xyz="0 0.1 0"/><axis xyz="1 0 0"/>' + lim
+                        + '<mimic joint="hand" multiplier="2" offset="0.25"/>'))
+    text = _robot(_link('a'), _link('b'), fingers, name='arm',
+                  *[_joint('j1', 'a', 'b', extra='<axis xyz="0 1 0"/><limit effort="10" lower="-3" upper="3" velocity="9"/>')])
+    r, notes = _read(text)
+    assert [s.joint for s in r.specs if s.joint_type != 'fixed'] == ['j1']
+    f2 = next(s for s in r.specs if s.name == 'f2')   # the follower's frame where its mimic law puts it
+    np.testing.assert_allclose(f2.origin_R, pin.rpy.rpyToMatrix(0.25, 0.0, 0.0), atol=1e-15)
+    lock = [n for n in notes if 'locked as fixed' in n]
+    assert len(lock) == 1 and 'hand at 0' in lock[0] and 'no mass below it' in lock[0], notes
+    assert any("joint 'finger': mimics locked joint 'hand'" in n for n in notes), notes
+    fixed = text.replace('<joint name="hand" type="revolute">', '<joint name="hand" type="fixed">').replace(
+        '<joint name="finger" type="revolute"><parent link="f1"/><child link="f2"/><origin xyz="0 0.1 0"/>',
+        '<joint name="finger" type="fixed"><parent link="f1"/><child link="f2"/><origin xyz="0 0.1 0" rpy="0.25 0 0"/>')
+    assert fixed.count('type="fixed"') == 2
+    pm = pin.buildModelFromXML(fixed)
+    pd = pm.createData()
+    assert pm.nv == 1
+    sc = parse_scene('name: x\nparts:\n  - kind: urdf\n    name: r\n    urdf: |\n      ' + text + '\n')
+    from robodyn_ros import kernels
+    km = kernels.CompiledModel(sc.system.model)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        q, v, tau = rng.normal(size=1), rng.normal(size=1), rng.normal(size=1)
+        np.testing.assert_allclose(km.crba(q), pin.crba(pm, pd, q), rtol=1e-13)
+        np.testing.assert_allclose(km.aba(q, v, tau), pin.aba(pm, pd, q, v, tau), rtol=1e-12)
+
+
+def test_a_robot_whose_only_moving_joints_are_massless_is_still_refused():
+    """Locking every joint would leave nothing to simulate: the refusal names the first joint."""
+    text = _robot(_link('a'), '<link name="b"/>', _joint('j1', 'a', 'b'))
+    with pytest.raises(UrdfError, match=r"link 'b' \(joint 'j1'\): missing <inertial> on a moving link at a leaf"):
+        read_urdf(text)

@@ -46,7 +46,8 @@ NOTES = [(r'<limit effort="0">.* on (\d+) joint', 'effort="0" read as no limit (
 class Row:
     """One URDF's result: file (relative to the robots directory), dof (or None), verdict 'runs' |
     'refused' | 'failed' | 'timeout', cause (a CAUSES key, refusals only), text (the refusal or
-    failure line), notes (condensed warnings)."""
+    failure line), notes (condensed warnings), method (the integrator the run used: what
+    ``integrator: auto`` chose, read from the run summary)."""
 
     file: str
     dof: int | None
@@ -54,6 +55,7 @@ class Row:
     cause: str = ''
     text: str = ''
     notes: tuple = ()
+    method: str = ''
 
 
 def add_arguments(p):
@@ -104,7 +106,8 @@ def run_one(rel: str, path: str, backend: str = 'numba') -> Row:
     notes = tuple(_note(w) for w in warned) + \
         ((f'{n_mimic} mimic joint{"s follow others" if n_mimic > 1 else " follows another"}',) if n_mimic else ())
     if p.returncode == 0:
-        return Row(rel, n, 'runs', notes=notes)
+        m = re.search(r'^integrator\s+(\S+)', p.stdout, flags=re.M)
+        return Row(rel, n, 'runs', notes=notes, method=m.group(1) if m else '?')
     text = _strip(errors[-1] if errors else f'exit status {p.returncode}', path)
     if p.returncode == 2:
         cause = next(k for k, _, pat in CAUSES if re.search(pat, text))
@@ -145,21 +148,26 @@ def markdown(rows: list, backend: str) -> str:
     """The table with its heading and the counts by verdict and cause."""
     from importlib.metadata import version
     runs = [r for r in rows if r.verdict == 'runs']
+    by_method = sorted({r.method for r in runs})
     refused = [r for r in rows if r.verdict == 'refused']
     others = [r for r in rows if r.verdict not in ('runs', 'refused')]
     by_cause = [(k, words, sum(r.cause == k for r in refused)) for k, words, _ in CAUSES]
     out = ['# example-robot-data URDFs in robodyn_ros', '',
            f'Every URDF of example-robot-data {version("example-robot-data")} run as it is: '
-           f'`robodyn run FILE --duration {DURATION:g}` with default settings (RK4, 1 ms, backend {backend}). '
+           f'`robodyn run FILE --duration {DURATION:g}` with default settings (integrator auto at 1 ms: rk4 where '
+           f'nothing is stiff, rosenbrock2 where passive forces are; backend {backend}). '
            'Made by `robodyn bench urdf --out docs/urdf_robots.md` (part of `make bench`).', '',
-           f'**{len(runs)} of {len(rows)} run.** Refused: ' +
+           f'**{len(runs)} of {len(rows)} run** (' +
+           ', '.join(f'{sum(r.method == m for r in runs)} with {m}' for m in by_method) + '). Refused: ' +
            (', '.join(f'{n} {words}' for _, words, n in by_cause if n) or 'none') + '.' +
            (f' Failed or timed out: {len(others)}.' if others else ''), '',
-           '| robot | file | DOF | result | reason (refused) or notes (warnings printed) |', '|---|---|---|---|---|']
+           '| robot | file | DOF | result | integrator | reason (refused) or notes (warnings printed) |',
+           '|---|---|---|---|---|---|']
     for r in rows:
         name = os.path.splitext(os.path.basename(r.file))[0]
         what = _reason(r) if r.verdict != 'runs' else '; '.join(_code(n) for n in r.notes)
-        out.append(f'| {name} | `{r.file}` | {r.dof if r.dof is not None else "—"} | {r.verdict} | {what} |')
+        out.append(f'| {name} | `{r.file}` | {r.dof if r.dof is not None else "—"} | {r.verdict} | '
+                   f'{r.method or "—"} | {what} |')
     return '\n'.join(out) + '\n'
 
 
