@@ -66,7 +66,9 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
                                  else f' rtol={st["rtol"]:g} atol={st["atol"]:g}')
     lines = [
         f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
-        f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, {d.rejected_steps} rejected',
+        f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, '
+        + (f'{d.rejected_steps} rejected' if d.rejected_steps is not None
+           else 'rejected steps not counted by this method'),
         *([f'             ({st["auto"]})'] if st.get('auto') else []),
         f'time         simulated {sim.t:.3f} s in {wall:.3f} s wall '
         f'(real-time factor {sim.t / wall if wall > 0 else math.inf:.1f}, {d.wall:.3f} s integrating'
