@@ -414,6 +414,11 @@ def check_fixed_step(system, integrator: str, dt, y, u=None, t: float = 0.0) -> 
     return a
 
 
+#: smallest eigenvalue of the mass matrix, relative to its largest, below which the preflight calls
+#: it singular: accelerations along that eigenvector would be round-off amplified 1e15-fold
+SINGULAR_RATIO = 1e-15
+
+
 def _singular_joint(system, y) -> str:
     """Words naming the joint whose subtree has no inertia about its axis, or ''."""
     model = getattr(system, 'model', None)
@@ -434,9 +439,13 @@ def _singular_joint(system, y) -> str:
     if bad:
         return (f'joint(s) {", ".join(bad)} move a subtree with no mass or inertia about their axis, so the mass '
                 f'matrix is singular; give the links beyond them a mass and inertia, or make the joint fixed')
-    w = np.linalg.eigvalsh(0.5 * (M + M.T))
-    if w[0] <= 1e-15 * max(w[-1], 1e-300):
-        return f'the mass matrix is singular (eigenvalues {w[0]:.3g} .. {w[-1]:.3g})'
+    w, V = np.linalg.eigh(0.5 * (M + M.T))
+    if w[0] <= SINGULAR_RATIO * max(w[-1], 1e-300):
+        k = np.argsort(-np.abs(V[:, 0]))
+        moving = [names[i] for i in k if abs(V[i, 0]) >= 0.1 * abs(V[k[0], 0])][:4]
+        return (f'the mass matrix is singular (eigenvalues {w[0]:.3g} .. {w[-1]:.3g}): a motion of joints '
+                f'{", ".join(moving)} meets no inertia (their axes line up here and the links between them '
+                f'carry none about it); start from another configuration, or lock one of them')
     return ''
 
 
@@ -457,6 +466,10 @@ def preflight(system, y, t: float = 0.0) -> None:
         bad = np.flatnonzero(~np.isfinite(f))[:8].tolist()
         cause = _singular_joint(system, y) or f'components {bad} of dy/dt are non-finite'
         raise ValueError(f'{type(system).__name__}: the state derivative at the initial state is not finite: {cause}')
+    cause = _singular_joint(system, y)   # finite but meaningless: accelerations of a singular M are round-off
+    if cause:
+        raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
+                         f'state: {cause}')
 
 
 def diagnose(system, y, u, integrator: str, dt=None, t: float = 0.0) -> str:

@@ -391,3 +391,30 @@ def test_a_robot_whose_only_moving_joints_are_massless_is_still_refused():
     text = _robot(_link('a'), '<link name="b"/>', _joint('j1', 'a', 'b'))
     with pytest.raises(UrdfError, match=r"link 'b' \(joint 'j1'\): missing <inertial> on a moving link at a leaf"):
         read_urdf(text)
+
+
+def test_aligned_axes_with_no_inertia_between_them_are_refused_naming_the_joints(tmp_path):
+    """icub's neck at q = 0: two joints about the same line with a link of zero inertia between them
+    (a point mass on the axis), so one motion of the pair meets no inertia: the mass matrix is singular
+    (Pinocchio's CRBA of the same file has the zero eigenvalue too) and its accelerations would be
+    round-off. ``robodyn run`` refuses in one line naming both joints, exit 2; turned by 0.5 rad, the
+    same robot runs."""
+    point = '<inertial><mass value="0.1"/><inertia ixx="0" iyy="0" izz="0" ixy="0" ixz="0" iyz="0"/></inertial>'
+    lim = '<limit effort="10" lower="-3" upper="3" velocity="9"/>'
+    text = _robot(_link('a'), f'<link name="b">{point}</link>', _link('c'),
+                  _joint('roll', 'a', 'b', extra='<axis xyz="1 0 0"/>' + lim),
+                  _joint('yaw', 'b', 'c', extra='<axis xyz="1 0 0"/>' + lim), name='neck')
+    pm = pin.buildModelFromXML(text)
+    w = np.linalg.eigvalsh(pin.crba(pm, pm.createData(), np.zeros(2)))
+    assert w[0] < 1e-15 * w[-1]
+    f = tmp_path / 'neck.urdf'
+    f.write_text(text)
+    p = subprocess.run(ROBODYN + ['run', str(f), '--duration', '0.01'], capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in p.stderr.splitlines() if not ln.startswith('robodyn: warning')]
+    assert p.returncode == 2 and len(lines) == 1, p.stderr
+    assert 'the mass matrix is singular' in lines[0] and 'roll' in lines[0] and 'yaw' in lines[0], lines
+    sc = parse_scene('name: x\nparts:\n  - kind: urdf\n    name: r\n    urdf: |\n      '
+                     + text.replace('<joint name="yaw" type="revolute"><parent link="b"/><child link="c"/>',
+                                    '<joint name="yaw" type="revolute"><parent link="b"/><child link="c"/>'
+                                    '<origin rpy="0 0.5 0"/>') + '\n')
+    Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)   # no refusal: the axes no longer line up

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 SUBCOMMANDS = ['run', 'check', 'scenes', 'resim', 'replay', 'plot', 'bench', 'advise', 'sweep', 'warm']
@@ -61,6 +62,12 @@ def main(argv=None) -> int:
     shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:
         return int(args._main(args) or 0)
+    except BrokenPipeError:   # output piped into a reader that stopped (`robodyn run ... | head`): not an error
+        try:
+            sys.stdout = open(os.devnull, 'w')   # so that the interpreter's final flush stays quiet
+        except OSError:
+            pass
+        return 0
     finally:
         warnings.showwarning = shown
 
