@@ -44,7 +44,7 @@ class SceneContext:
     def __init__(self, file: str, files: dict | None = None):
         self.file = file
         self.given_files = files
-        self.files = {}   # what the scene read: reference -> text (Scene.files)
+        self.files = {}   # what the scene read: reference -> bytes (Scene.files)
         self.gravity = np.array([0.0, 0.0, -9.81])
         self.parts: list = []   # robodyn_ros.scene.Part
         self.y0 = None  # the initial state, once known (command profiles are built after it)
