@@ -184,7 +184,7 @@ def _simulate(scene, st, sinks=()):
         warnings.simplefilter('always')
         try:
             sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                            atol=st['atol'])
+                            atol=st['atol'], step_budget=st.get('step_budget'))
         except ValueError as e:
             return None, 'refused', str(e)
         try:
