@@ -24,6 +24,8 @@ from robodyn_ros import dynamics as dyn  # noqa: E402
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
 from robodyn_ros.scene import load_scene  # noqa: E402
 
+pytestmark = pytest.mark.processes   # ROS node subprocesses, signals, a real-time pacing run
+
 SCENE = load_scene('stanford_arm')
 JOINTS = list(SCENE.system.joint_names)
 SETPOINT = [0.6, 0.8, 0.9, 0.5, 0.6, 0.4]

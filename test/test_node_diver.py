@@ -12,6 +12,8 @@ from ros_helpers import Domain, Proc, start_sim  # noqa: E402
 
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
 
+pytestmark = pytest.mark.processes   # a lockstep node and a controller node in subprocesses
+
 
 @pytest.fixture(scope='module')
 def diver_lockstep(tmp_path_factory):

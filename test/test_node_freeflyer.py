@@ -19,6 +19,8 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, start_sim  # noqa: E402
 
+pytestmark = pytest.mark.processes   # a lockstep node subprocess driven from here, SIGINT
+
 RATE = 50.0                 # the scene's publish rate (Hz): one lockstep period = 20 ms
 PUSH = np.array([3.0, 1.0, 0.0, 0.0, 0.0, 0.4])   # [fx, fy, fz, tx, ty, tz] in base_link
 PUSH_PERIODS = 20           # thrusters on for 0.4 s (the first command of each phase is a wrench)

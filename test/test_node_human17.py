@@ -22,6 +22,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ros_helpers import Domain, RosClient, start_sim  # noqa: E402
 from test_node_freeflyer import _read  # noqa: E402  (mcap + mcap_ros2 decoder: topic -> [(t, msg)])
 
+pytestmark = pytest.mark.processes   # a lockstep node subprocess driven from here, SIGINT
+
 PERIODS = 80                # 0.8 s at the scene's 100 Hz
 PUSH = [3.0, 0.0, 0.0, -3.0, 0.0, 0.0]   # both arms abducted (the scene's first command)
 PUSH_PERIODS = 50

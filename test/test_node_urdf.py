@@ -15,6 +15,8 @@ from ros_helpers import lockstep_pd_run  # noqa: E402
 from robodyn_ros.recording import read_messages, summarize  # noqa: E402
 from robodyn_ros.urdf import example_robot_data_dir  # noqa: E402
 
+pytestmark = pytest.mark.processes   # node subprocesses: lockstep runs, refusals
+
 UR5 = str(example_robot_data_dir() / 'ur_description/urdf/ur5_robot.urdf')
 SETPOINT = [0.3, -0.5, 0.4, -0.3, 0.2, 0.1]
 PERIODS = 150

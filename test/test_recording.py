@@ -464,6 +464,7 @@ _KILLED_WRITER = textwrap.dedent('''
 ''')
 
 
+@pytest.mark.processes
 def test_killed_writer_keeps_every_complete_chunk(tmp_path):
     path = tmp_path / 'killed.mcap'
     proc = subprocess.Popen([sys.executable, '-c', _KILLED_WRITER, str(path)],

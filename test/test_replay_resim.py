@@ -17,6 +17,8 @@ from robodyn_ros.nodes.ports import command_values  # noqa: E402
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
 from robodyn_ros.simulation import CommandError  # noqa: E402
 
+pytestmark = pytest.mark.processes   # robodyn replay in a subprocess, paced by the wall clock
+
 ROBODYN = [sys.executable, '-c', 'import sys; from robodyn_ros.cli import main; sys.exit(main())']
 
 

@@ -23,6 +23,8 @@ from robodyn_ros import sweep as S
 from robodyn_ros.scene import load_scene, parse_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
+pytestmark = pytest.mark.processes   # Dask clusters of worker processes, SIGKILL and SIGINT mid-sweep
+
 #: 2 grid points x 4 draws; rk4 runs are compared with a DOP853 reference, dop853 runs (rtol 1e-8) too
 SPEC = """\
 scene: stanford_arm
