@@ -126,6 +126,25 @@ class RosClient(Probe):
     """The test process's rclpy context, node and executor in a domain (see Probe)."""
 
 
+def stamp_ns(msg) -> int:
+    """A message's header stamp in ns."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def lockstep_step(client, pub, msg, states, node, timeout=60.0, also=()) -> int:
+    """Publish one command to a lockstep node and wait for the state of the period it ran: the last
+    message of ``states`` (and of each list in ``also``, e.g. odom) stamped later than before.
+    Counting messages is not enough: until its first command a lockstep node re-sends its initial
+    state to new subscribers, and such a late copy must not pass for the next period's state
+    (commands sent early on two topics may then be taken in another order). Returns the stamp (ns)."""
+    last = stamp_ns(states[-1])
+    pub.publish(msg)
+    lists = (states, *also)
+    assert client.spin_until(lambda: all(xs and stamp_ns(xs[-1]) > last for xs in lists)
+                             and len({stamp_ns(xs[-1]) for xs in lists}) == 1, timeout, node), node.output()
+    return stamp_ns(states[-1])
+
+
 def diag_values(msg) -> dict:
     """key -> value strings of the first status of a DiagnosticArray."""
     return {kv.key: kv.value for kv in msg.status[0].values}

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, diag_values, headless_lockstep, lockstep_pd_run, start_sim  # noqa: E402
+from ros_helpers import (Domain, RosClient, diag_values, headless_lockstep, lockstep_pd_run, lockstep_step,  # noqa: E402
+                         start_sim)
 
 from robodyn_ros import dynamics as dyn  # noqa: E402
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
@@ -351,10 +352,7 @@ def test_sigkill_leaves_every_complete_chunk_readable(tmp_path):
         eff = client.node.create_publisher(Float64MultiArray, 'effort_commands', 10)
         assert client.spin_until(lambda: states and eff.get_subscription_count(), 120, node), node.output()
         for k in range(periods):
-            n = len(states)
-            eff.publish(Float64MultiArray(data=[0.0, 1.0, 0.0, 0.0, 0.0, 0.0]))
-            assert client.spin_until(lambda: len(states) > n, 60, node), node.output()
-        seen_ns = _stamp_ns(states[-1])
+            seen_ns = lockstep_step(client, eff, Float64MultiArray(data=[0.0, 1.0, 0.0, 0.0, 0.0, 0.0]), states, node)
         assert seen_ns == periods * 10_000_000
         node.stop(signal.SIGKILL)
     finally:

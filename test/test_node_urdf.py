@@ -201,7 +201,7 @@ def test_floating_urdf_through_the_node_in_lockstep(tmp_path):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 
-    from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, start_sim
+    from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, lockstep_step, start_sim
     solo = example_robot_data_dir() / 'solo_description/robots/solo12.urdf'
     path = tmp_path / 'solo12_floating.urdf'
     path.write_text(solo.read_text().replace(
@@ -219,9 +219,8 @@ def test_floating_urdf_through_the_node_in_lockstep(tmp_path):
         eff = client.node.create_publisher(Float64MultiArray, 'effort_commands', 10)
         assert client.spin_until(lambda: states and odom and eff.get_subscription_count(), 120, node), node.output()
         for k in range(FLOAT_PERIODS):
-            n, m = len(states), len(odom)
-            eff.publish(Float64MultiArray(data=(0.2 * np.sin(0.3 * k + np.arange(12))).tolist()))
-            assert client.spin_until(lambda: len(states) > n and len(odom) > m, 60, node), node.output()
+            lockstep_step(client, eff, Float64MultiArray(data=(0.2 * np.sin(0.3 * k + np.arange(12))).tolist()),
+                          states, node, also=[odom])
         rc = node.stop(signal.SIGINT)
     finally:
         client.close()
