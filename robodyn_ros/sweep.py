@@ -97,6 +97,9 @@ TRACE_ENV = 'ROBODYN_SWEEP_TRACE'
 #: then waits until ``go-<i>`` or ``go`` exists, so a test knows which runs are under way in which
 #: process and sends its signals while the sweep is provably mid-way
 GATE_ENV = 'ROBODYN_SWEEP_GATE'
+#: env var ``N:PATH`` (tests): after writing N rows the client waits until PATH exists, so a test
+#: interrupts a sweep that has provably written N rows and no more (its workers run on meanwhile)
+PAUSE_ENV = 'ROBODYN_SWEEP_PAUSE'
 
 
 # ---------------------------------------------------------------------------------------------
@@ -440,6 +443,7 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
                         _write_atomic(os.path.join(out, 'mcap', f'run-{i:06d}.mcap'), mcap)
                     _write_atomic(_row_path(out, i), json.dumps(row).encode())
                     executed += 1
+                    _pause_after(executed)
                     if progress is not None:
                         progress.step(f'run {i}: {row["status"]}')
         except KeyboardInterrupt:
@@ -451,6 +455,15 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
             fig = summary_plot(table, os.path.join(out, 'summary.png'))
     return SweepResult(runs=spec.n_runs, skipped=len(done), executed=executed, interrupted=interrupted,
                        table=table, plot=fig, wall=time.perf_counter() - w0)
+
+
+def _pause_after(written: int):
+    """The test hook of :data:`PAUSE_ENV`: after the N-th row written, wait for its file."""
+    hook = os.environ.get(PAUSE_ENV)
+    if hook:
+        n, path = hook.split(':', 1)
+        while written == int(n) and not os.path.exists(path):
+            time.sleep(0.01)
 
 
 def read_rows(out: str, n: int) -> list:

@@ -251,13 +251,16 @@ def slow(tmp_path_factory):
     return d / 'spec.yaml', S.read_table(res.table)
 
 
-def _start(spec_path, out, workers, trace, gate=None):
+def _start(spec_path, out, workers, trace, gate=None, pause=None):
     """The CLI in a session of its own (its process group is what a terminal's Ctrl-C reaches); with
-    ``gate``, every run waits there for its go (:data:`robodyn_ros.sweep.GATE_ENV`)."""
+    ``gate``, every run waits there for its go (:data:`robodyn_ros.sweep.GATE_ENV`); with ``pause``
+    ``(n, path)``, the client holds after its n-th row until path exists (``PAUSE_ENV``)."""
     env = dict(os.environ, **{S.TRACE_ENV: str(trace)})
     if gate is not None:
         os.makedirs(gate, exist_ok=True)
         env[S.GATE_ENV] = str(gate)
+    if pause is not None:
+        env[S.PAUSE_ENV] = f'{pause[0]}:{pause[1]}'
     return subprocess.Popen([sys.executable, '-m', 'robodyn_ros.cli', 'sweep', str(spec_path), '--out', str(out),
                              '--workers', str(workers), '--no-plot'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
@@ -320,23 +323,17 @@ def test_killed_worker_loses_no_run(slow, tmp_path):
 
 
 def test_resume_after_sigint_skips_finished_runs(slow, tmp_path):
-    """SIGINT to the process group once three runs have rows and the others wait at the gate
-    (Ctrl-C: the client and its workers): exit 130 with those three rows kept and no worker
-    traceback; the same command again runs only the others (counted by the trace files each
-    execution leaves) and completes the table."""
+    """SIGINT to the process group while the client holds after its third row (Ctrl-C: the client
+    and its workers): exit 130 with those three rows kept and no worker traceback; the same command
+    again runs only the others (counted by the trace files each execution leaves) and completes
+    the table."""
     spec_path, baseline = slow
-    out, gate = tmp_path / 'out', tmp_path / 'gate'
-    proc = _start(spec_path, out, 2, tmp_path / 'trace1', gate)
-    released = set()
+    out = tmp_path / 'out'
+    proc = _start(spec_path, out, 2, tmp_path / 'trace1', pause=(3, tmp_path / 'never'))
     try:
-        while len(released) < 3:   # let the first three runs that reach the gate through
-            for i, _ in _until(proc, lambda: [r for r in _started(gate) if r[0] not in released]):
-                if len(released) < 3:
-                    (gate / f'go-{i}').touch()
-                    released.add(i)
-        assert _until(proc, lambda: _rows_on_disk(out) == released)
+        written = _until(proc, lambda: len(_rows_on_disk(out)) == 3 and _rows_on_disk(out))
         os.killpg(proc.pid, signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=120)
+        stdout, stderr = proc.communicate(timeout=240)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -345,13 +342,14 @@ def test_resume_after_sigint_skips_finished_runs(slow, tmp_path):
     assert 'interrupted' in stderr and 'Traceback' not in stderr, stderr
     done = _rows_on_disk(out)
     n = len(baseline)
-    assert done == released
+    assert done == written   # the client held after three rows: no more were written
     assert not (out / 'results.parquet').exists()
     proc = _start(spec_path, out, 1, tmp_path / 'trace2')
     stdout, stderr = proc.communicate(timeout=240)
     assert proc.returncode == 0, stderr
     second = _executions(tmp_path / 'trace2')
-    assert sorted(second) == sorted(set(range(n)) - done)
+    assert not set(second) & done, (sorted(second), sorted(done))   # no finished run ran again
+    assert set(second) == set(range(n)) - done
     assert f'({n - len(done)} run now, {len(done)} found done)' in stdout
     rows = S.read_table(str(out / 'results.parquet'))
     assert _comparable(rows) == _comparable(baseline)
