@@ -39,7 +39,7 @@ setup(
     # dask + distributed run `robodyn sweep` (and the precision ladder) on a local or remote cluster,
     # pyarrow writes its Parquet table; URDF files are read with the standard library (robodyn_ros.urdf);
     # yourdfpy is a test oracle only
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba', 'llvmlite',
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba',
                       'dask', 'distributed', 'pyarrow'],
     extras_require={
         'plot': ['matplotlib'],

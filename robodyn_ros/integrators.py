@@ -45,7 +45,10 @@ count is unknown and reported as ``None``.
 
 Failure: a non-finite state, or an error-controlled solver that gives up (step size below
 the spacing of floating-point numbers, Newton failure, ...) raises ``IntegrationError`` naming
-the integrator, the time and the cause; a non-finite state is never returned.
+the integrator, the time and the cause; a non-finite state is never returned. An
+error-controlled call given ``max_steps`` raises ``StepBudgetError`` (an ``IntegrationError``)
+instead of taking more accepted steps than that: a stiff system under an explicit pair would
+otherwise creep on at its stability limit for hours (the Simulator's step budget).
 """
 from __future__ import annotations
 
@@ -67,6 +70,7 @@ __all__ = [
     'IntegratorStats',
     'Rosenbrock2',
     'SemiImplicitEuler',
+    'StepBudgetError',
     'make_integrator',
 ]
 
@@ -98,6 +102,18 @@ class IntegrationError(RuntimeError):
         self.t = t
         self.cause = cause
         super().__init__(f'{integrator}: integration failed at t={t:.12g} s: {cause}')
+
+
+class StepBudgetError(IntegrationError):
+    """An error-controlled call took the ``max_steps`` accepted steps it was allowed.
+
+    Args:
+        integrator: registry name; t: simulation time (s) reached; steps: accepted steps of the call.
+    """
+
+    def __init__(self, integrator: str, t: float, steps: int):
+        self.steps = steps
+        super().__init__(integrator, t, f'{steps} accepted steps, the most this call may take')
 
 
 @dataclass
@@ -207,6 +223,7 @@ class Integrator:
         self.spec = spec
         self.name = spec.name
         self.stats = IntegratorStats()
+        self._max_steps = None   # set per advance() call
 
     def reset(self) -> None:
         """Forget accumulated statistics and any step-size memory (e.g. after a scene reset)."""
@@ -216,8 +233,8 @@ class Integrator:
         """Return the user-chosen settings, for recording metadata."""
         return {'integrator': self.name}
 
-    def advance(self, f: Rhs, t0: float, y0, t1: float,
-                project: Projection | None = None) -> tuple[np.ndarray, IntegratorStats]:
+    def advance(self, f: Rhs, t0: float, y0, t1: float, project: Projection | None = None,
+                max_steps: int | None = None) -> tuple[np.ndarray, IntegratorStats]:
         """Integrate ``ydot = f(t, y)`` from ``(t0, y0)`` to exactly ``t1``.
 
         Args:
@@ -230,13 +247,16 @@ class Integrator:
                 configuration manifold (e.g. normalising a quaternion), applied after every
                 accepted step (see ``spec.projection``).  It may work in place (and then
                 return y or None).
+            max_steps: error-controlled integrators only: the most accepted steps this call
+                may take (None: no limit); fixed-step ones take their grid's steps regardless.
 
         Returns:
             ``(y1, stats_delta)``: a new float64 array of shape (n,) holding the state at
             ``t1``, and the cost of this call (also added to ``self.stats``).
 
         Raises:
-            IntegrationError: the state became non-finite or the solver failed.
+            IntegrationError: the state became non-finite or the solver failed
+                (``StepBudgetError``: ``max_steps`` accepted steps did not reach ``t1``).
             ValueError: malformed times or state.
         """
         t0 = float(t0)
@@ -252,6 +272,7 @@ class Integrator:
             raise IntegrationError(self.name, t0, 'initial state is non-finite at components '
                                    f'{_nonfinite_indices(y)}')
         delta = IntegratorStats(advance_calls=1)
+        self._max_steps = max_steps
         try:
             if t1 > t0:
                 y = self._advance(f, t0, y, t1, project, delta)
@@ -681,6 +702,9 @@ class AdaptiveIntegrator(Integrator):
                 raise IntegrationError(
                     self.name, solver.t,
                     f'state became non-finite (components {_nonfinite_indices(solver.y)})')
+            if self._max_steps is not None and delta.steps >= self._max_steps and solver.status == 'running':
+                self._record(rhs, solver, delta, rejected)
+                raise StepBudgetError(self.name, solver.t, delta.steps)
         self._record(rhs, solver, delta, rejected)
         if h_next is not None and h_next > 0.0 and math.isfinite(h_next):
             self._h_next = h_next

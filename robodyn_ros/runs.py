@@ -22,14 +22,17 @@ AUTO = 'auto'
 DIAGNOSTICS_PERIOD = 0.1
 
 
-def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=None) -> dict:
+def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=None,
+                     step_budget=None) -> dict:
     """Integrator settings of a run: the given values over the scene's ``simulation`` defaults.
 
     scene: a loaded :class:`robodyn_ros.scene.Scene` (its ``settings``); integrator, dt (s),
-    rtol, atol, rate (publication rate, Hz), duration (simulated s): None takes the scene's value,
-    else the package default (auto, 1e-3 s, 100 Hz, 10 s; rtol 1e-8 and atol 1e-10 for an
-    adaptive integrator). Returns a dict with those six keys (integrator may be ``'auto'``: see
-    :func:`resolve_auto`).
+    rtol, atol, rate (publication rate, Hz), duration (simulated s), step_budget (steps per
+    simulated second of an error-controlled integrator, inf = none): None takes the scene's
+    value, else the package default (auto, 1e-3 s, 100 Hz, 10 s; rtol 1e-8 and atol 1e-10 for an
+    adaptive integrator; the Simulator's ``STEP_BUDGET``). Returns a dict with the first six keys
+    (integrator may be ``'auto'``: see :func:`resolve_auto`), and ``step_budget`` when the run or
+    the scene gives one (recordings of other runs keep their settings' bytes).
     """
     s = dict(scene.settings)
     out = {'integrator': (integrator or s.get('integrator', AUTO)).lower(),
@@ -38,6 +41,9 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
            'atol': atol if atol is not None else s.get('atol'),
            'rate': rate if rate is not None else s.get('publish_rate', 100.0),
            'duration': duration if duration is not None else s.get('duration', 10.0)}
+    budget = step_budget if step_budget is not None else s.get('step_budget')
+    if budget is not None:
+        out['step_budget'] = budget
     from .integrators import INTEGRATORS
     spec = INTEGRATORS.get(out['integrator'])
     if spec is not None and spec.kind == 'adaptive':

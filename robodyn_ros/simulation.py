@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .integrators import INTEGRATORS, IntegrationError, IntegratorStats, make_integrator
+from .integrators import INTEGRATORS, IntegrationError, IntegratorStats, StepBudgetError, make_integrator
 from .integrator_choice import AUTO, choose_integrator, is_auto
-from .stability import FIXED_STEP, StepWarning, check_fixed_step, diagnose, preflight, step_alternatives
+from .stability import FIXED_STEP, StepWarning, check_fixed_step, diagnose, preflight, step_alternatives, stiff_mode
 from .systems.base import System, SystemOutputs
 
 
@@ -135,6 +135,25 @@ def check_step(system: System, integrator: str, dt, y):
     check_fixed_step(system, name, dt, y)
 
 
+#: default step budget of the error-controlled integrators: accepted steps per simulated second.
+#: The bundled scenes take at most 1.4e3 under rk45 or dop853 at the default tolerances
+#: (huston_human17), the stiffest runs of the tests 1.7e4 (dop853 on a 1e-9 kg·m² link, rk45 on
+#: 5.9 µs motor electrics: the numerical-extremes table): 12x below this
+STEP_BUDGET = 2e5
+#: simulated seconds of budget a run may spend at once (its bursts: a first step found by trial,
+#: an impact): over any stretch of W seconds a run takes at most ``budget * (W + STEP_BURST)`` steps
+STEP_BURST = 0.05
+
+
+def check_step_budget(value, what='step_budget') -> float | None:
+    """A step budget as given (steps per simulated second, > 0; ``inf`` = none; None = the default)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or math.isnan(value):
+        raise ValueError(f'{what} must be a number of steps per simulated second > 0 (inf: no budget), got {value!r}')
+    return float(value)
+
+
 class Simulator:
     """Integrates a :class:`System` in control periods, holding commands between them.
 
@@ -142,12 +161,18 @@ class Simulator:
     ``'auto'`` (:mod:`robodyn_ros.integrator_choice`: rk4, rosenbrock2 or radau from the step analysis at
     y0; ``choice`` holds what it chose and why, ``settings`` the chosen method); dt, rtol, atol: step or
     tolerances for that integrator; command_timeout: seconds of simulation time after which an
-    unrefreshed command goes to zero (None = hold forever); t0: start time (s).
+    unrefreshed command goes to zero (None = hold forever); t0: start time (s); step_budget: accepted
+    steps per simulated second an error-controlled integrator may take (None: :data:`STEP_BUDGET`;
+    inf: no budget), counted as a token bucket that holds ``STEP_BURST`` seconds' worth: a run that
+    spends it stops with the stiff mode named (:meth:`advance`) instead of creeping on at an explicit
+    method's stability limit for hours.
     """
 
     def __init__(self, system: System, y0, integrator=AUTO, dt=1e-3, rtol=None, atol=None,
-                 command_timeout=None, t0=0.0):
+                 command_timeout=None, t0=0.0, step_budget=None):
         self.system = system
+        budget = check_step_budget(step_budget)
+        self.step_budget = STEP_BUDGET if budget is None else budget
         self.command_timeout = command_timeout
         self._y0 = np.array(y0, dtype=float)
         self._t0 = float(t0)
@@ -185,6 +210,7 @@ class Simulator:
         self._work_parts = tuple(getattr(self.system, 'work_components', ()))
         self.diag.work_parts = {k: 0.0 for k in self._work_parts}
         self._velocity_checked_at = None
+        self._step_tokens = self.step_budget * STEP_BURST   # the step budget's bucket (see the class)
         self.failed: str | None = None
 
     # -- commands ------------------------------------------------------------------------
@@ -289,7 +315,12 @@ class Simulator:
 
         if integ.name == 'rosenbrock2':   # its W-matrix: the system's passive Jacobian, inputs held over the call
             integ.jac = self._passive_jacobian(u, ny, z0.shape[0])
-        z1, st = integ.advance(f, self.t, z0, t1, project=project)
+        limit = None
+        if integ.spec.kind == 'adaptive' and math.isfinite(self.step_budget):
+            limit = max(1, int(self._step_tokens + self.step_budget * (t1 - self.t)))
+        z1, st = integ.advance(f, self.t, z0, t1, project=project, max_steps=limit)
+        if limit is not None:
+            self._step_tokens = min(self.step_budget * STEP_BURST, limit - st.steps)
         self._parts_z = z1[ny + 1:]
         return z1[:ny], z1[ny], st
 
@@ -324,6 +355,9 @@ class Simulator:
         try:
             self._verified = None
             y1, work, st = self._integrate(u, t1)
+        except StepBudgetError as e:
+            self.failed = self._over_budget(e, u)
+            raise SimulationError(self.failed) from e
         except (IntegrationError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
             # LinAlgError/FloatingPointError come from the system's own solves (a mass matrix or
             # constraint system that became singular); all of them stop the run with the cause
@@ -350,6 +384,26 @@ class Simulator:
             self.diag.work_parts[name] = float(self._parts_z[k])
         self.diag.sim_time = self.t - self._t0
         return self.y
+
+    def _over_budget(self, e: StepBudgetError, u) -> str:
+        """The message of a run stopped by its step budget: the integrator, the steps it took, the
+        stiff mode at the last good state (:func:`robodyn_ros.stability.stiff_mode`) and what to do."""
+        name = self.integrator.name
+        steps = self.diag.steps + e.steps
+        text = (f'{name} spent its step budget: {steps} steps for {e.t - self._t0:.3g} s of simulated time '
+                f'(budget {self.step_budget:.3g} steps per simulated second); ')
+        mode = stiff_mode(self.system, self.y, u, self.t)
+        text += (f'{mode}; ' if mode else '')
+        if self.integrator.spec.implicit:
+            text += (f'{name} is stable on it, so its error control needs these steps: loosen rtol/atol '
+                     'or raise the budget')
+        else:
+            stiff = ['radau', 'bdf'] + [n for n, s in INTEGRATORS.items() if s.kind == 'fixed' and s.implicit]
+            text += (f'an explicit method ({name}) must take steps about as short as that time constant, for '
+                     f'as long as the mode lasts: use an implicit integrator ({", ".join(stiff)}), '
+                     'or raise the budget')
+        return (text + ' (simulation: step_budget in the scene, robodyn run --step-budget, the node\'s '
+                'step_budget parameter; inf = none). Last good state kept')
 
     def _diagnosis(self, u) -> str:
         """``'; <likely cause>'`` of a failure, from the last good state (stability.diagnose)."""

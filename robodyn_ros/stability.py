@@ -61,7 +61,7 @@ import numpy as np
 __all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'StepWarning', 'StepAnalysis',
            'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step', 'check_fixed_step',
            'preflight', 'diagnose', 'stable_step_limit', 'rosenbrock2_amplification', 'rosenbrock2_step_matrix',
-           'passive_jacobian', 'step_alternatives']
+           'passive_jacobian', 'step_alternatives', 'stiff_mode']
 
 #: spurious amplification per step (eq. S3, as ln ρ) above which a fixed step is refused
 REFUSE_GROWTH = 1e-2
@@ -470,6 +470,37 @@ def preflight(system, y, t: float = 0.0) -> None:
     if cause:
         raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
                          f'state: {cause}')
+
+
+def _state_words(system, k: int) -> str:
+    """``y[k]``, with the joint it belongs to when the state is ``[q, v, ...]`` of 1-DOF joints."""
+    names = list(getattr(system, 'joint_names', None) or ())
+    nq, nv = getattr(system, 'nq', None), getattr(system, 'nv', None)
+    if names and nq == nv == len(names) and k < 2 * nq:
+        return f'y[{k}], the {"position" if k < nq else "velocity"} of joint {names[k % nq]!r}'
+    return f'y[{k}]'
+
+
+def stiff_mode(system, y, u=None, t: float = 0.0) -> str:
+    """Words on the fastest mode of the linearisation at (t, y) with inputs u (S1): its |λ|, time
+    constant, where it comes from when the system says (declared time constant, base spin), and
+    the state component its eigenvector lies mostly on; '' when the linearisation fails."""
+    try:
+        J = linearisation(system, y, u, t)
+        if not np.all(np.isfinite(J)) or not J.size:
+            return ''
+        lam, vec = np.linalg.eig(J)
+    except Exception:  # noqa: BLE001 - words for a message: never hide the failure they explain
+        return ''
+    k = int(np.argmax(np.abs(lam)))
+    lk = complex(lam[k])
+    if lk == 0:
+        return ''
+    sys_tau = float(system.fastest_time_constant(y)) if hasattr(system, 'fastest_time_constant') else math.inf
+    source = _mode_source(lk, sys_tau, spin_rate(system, y), getattr(system, 'time_constant_words', ''))
+    where = _state_words(system, int(np.argmax(np.abs(vec[:, k]))))
+    return (f'the fastest mode at t={t:.6g} s has |λ| = {abs(lk):.3g} 1/s (λ = {lk.real:.3g}{lk.imag:+.3g}i, '
+            f'time constant {1.0 / abs(lk):.3g} s{source}), mostly {where}')
 
 
 def diagnose(system, y, u, integrator: str, dt=None, t: float = 0.0) -> str:

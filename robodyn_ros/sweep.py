@@ -83,7 +83,7 @@ import numpy as np
 from .measures import Progress, state_error  # noqa: F401  (Progress: part of this module's API)
 from .pool import ClusterError, Pool, chunk_size
 from .sweep_spec import (FIGURES, FORMAT, SETTINGS, Spec, SweepError, build_scene, expand,  # noqa: F401
-                         load_spec, parse_spec)
+                         files_digest, load_spec, parse_spec)
 from .version import __version__
 
 __all__ = ['SweepError', 'ClusterError', 'Spec', 'parse_spec', 'load_spec', 'expand', 'execute_run', 'Pool', 'Progress',
@@ -93,6 +93,13 @@ __all__ = ['SweepError', 'ClusterError', 'Spec', 'parse_spec', 'load_spec', 'exp
 TIMING_COLUMNS = ('cpu_time', 'wall_time', 'worker')
 #: env var naming a directory where every task execution leaves a file (tests count executions)
 TRACE_ENV = 'ROBODYN_SWEEP_TRACE'
+#: env var naming a directory that gates every run (tests): run i leaves ``started-<i>-<pid>`` there,
+#: then waits until ``go-<i>`` or ``go`` exists, so a test knows which runs are under way in which
+#: process and sends its signals while the sweep is provably mid-way
+GATE_ENV = 'ROBODYN_SWEEP_GATE'
+#: env var ``N:PATH`` (tests): after writing N rows the client waits until PATH exists, so a test
+#: interrupts a sweep that has provably written N rows and no more (its workers run on meanwhile)
+PAUSE_ENV = 'ROBODYN_SWEEP_PAUSE'
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,7 +187,7 @@ def _simulate(scene, st, sinks=()):
         warnings.simplefilter('always')
         try:
             sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                            atol=st['atol'])
+                            atol=st['atol'], step_budget=st.get('step_budget'))
         except ValueError as e:
             return None, 'refused', str(e)
         try:
@@ -210,14 +217,31 @@ def _reference_state(task, scene, st_run):
     if all(st.get(k) == st_run.get(k) for k in SETTINGS):
         return None, 'same'
     key = hashlib.sha256(json.dumps([task['scene_text'], {k: v for k, v in task['params'].items()
-                                                           if k not in SETTINGS}, st, task['backend']],
-                                    sort_keys=True).encode()).hexdigest()
+                                                           if k not in SETTINGS}, st, task['backend'],
+                                     files_digest(task.get('files') or {})], sort_keys=True).encode()).hexdigest()
     if key not in _REFERENCES:
         sim, status, msg = _simulate(scene, st)
         _REFERENCES[key] = (sim.y.copy(), '') if status == 'ok' else (None, f'reference run {status}: {msg}')
         if len(_REFERENCES) > 64:
             _REFERENCES.pop(next(iter(_REFERENCES)))
     return _REFERENCES[key]
+
+
+def _wait_at_gate(gate: str, index: int):
+    """The test hook of :data:`GATE_ENV`: say that run ``index`` started here, wait for its go (or
+    for the Dask worker to close: an interrupted sweep shuts its workers down)."""
+    with open(os.path.join(gate, f'started-{index}-{os.getpid()}'), 'w'):
+        pass
+    try:
+        from distributed import get_worker
+        from distributed.core import Status
+        worker, running = get_worker(), (Status.running, Status.paused)
+    except (ImportError, ValueError):   # not on a Dask worker
+        worker = None
+    while not (os.path.exists(os.path.join(gate, f'go-{index}')) or os.path.exists(os.path.join(gate, 'go'))):
+        if worker is not None and worker.status not in running:
+            return
+        time.sleep(0.005)
 
 
 def _row_head(task) -> dict:
@@ -241,6 +265,9 @@ def execute_run(task: dict) -> dict:
         os.makedirs(trace, exist_ok=True)
         with open(os.path.join(trace, f'{task["index"]:06d}-{os.getpid()}-{time.time_ns()}'), 'w'):
             pass
+    gate = os.environ.get(GATE_ENV)
+    if gate:
+        _wait_at_gate(gate, task['index'])
     row = _row_head(task)
     row.update({'integrator': None, 'dt': None, 'rtol': None, 'atol': None, 'duration': None,
                 'status': 'ok', 'message': '', 'steps': 0, 'rhs_evals': 0})
@@ -254,7 +281,8 @@ def execute_run(task: dict) -> dict:
     w0 = time.perf_counter()
     from .scene import SceneError
     try:
-        scene = build_scene(task['scene_text'], task['scene_file'], task['params'], task['backend'])
+        scene = build_scene(task['scene_text'], task['scene_file'], task['params'], task['backend'],
+                            task.get('files') or {})
         st = run_settings(scene, task['params'], task['duration'])
     except SceneError as e:
         row.update(status='invalid', message=str(e))
@@ -415,6 +443,7 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
                         _write_atomic(os.path.join(out, 'mcap', f'run-{i:06d}.mcap'), mcap)
                     _write_atomic(_row_path(out, i), json.dumps(row).encode())
                     executed += 1
+                    _pause_after(executed)
                     if progress is not None:
                         progress.step(f'run {i}: {row["status"]}')
         except KeyboardInterrupt:
@@ -426,6 +455,15 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
             fig = summary_plot(table, os.path.join(out, 'summary.png'))
     return SweepResult(runs=spec.n_runs, skipped=len(done), executed=executed, interrupted=interrupted,
                        table=table, plot=fig, wall=time.perf_counter() - w0)
+
+
+def _pause_after(written: int):
+    """The test hook of :data:`PAUSE_ENV`: after the N-th row written, wait for its file."""
+    hook = os.environ.get(PAUSE_ENV)
+    if hook:
+        n, path = hook.split(':', 1)
+        while written == int(n) and not os.path.exists(path):
+            time.sleep(0.01)
 
 
 def read_rows(out: str, n: int) -> list:

@@ -43,7 +43,9 @@ class Spec:
     file: where it came from; text: its YAML; scene_file: the scene's path; scene_text: the
     scene's YAML; grid: ``[(path, values)]``; random: ``[(path, distribution mapping)]``;
     settings: the scene's run settings with ``duration`` resolved; reference: settings of the
-    reference run (None without final_error).
+    reference run (None without final_error); files: the contents of the files the scene refers to
+    (URDF files, as written in the scene -> bytes), read once on the client: they travel with every
+    task, so that no run reads a disk (workers need no shared file system).
     """
 
     file: str
@@ -61,6 +63,7 @@ class Spec:
     figures: tuple
     record: bool
     settings: dict = field(default_factory=dict)
+    files: dict = field(default_factory=dict)
 
     @property
     def n_grid(self) -> int:
@@ -74,8 +77,10 @@ class Spec:
 
     @property
     def digest(self) -> str:
-        """sha256 of everything that decides the rows (the spec and the scene's text)."""
-        return hashlib.sha256(json.dumps([FORMAT, self.text, self.scene_text]).encode()).hexdigest()
+        """sha256 of everything that decides the rows (the spec, the scene's text and the files it
+        refers to)."""
+        what = [FORMAT, self.text, self.scene_text] + ([files_digest(self.files)] if self.files else [])
+        return hashlib.sha256(json.dumps(what).encode()).hexdigest()
 
 
 def _fail(file, path, reason):
@@ -319,14 +324,28 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
             scene = build_scene(spec.scene_text, spec.scene_file, params, spec.backend)
         except SceneError as e:
             _blame(spec, params, e)
+        spec.files.update(scene.files)   # read here, on the client, and only here
         if g == 0:
             spec.settings = dict(scene.settings)
     spec.duration = float(duration) if duration is not None else float(spec.settings.get('duration', 10.0))
     return spec
 
 
-def build_scene(scene_text: str, scene_file: str, params: dict, backend: str):
-    """The scene with the parameters' scene keys set (run settings are left to the caller)."""
+def files_digest(files: dict) -> str:
+    """sha256 of a scene's referenced files (reference -> bytes or text), in reference order."""
+    h = hashlib.sha256()
+    for ref in sorted(files):
+        data = files[ref]
+        for part in (ref.encode(), data if isinstance(data, bytes) else data.encode()):
+            h.update(len(part).to_bytes(8, 'little') + part)
+    return h.hexdigest()
+
+
+def build_scene(scene_text: str, scene_file: str, params: dict, backend: str, files: dict | None = None):
+    """The scene with the parameters' scene keys set (run settings are left to the caller).
+
+    files: the contents of the files the scene refers to (:attr:`Spec.files`); None: read them from
+    the disk (the client, checking a spec)."""
     from .scene import SceneLoader, parse_scene
     from .systems.base import backend_scope
     keys = {k: v for k, v in params.items() if k not in SETTINGS}
@@ -339,7 +358,7 @@ def build_scene(scene_text: str, scene_file: str, params: dict, backend: str):
     import warnings
     with warnings.catch_warnings(), backend_scope(backend):
         warnings.simplefilter('ignore')  # a stretched-arm warning belongs to the run's message
-        return parse_scene(text, file=scene_file, path=scene_file)
+        return parse_scene(text, file=scene_file, path=scene_file, files=files)
 
 
 def _blame(spec: Spec, params: dict, err):
@@ -400,7 +419,8 @@ def expand(spec: Spec, indices=None) -> list:
     """The tasks of runs ``indices`` (default all): dicts of plain values, the same on any machine.
 
     Each has ``index``, ``grid_point``, ``sample``, ``params`` (path -> value, grid values then
-    draws) and what :func:`execute_run` needs (scene text, settings, figures, reference).
+    draws) and what :func:`execute_run` needs (scene text, the contents of the files it refers to,
+    settings, figures, reference): a task reads nothing from a disk.
     """
     from .scene import SceneLoader
     scene_data = yaml.load(spec.scene_text, Loader=SceneLoader)
@@ -416,7 +436,24 @@ def expand(spec: Spec, indices=None) -> list:
                 current = None if path in SETTINGS else lookup(scene_data, path)[1]
                 params[path] = _draw(rng, dist, current)
         out.append({'index': int(i), 'grid_point': g, 'sample': s, 'params': params, 'version': __version__,
-                    'scene_text': spec.scene_text, 'scene_file': spec.scene_file, 'backend': spec.backend,
+                    'scene_text': spec.scene_text, 'scene_file': spec.scene_file,
+                    'files': _task_files(spec, params), 'backend': spec.backend,
                     'duration': spec.duration, 'figures': spec.figures, 'reference': spec.reference,
                     'record': spec.record})
     return out
+
+
+def _task_files(spec: Spec, params: dict) -> dict:
+    """The referenced files a run needs: the spec's, and a file a drawn parameter names (a
+    ``choice`` of URDF files for a part's ``file``), read here on the client."""
+    files = spec.files
+    for k, v in params.items():
+        if k.rsplit('.', 1)[-1] == 'file' and isinstance(v, str) and v not in files:
+            from .scene import SceneError
+            try:
+                scene = build_scene(spec.scene_text, spec.scene_file, {k: v}, spec.backend)
+            except SceneError:
+                continue   # the run reports it (an 'invalid' row)
+            files = {**files, **scene.files}
+            spec.files.update(scene.files)
+    return files

@@ -156,10 +156,18 @@ def example_robot_data_dir() -> Path | None:
 # ------------------------------------------------------------------------------------------------
 # the document: bytes or text -> the <robot> element
 # ------------------------------------------------------------------------------------------------
+class UrdfText(str):
+    """A str that is URDF text, never a file path (:func:`read_urdf` guesses for a plain str)."""
+
+
 def _load(source, file):
-    """``(data, base_dir, file label)`` of a URDF path or text (text starts with '<' after a BOM or
-    whitespace); data is bytes for a file (its XML declaration names the encoding), else str."""
-    if isinstance(source, (str, os.PathLike)) and not str(source).lstrip('\ufeff \t\r\n').startswith('<'):
+    """``(data, base_dir, file label)`` of a URDF path, its bytes, or text (a :class:`UrdfText`, or
+    a str that is blank or starts with '<' after a BOM or whitespace); data is bytes for a file (its
+    XML declaration names the encoding), else str."""
+    if isinstance(source, (bytes, UrdfText)):
+        return (source if isinstance(source, bytes) else str(source)), None, file
+    if isinstance(source, os.PathLike) or (isinstance(source, str) and source.strip('\ufeff \t\r\n')
+                                           and not source.lstrip('\ufeff \t\r\n').startswith('<')):
         p = Path(source)
         try:
             return p.read_bytes(), p.resolve().parent, file or str(source)
@@ -411,16 +419,19 @@ def _parse_robot(root, base_dir, notes, default_name):
 # ------------------------------------------------------------------------------------------------
 # the robot: parsed links and joints -> checked LinkSpecs
 # ------------------------------------------------------------------------------------------------
-def read_urdf(source, floating: bool = False, locked: dict | None = None, file: str | None = None) -> UrdfRobot:
+def read_urdf(source, floating: bool = False, locked: dict | None = None, file: str | None = None,
+              base_dir=None) -> UrdfRobot:
     """Read a URDF and check that it can be simulated.
 
-    source: a file path or the URDF text; floating: give the root link a FREE (6-DOF) joint;
-    locked: joint name -> position (rad or m) of joints to freeze as FIXED (e.g. gripper fingers,
-    or ``<mimic>`` joints); file: the name messages give the source (default: the path, or none
-    for text). Returns a :class:`UrdfRobot`; raises :class:`UrdfError` (one line); issues a
-    :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
+    source: a file path, the file's bytes, or the URDF text; floating: give the root link a FREE
+    (6-DOF) joint; locked: joint name -> position (rad or m) of joints to freeze as FIXED (e.g.
+    gripper fingers, or ``<mimic>`` joints); file: the name messages give the source (default:
+    the path, or none for text); base_dir: where relative mesh paths start for bytes or text (a
+    path's own directory otherwise). Returns a :class:`UrdfRobot`; raises :class:`UrdfError` (one
+    line); issues a :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
     """
-    data, base_dir, label = _load(source, file)
+    data, own_dir, label = _load(source, file)
+    base_dir = own_dir if base_dir is None else Path(base_dir)
     notes = []
     try:
         robot = _read(data, base_dir, label, floating, dict(locked or {}), notes)

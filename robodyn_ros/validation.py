@@ -36,11 +36,15 @@ def typename(v) -> str:
 class SceneContext:
     """Validation context: the file name, the gravity vector and the parts built so far.
 
-    file: file name used in messages. Helpers raise :class:`SceneError` with the key path.
+    file: file name used in messages, and the file relative references start from; files: the
+    referenced files' contents given with the scene text (reference as written -> bytes; None: read
+    them from disk). Helpers raise :class:`SceneError` with the key path.
     """
 
-    def __init__(self, file: str):
+    def __init__(self, file: str, files: dict | None = None):
         self.file = file
+        self.given_files = files
+        self.files = {}   # what the scene read: reference -> bytes (Scene.files)
         self.gravity = np.array([0.0, 0.0, -9.81])
         self.parts: list = []   # robodyn_ros.scene.Part
         self.y0 = None  # the initial state, once known (command profiles are built after it)

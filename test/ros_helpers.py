@@ -97,7 +97,9 @@ def start_pd(domain: Domain, log_path, **kw) -> Proc:
 
 def lockstep_pd_run(tmp, sim_params: dict, setpoint, periods: int, timeout=90, **pd_kw):
     """Generator for a module fixture: a lockstep node recording to ``tmp/lockstep.mcap`` while the
-    PD controller process closes the loop to ``setpoint`` for ``periods`` commands; then SIGINT.
+    PD controller process closes the loop to ``setpoint`` for ``periods`` commands; then SIGINT. The
+    PD process exits once the state its last command produced has arrived, so the node is idle
+    (waiting for a command) when the signal comes: nothing else is left to publish or record.
 
     Yields ``{record, pd_rc, node_rc, tmp, pd (its JSON result or None), node_log, pd_log}``; the
     processes and the domain are always released.
@@ -110,7 +112,6 @@ def lockstep_pd_run(tmp, sim_params: dict, setpoint, periods: int, timeout=90, *
                   timeout=timeout, **pd_kw)
     try:
         pd_rc = pd.wait(timeout=timeout + 10)
-        time.sleep(0.2)
         node_rc = node.stop(signal.SIGINT)
         yield {'record': rec, 'pd_rc': pd_rc, 'node_rc': node_rc, 'tmp': tmp,
                'pd': json.loads((tmp / 'pd.json').read_text()) if (tmp / 'pd.json').exists() else None,
@@ -123,6 +124,25 @@ def lockstep_pd_run(tmp, sim_params: dict, setpoint, periods: int, timeout=90, *
 
 class RosClient(Probe):
     """The test process's rclpy context, node and executor in a domain (see Probe)."""
+
+
+def stamp_ns(msg) -> int:
+    """A message's header stamp in ns."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def lockstep_step(client, pub, msg, states, node, timeout=60.0, also=()) -> int:
+    """Publish one command to a lockstep node and wait for the state of the period it ran: the last
+    message of ``states`` (and of each list in ``also``, e.g. odom) stamped later than before.
+    Counting messages is not enough: until its first command a lockstep node re-sends its initial
+    state to new subscribers, and such a late copy must not pass for the next period's state
+    (commands sent early on two topics may then be taken in another order). Returns the stamp (ns)."""
+    last = stamp_ns(states[-1])
+    pub.publish(msg)
+    lists = (states, *also)
+    assert client.spin_until(lambda: all(xs and stamp_ns(xs[-1]) > last for xs in lists)
+                             and len({stamp_ns(xs[-1]) for xs in lists}) == 1, timeout, node), node.output()
+    return stamp_ns(states[-1])
 
 
 def diag_values(msg) -> dict:
@@ -147,11 +167,11 @@ def headless_lockstep(sim, sink, periods, rate):
     sink.close()
 
 
-def assert_lockstep_recording_equals_headless(rec, out):
-    """Re-run a lockstep node recording ``rec`` headless (the bundled scene it names, its recorded
-    settings, its recorded commands per period) into ``out``; every state message (joint_states,
-    odom, constraint wrenches, /tf, /tf_static) and every command must be byte-identical.
-    Returns the number of periods."""
+def assert_lockstep_recording_equals_headless(rec, out, scene_path=None):
+    """Re-run a lockstep node recording ``rec`` headless (the bundled scene it names, or the scene
+    file ``scene_path``; its recorded settings, its recorded commands per period) into ``out``;
+    every state message (joint_states, odom, constraint wrenches, /tf, /tf_static) and every
+    command must be byte-identical. Returns the number of periods."""
     from robodyn_ros import messages as M
     from robodyn_ros.nodes.ports import command_values
     from robodyn_ros.recording import decode, read_raw_messages, summarize
@@ -164,7 +184,7 @@ def assert_lockstep_recording_equals_headless(rec, out):
     st = json.loads(md['settings'])
     assert st['mode'] == 'lockstep'
     with backend_scope(st['backend']):
-        scene = load_scene(md['scene_name'])
+        scene = load_scene(scene_path or md['scene_name'])
     assert scene.text == md['scene']
     sim = Simulator(scene.system, st['y0'], integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
                     atol=st['atol'], command_timeout=st['command_timeout'])
@@ -187,15 +207,15 @@ def assert_lockstep_recording_equals_headless(rec, out):
     return len(periods)
 
 
-def assert_lockstep_recording_reproduced(rec, tmp, periods):
+def assert_lockstep_recording_reproduced(rec, tmp, periods, scene_path=None):
     """A lockstep node recording of ``periods`` periods equals the headless run fed the same
-    commands (:func:`assert_lockstep_recording_equals_headless`), and ``robodyn resim``
-    reproduces every state message of it exactly (joint_states, odom, wrenches, TF)."""
+    commands (:func:`assert_lockstep_recording_equals_headless`, ``scene_path`` as there), and
+    ``robodyn resim`` reproduces every state message of it exactly (joint_states, odom, wrenches, TF)."""
     import contextlib
     import io
 
     from robodyn_ros.cli import main as robodyn
-    assert assert_lockstep_recording_equals_headless(rec, os.path.join(tmp, 'headless.mcap')) == periods
+    assert assert_lockstep_recording_equals_headless(rec, os.path.join(tmp, 'headless.mcap'), scene_path) == periods
     text = io.StringIO()
     with contextlib.redirect_stdout(text):
         assert robodyn(['resim', str(rec), '--record', os.path.join(tmp, 'resim.mcap'), '--json']) == 0

@@ -11,7 +11,6 @@ the Simulator takes (``fused_advance``) against the Simulator's reference path o
 from __future__ import annotations
 
 import copy
-import math
 import warnings
 
 import numpy as np
@@ -248,83 +247,3 @@ def test_compiled_outputs_publish_an_overridden_contact_wrenches():
         for k in plain:
             assert got[k][0] == plain[k][0] and close(got[k][1], 2.0 * plain[k][1], 1e-11), k
     assert s.fused_advance('rk4', 1e-3, 0.0, np.append(y, 0.0), 0.01, u) is not None
-
-
-def test_fma_rounds_once_and_keeps_the_sign_of_zero():
-    """``kernels.linalg.fma`` (llvm.fma: the instruction, or the C library's fma without it) is
-    ``a b + c`` rounded once: against exact rational arithmetic on random triples (half of them
-    with c ≈ −a b, where one rounding or two differ), and the signed zeros of a chain from +0.0."""
-    from fractions import Fraction
-
-    from numba import njit
-
-    from robodyn_ros.kernels.linalg import fma
-
-    @njit
-    def f(a, b, c):
-        return fma(a, b, c)
-
-    rng = np.random.default_rng(17)
-    a, b = rng.normal(size=4000), rng.normal(size=4000)
-    c = rng.normal(size=4000)
-    c[::2] = -(a[::2] * b[::2])   # cancellation: a b + c is the rounding error of the product
-    unfused = 0
-    for x, y, z in zip(a, b, c):
-        want = float(Fraction(x) * Fraction(y) + Fraction(z))
-        assert f(x, y, z) == want, (x, y, z)
-        unfused += (x * y + z) != want
-    assert unfused > 1000   # the triples do tell one rounding from two
-    assert f(1.0 + 2.0 ** -30, 1.0 - 2.0 ** -30, -1.0) == -2.0 ** -60
-    assert math.copysign(1.0, f(-1.0, 0.0, 0.0)) == 1.0 and math.copysign(1.0, f(-1.0, 0.0, -0.0)) == -1.0
-
-
-def test_compiled_diffdrive_outputs_do_not_depend_on_numpys_blas(tmp_path):
-    """The compiled outputs evaluate numpy's small products (``R.T @ x``, the two-term electrical
-    power) as fma chains, the arithmetic of OpenBLAS's SkylakeX kernels (the bits the recordings
-    had before issue 15), without calling a BLAS: run once with this machine's OpenBLAS kernels and
-    once with its Nehalem kernels (no FMA, every x86-64 runs them; numpy's products change, which
-    is checked), the outputs and wrenches keep every bit."""
-    import os
-    import subprocess
-    import sys
-    code = r'''
-import sys
-import numpy as np
-sys.path.insert(0, 'test')
-from test_compiled_systems import _pair
-from numba import njit
-from robodyn_ros.kernels.linalg import fma
-
-@njit
-def chain(R, x):
-    return np.array([fma(R[2, j], x[2], fma(R[1, j], x[1], fma(R[0, j], x[0], 0.0))) for j in range(3)])
-
-rng = np.random.default_rng(5)
-Rs, xs = rng.normal(size=(200, 3, 3)), rng.normal(size=(200, 3))
-products = np.array([R.T @ x for R, x in zip(Rs, xs)])
-fused = sum((R.T @ x).tobytes() == chain(R, x).tobytes() for R, x in zip(Rs, xs))
-fast, _, sc = _pair('mobile_manipulator')
-parts = []
-for k in range(20):
-    y = sc.y0 + 0.2 * rng.normal(size=fast.ny)
-    u = {n: rng.normal(size=p.size) for n, p in fast.inputs.items()}
-    o = fast.outputs(0.1, y, u)
-    parts += [o.position, o.velocity, o.effort, *o.odom.values(), o.wrenches.array(),
-              np.array(list(o.extra.values()), dtype=float), np.array(list(o.energy.values()))]
-np.savez(sys.argv[1], products=products, outputs=np.concatenate([np.ravel(p) for p in parts]))
-print(fused)
-'''
-    got = {}
-    for core in ('', 'Nehalem'):
-        env = {k: v for k, v in os.environ.items() if k != 'OPENBLAS_CORETYPE'}
-        if core:
-            env['OPENBLAS_CORETYPE'] = core
-        r = subprocess.run([sys.executable, '-c', code, str(tmp_path / f'run{core}.npz')], env=env,
-                           capture_output=True, text=True, timeout=300)
-        assert r.returncode == 0, r.stderr
-        d = np.load(tmp_path / f'run{core}.npz')
-        got[core] = (int(r.stdout.split()[-1]), d['products'], d['outputs'])
-    print(f'numpy R.T @ x equal to the fma chain: {got[""][0]}/200 with this machine\'s OpenBLAS kernels '
-          f'(the recordings of issue 15 were made where it is 200), {got["Nehalem"][0]}/200 with Nehalem kernels')
-    assert got[''][1].tobytes() != got['Nehalem'][1].tobytes(), 'OPENBLAS_CORETYPE did not change numpy\'s BLAS'
-    assert got[''][2].size > 500 and got[''][2].tobytes() == got['Nehalem'][2].tobytes()

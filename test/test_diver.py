@@ -502,33 +502,3 @@ def test_a_pfl_scene_without_numba_runs_the_same_law_as_plain_python(tmp_path):
         want = ctl.torques(t, np.array(q), np.array(v))
         assert np.abs(np.array(tau) - want).max() <= 1e-9 * max(1.0, np.abs(want).max())
     assert got['periods'] == 20 and got['finite'] and got['moved'] > 0.01
-
-
-def test_numbas_blas_gives_numpys_bits_for_the_products_of_the_pfl_law():
-    """The compiled PFL law computes ``M_ba α``, ``M_ab q̈_b``, ``M_aa α`` with numba's ``np.dot`` and
-    ``M_bb⁻¹`` with its ``np.linalg.solve``: scipy's OpenBLAS. The numpy formulation it replaced
-    (whose torques the diver recordings hold) used numpy's ``@`` and ``solve`` on views: numpy's own
-    OpenBLAS, another build. The recordings keep their bytes only while the two give the same bits
-    for these shapes; checked here on random mass-matrix-like (SPD) matrices of the diver's size."""
-    from numba import njit
-
-    @njit
-    def law_products(M, alpha, h):
-        rhs = np.dot(np.ascontiguousarray(M[:3, 3:]), alpha)
-        for i in range(3):
-            rhs[i] = rhs[i] + h[i]
-        qdd_b = -np.linalg.solve(np.ascontiguousarray(M[:3, :3]), rhs)
-        return rhs, qdd_b, np.dot(np.ascontiguousarray(M[3:, :3]), qdd_b), np.dot(np.ascontiguousarray(M[3:, 3:]), alpha)
-
-    n = load_scene('diver_tuck').system.nv
-    rng = np.random.default_rng(29)
-    differ = 0
-    for _ in range(500):
-        A = rng.normal(size=(n, n))
-        M = A @ A.T + np.diag(rng.uniform(0.1, 5.0, n))
-        alpha, h = rng.normal(size=n - 3) * 50.0, rng.normal(size=n) * 100.0
-        rhs = M[:3, 3:] @ alpha + h[:3]
-        qdd_b = -np.linalg.solve(M[:3, :3], rhs)
-        want = (rhs, qdd_b, M[3:, :3] @ qdd_b, M[3:, 3:] @ alpha)
-        differ += any(x.tobytes() != y.tobytes() for x, y in zip(law_products(M, alpha, h), want))
-    assert differ == 0, f'{differ} of 500: numba\'s BLAS/LAPACK (scipy\'s) and numpy\'s give other bits here'

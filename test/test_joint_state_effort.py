@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+import pytest
 from ros_helpers import run_sim_to_end
 
 from robodyn_ros.cli import main as robodyn
@@ -75,6 +76,7 @@ def test_headless_t0_effort_is_the_command_applied_from_t0(tmp_path):
     assert _raw(tmp_path / 'again.mcap') == _raw(rec)
 
 
+@pytest.mark.processes
 def test_node_scripted_t0_effort_is_the_first_scripted_command_and_equals_headless(tmp_path):
     """The node with scripted commands follows the same rule, and its joint_states equal a headless run's."""
     rec = tmp_path / 'node.mcap'

@@ -275,6 +275,7 @@ def test_node_refuses_lockstep_for_a_scene_without_commands():
     assert resolve_config({**params, 'mode': 'max'}, scene).mode == 'max'
 
 
+@pytest.mark.processes
 def test_node_runs_the_animation_and_records_the_efforts(tmp_path):
     """``sim`` (mode max, 1 s) publishes and records the same efforts as the system computes."""
     import os

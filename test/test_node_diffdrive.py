@@ -25,6 +25,8 @@ from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced,
 
 from robodyn_ros.recording import decode, read_raw_messages  # noqa: E402
 
+pytestmark = pytest.mark.processes   # a lockstep node subprocess driven from here, SIGINT
+
 R_C, R_W, M_C, M_W, I_C, I_W, I_A, K_T, R_A, M_A = 0.35, 0.28, 3.3, 0.3, 0.18965, 0.0037, 0.975, 0.061, 1.7, 0.4
 M_EFF = M_C + M_A + 2 * M_W + 2 * I_W / R_W ** 2
 J_EFF = I_C + I_A + 2 * (M_W * R_C ** 2 + I_W / 2) + 2 * I_W * R_C ** 2 / R_W ** 2

@@ -4,7 +4,6 @@ import json
 import os
 import signal
 import sys
-import time
 
 import pytest
 
@@ -12,6 +11,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ros_helpers import Domain, Proc, start_sim  # noqa: E402
 
 from robodyn_ros.recording import decode, read_raw_messages, summarize  # noqa: E402
+
+pytestmark = pytest.mark.processes   # a lockstep node and a controller node in subprocesses
 
 
 @pytest.fixture(scope='module')
@@ -24,8 +25,7 @@ def diver_lockstep(tmp_path_factory):
                 '-p', f'result:={tmp / "ctl.json"}', '-p', 'timeout:=150.0'], dom.env(), tmp / 'ctl.log')
     try:
         ctl_rc = ctl.wait(timeout=170)
-        node_rc = node.wait(timeout=30) if node.alive() else node.poll()
-        time.sleep(0.1)
+        node_rc = node.wait(timeout=60) if node.alive() else node.poll()
         yield {'record': rec, 'tmp': tmp, 'ctl_rc': ctl_rc, 'node_rc': node_rc, 'ctl_log': ctl.output(),
                'node_log': node.output(),
                'result': json.loads((tmp / 'ctl.json').read_text()) if (tmp / 'ctl.json').exists() else None}

@@ -17,7 +17,10 @@ import pinocchio as pin
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, assert_lockstep_recording_reproduced, start_sim  # noqa: E402
+from ros_helpers import (Domain, RosClient, assert_lockstep_recording_reproduced, lockstep_step,  # noqa: E402
+                         start_sim)
+
+pytestmark = pytest.mark.processes   # a lockstep node subprocess driven from here, SIGINT
 
 RATE = 50.0                 # the scene's publish rate (Hz): one lockstep period = 20 ms
 PUSH = np.array([3.0, 1.0, 0.0, 0.0, 0.0, 0.4])   # [fx, fy, fz, tx, ty, tz] in base_link
@@ -56,11 +59,7 @@ def run(tmp_path_factory):
 
         def step(pub, msg):
             """Publish one command and wait for the state of the period it ran."""
-            n = len(states)
-            pub.publish(msg)
-            assert client.spin_until(lambda: len(states) > n, 30, node), node.output()
-            stamp = states[-1].header.stamp
-            sent.append(stamp.sec + stamp.nanosec * 1e-9)
+            sent.append(lockstep_step(client, pub, msg, states, node) * 1e-9)
 
         def wrench(w):
             m = WrenchStamped()

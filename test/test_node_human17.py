@@ -19,8 +19,10 @@ import pinocchio as pin
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ros_helpers import Domain, RosClient, start_sim  # noqa: E402
+from ros_helpers import Domain, RosClient, lockstep_step, start_sim  # noqa: E402
 from test_node_freeflyer import _read  # noqa: E402  (mcap + mcap_ros2 decoder: topic -> [(t, msg)])
+
+pytestmark = pytest.mark.processes   # a lockstep node subprocess driven from here, SIGINT
 
 PERIODS = 80                # 0.8 s at the scene's 100 Hz
 PUSH = [3.0, 0.0, 0.0, -3.0, 0.0, 0.0]   # both arms abducted (the scene's first command)
@@ -43,9 +45,7 @@ def run(tmp_path_factory):
         ok = client.spin_until(lambda: states and eff.get_subscription_count(), 90, node)
         assert ok, node.output()
         for k in range(PERIODS):
-            n = len(states)
-            eff.publish(Float64MultiArray(data=PUSH if k < PUSH_PERIODS else [0.0] * 6))
-            assert client.spin_until(lambda: len(states) > n, 30, node), node.output()
+            lockstep_step(client, eff, Float64MultiArray(data=PUSH if k < PUSH_PERIODS else [0.0] * 6), states, node)
         rc = node.stop(signal.SIGINT)
         yield {'record': rec, 'rc': rc, 'log': node.output(), 'live': states}
     finally:

@@ -87,6 +87,7 @@ def test_robodyn_resim_refuses_an_existing_file_and_its_own_input(tmp_path, caps
     assert _is_mcap(out)
 
 
+@pytest.mark.processes
 def test_node_refuses_an_existing_record_file_and_replaces_it_with_overwrite(tmp_path):
     """The node exits 2 at start (before any simulation) naming overwrite:=true; with it, it runs
     and replaces the file, twice in a row, as ``make run`` does."""

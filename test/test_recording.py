@@ -444,7 +444,7 @@ def test_sink_close_is_idempotent_and_rejects_misuse(tmp_path):
 # Crash safety
 
 _KILLED_WRITER = textwrap.dedent('''
-    import sys, time
+    import sys
     from robodyn_ros.recording import McapSink
     sink = McapSink(sys.argv[1], {'scene': 'crash'}, chunk_size=2048)
     flushed = 0
@@ -460,14 +460,15 @@ _KILLED_WRITER = textwrap.dedent('''
             flushed = sink.flushed_message_count
             print('FLUSHED', flushed, sink.chunk_count, flush=True)
     print('READY', sink.message_count, flush=True)
-    time.sleep(60)
+    sys.stdin.read()   # blocks until the test kills this process (its stdin is never closed before)
 ''')
 
 
+@pytest.mark.processes
 def test_killed_writer_keeps_every_complete_chunk(tmp_path):
     path = tmp_path / 'killed.mcap'
     proc = subprocess.Popen([sys.executable, '-c', _KILLED_WRITER, str(path)],
-                            stdout=subprocess.PIPE, text=True, cwd=REPO)
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO)
     flushed = chunks = written = None
     try:
         for line in proc.stdout:

@@ -192,6 +192,7 @@ def test_chunks_close_every_half_second_of_simulation(tmp_path, batch):
     assert max(np.diff(starts)) <= 510_000_000
 
 
+@pytest.mark.processes
 def test_node_recording_closes_chunks_every_half_second_of_simulation(tmp_path):
     # the node's recorder (chunk_span NODE_CHUNK_SPAN), not only a sink built with chunk_span:
     # betancur_pendulum writes about 0.5 KiB per period, so by size alone a 64 KiB chunk would

@@ -23,6 +23,8 @@ from robodyn_ros import sweep as S
 from robodyn_ros.scene import load_scene, parse_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
+pytestmark = pytest.mark.processes   # Dask clusters of worker processes, SIGKILL and SIGINT mid-sweep
+
 #: 2 grid points x 4 draws; rk4 runs are compared with a DOP853 reference, dop853 runs (rtol 1e-8) too
 SPEC = """\
 scene: stanford_arm
@@ -249,9 +251,16 @@ def slow(tmp_path_factory):
     return d / 'spec.yaml', S.read_table(res.table)
 
 
-def _start(spec_path, out, workers, trace):
-    """The CLI in a session of its own (its process group is what a terminal's Ctrl-C reaches)."""
+def _start(spec_path, out, workers, trace, gate=None, pause=None):
+    """The CLI in a session of its own (its process group is what a terminal's Ctrl-C reaches); with
+    ``gate``, every run waits there for its go (:data:`robodyn_ros.sweep.GATE_ENV`); with ``pause``
+    ``(n, path)``, the client holds after its n-th row until path exists (``PAUSE_ENV``)."""
     env = dict(os.environ, **{S.TRACE_ENV: str(trace)})
+    if gate is not None:
+        os.makedirs(gate, exist_ok=True)
+        env[S.GATE_ENV] = str(gate)
+    if pause is not None:
+        env[S.PAUSE_ENV] = f'{pause[0]}:{pause[1]}'
     return subprocess.Popen([sys.executable, '-m', 'robodyn_ros.cli', 'sweep', str(spec_path), '--out', str(out),
                              '--workers', str(workers), '--no-plot'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
@@ -262,13 +271,20 @@ def _rows_on_disk(out):
     return {int(f[:-5]) for f in os.listdir(d) if f.endswith('.json')} if d.is_dir() else set()
 
 
-def _wait_rows(proc, out, n, timeout=120.0):
+def _until(proc, what, timeout=240.0):
+    """Poll ``what()`` (every 20 ms) until it is truthy; fail if the sweep exits first. The timeout
+    only bounds a hang: every wait here is for an event of the sweep, never for a time."""
     t0 = time.monotonic()
-    while len(_rows_on_disk(out)) < n:
+    while not (got := what()):
         assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() - t0 < timeout, 'sweep made no progress'
+        assert time.monotonic() - t0 < timeout, 'the sweep made no progress'
         time.sleep(0.02)
-    return _rows_on_disk(out)
+    return got
+
+
+def _started(gate):
+    """``[(run index, pid)]`` of the runs that reached the gate, in no particular order."""
+    return [tuple(int(x) for x in f.split('-')[1:]) for f in os.listdir(gate) if f.startswith('started-')]
 
 
 def _executions(trace):
@@ -276,22 +292,22 @@ def _executions(trace):
 
 
 def test_killed_worker_loses_no_run(slow, tmp_path):
-    """SIGKILL one of two worker processes mid-sweep: the sweep ends normally (Dask reruns the lost
-    task on a live or restarted worker) and the table has every run exactly once, equal to the
-    in-process rows."""
+    """SIGKILL one of two worker processes while it holds a run (both wait at the gate): the sweep
+    ends normally (Dask reruns the lost task on a live or restarted worker), the killed run is
+    executed a second time, and the table has every run exactly once, equal to the in-process rows."""
     import psutil
     spec_path, baseline = slow
-    out, trace = tmp_path / 'out', tmp_path / 'trace'
-    proc = _start(spec_path, out, 2, trace)
+    out, trace, gate = tmp_path / 'out', tmp_path / 'trace', tmp_path / 'gate'
+    proc = _start(spec_path, out, 2, trace, gate)
     try:
-        before = _wait_rows(proc, out, 2)
-        workers = [p for p in psutil.Process(proc.pid).children(recursive=True)
-                   if any('spawn_main' in a for a in p.cmdline())]
-        assert len(workers) == 2, [p.cmdline() for p in workers]
-        victim = workers[0]
+        started = _until(proc, lambda: len({pid for _, pid in _started(gate)}) == 2 and _started(gate))
+        victim_run, victim_pid = started[0]
+        victim = psutil.Process(victim_pid)
+        assert psutil.Process(proc.pid) in victim.parents()   # a worker of this sweep
         victim.send_signal(signal.SIGKILL)
-        victim.wait(timeout=10)
-        assert len(before) < len(baseline) - 2  # killed mid-sweep
+        victim.wait(timeout=30)
+        assert not _rows_on_disk(out)    # killed mid-sweep: nothing had finished
+        (gate / 'go').touch()
         stdout, stderr = proc.communicate(timeout=240)
     finally:
         if proc.poll() is None:
@@ -301,20 +317,23 @@ def test_killed_worker_loses_no_run(slow, tmp_path):
     rows = S.read_table(str(out / 'results.parquet'))
     assert [r['run'] for r in rows] == list(range(len(baseline)))
     assert _comparable(rows) == _comparable(baseline)
-    assert sorted(set(_executions(trace))) == list(range(len(baseline)))
+    runs = _executions(trace)
+    assert sorted(set(runs)) == list(range(len(baseline)))
+    assert runs.count(victim_run) == 2, sorted(runs)   # the killed run ran again
 
 
 def test_resume_after_sigint_skips_finished_runs(slow, tmp_path):
-    """SIGINT to the process group after a few runs (Ctrl-C: the client and its workers): exit 130
-    with the finished rows kept and no worker traceback; the same command again runs only the
-    others (counted by the trace files each execution leaves) and completes the table."""
+    """SIGINT to the process group while the client holds after its third row (Ctrl-C: the client
+    and its workers): exit 130 with those three rows kept and no worker traceback; the same command
+    again runs only the others (counted by the trace files each execution leaves) and completes
+    the table."""
     spec_path, baseline = slow
     out = tmp_path / 'out'
-    proc = _start(spec_path, out, 2, tmp_path / 'trace1')
+    proc = _start(spec_path, out, 2, tmp_path / 'trace1', pause=(3, tmp_path / 'never'))
     try:
-        _wait_rows(proc, out, 3)
+        written = _until(proc, lambda: len(_rows_on_disk(out)) == 3 and _rows_on_disk(out))
         os.killpg(proc.pid, signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=120)
+        stdout, stderr = proc.communicate(timeout=240)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -323,13 +342,13 @@ def test_resume_after_sigint_skips_finished_runs(slow, tmp_path):
     assert 'interrupted' in stderr and 'Traceback' not in stderr, stderr
     done = _rows_on_disk(out)
     n = len(baseline)
-    assert 3 <= len(done) < n
+    assert done == written   # the client held after three rows: no more were written
     assert not (out / 'results.parquet').exists()
     proc = _start(spec_path, out, 1, tmp_path / 'trace2')
     stdout, stderr = proc.communicate(timeout=240)
     assert proc.returncode == 0, stderr
     second = _executions(tmp_path / 'trace2')
-    assert not set(second) & done, (sorted(second), sorted(done))
+    assert not set(second) & done, (sorted(second), sorted(done))   # no finished run ran again
     assert set(second) == set(range(n)) - done
     assert f'({n - len(done)} run now, {len(done)} found done)' in stdout
     rows = S.read_table(str(out / 'results.parquet'))
@@ -530,3 +549,103 @@ def test_arm_runs_take_the_block_path_with_the_per_period_figures(tmp_path, monk
     assert len(fast) == 4 and n_blocked >= 4 * 29   # 30 periods per run, the first on the per-period path
     assert all(r['status'] == 'ok' and r['max_joint_force'] > 0 and r['energy_drift'] > 0 for r in fast)
     assert _comparable(fast) == _comparable(slow)
+
+
+# --------------------------------------------------------------------------------------------
+# workers that cannot see the client's files
+# --------------------------------------------------------------------------------------------
+def _urdf_sweep(tmp_path):
+    """A spec in ``tmp_path`` whose scene (``robot/ur5.yaml``) imports UR5 from ``file:``, over a grid
+    of a relative reference (``ur5.urdf``, beside the scene) and an absolute one (a copy in
+    ``robot/abs``): ``(spec path, the folder holding every file a run needs)``."""
+    import shutil
+
+    from robodyn_ros.urdf import example_robot_data_dir
+    robot = tmp_path / 'robot'
+    (robot / 'abs').mkdir(parents=True)
+    ur5 = example_robot_data_dir() / 'ur_description/urdf/ur5_robot.urdf'
+    shutil.copy(ur5, robot / 'ur5.urdf')
+    shutil.copy(ur5, robot / 'abs' / 'ur5_copy.urdf')
+    (robot / 'ur5.yaml').write_text('name: ur5_file\nparts:\n  - kind: urdf\n    name: ur5\n    file: ur5.urdf\n'
+                                    'simulation: {integrator: rk4, dt: 0.001}\n')
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text(f'scene: robot/ur5.yaml\nduration: 0.05\nfigures: [energy_drift]\n'
+                    f'grid:\n  parts.0.file: [ur5.urdf, {robot / "abs" / "ur5_copy.urdf"}]\n  dt: [0.001, 0.002]\n')
+    return spec, robot
+
+
+def test_runs_read_no_disk_of_the_client(tmp_path):
+    """The scene's URDF files (relative and absolute references) travel with the tasks: after the
+    spec is loaded their folder is moved away, and every run is ``ok``, in this process and on a
+    worker process, with the rows of a run made while the files were there."""
+    spec_path, robot = _urdf_sweep(tmp_path)
+    before = S.read_table(S.run_sweep(S.load_spec(str(spec_path)), str(tmp_path / 'before'), workers=0,
+                                      plot=False).table)
+    assert [r['status'] for r in before] == ['ok'] * 4, [r['message'] for r in before]
+    spec = S.load_spec(str(spec_path))
+    assert sorted(spec.files) == sorted(['ur5.urdf', str(robot / 'abs' / 'ur5_copy.urdf')])
+    robot.rename(tmp_path / 'gone')
+    for workers in (0, 1):
+        rows = S.read_table(S.run_sweep(spec, str(tmp_path / f'w{workers}'), workers=workers, plot=False).table)
+        assert [r['status'] for r in rows] == ['ok'] * 4, [r['message'] for r in rows]
+        assert _comparable(rows) == _comparable(before)
+
+
+def _mount_namespaces_work() -> bool:
+    """True when this process may make a mount namespace and mount a tmpfs in it (root, unshare)."""
+    import shutil
+    if shutil.which('unshare') is None or os.geteuid() != 0:
+        return False
+    r = subprocess.run(['unshare', '-m', 'sh', '-c', 'mount -t tmpfs tmpfs /mnt'], capture_output=True, timeout=60)
+    return r.returncode == 0
+
+
+def test_a_worker_in_its_own_mount_namespace_runs_every_run(tmp_path):
+    """A ``dask worker`` started in its own mount namespace with a tmpfs over the folder of the scene
+    and its URDF files (a second machine, in effect: it sees an empty folder) runs every run ``ok``
+    for a client that sees the files, on a hand-started scheduler."""
+    if not _mount_namespaces_work():
+        pytest.skip('no mount namespaces here (needs root and unshare -m); '
+                    'test_runs_read_no_disk_of_the_client covers the same with the files moved away')
+    spec_path, robot = _urdf_sweep(tmp_path)
+    spec = S.load_spec(str(spec_path))
+    port = _free_port()
+    address = f'tcp://127.0.0.1:{port}'
+    worker = [sys.executable, '-m', 'distributed.cli.dask_worker', address, '--nworkers', '1', '--nthreads', '1',
+              '--no-dashboard']
+    procs = [subprocess.Popen([sys.executable, '-m', 'distributed.cli.dask_scheduler', '--host', '127.0.0.1',
+                               '--port', str(port), '--no-dashboard'], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    try:
+        procs.append(subprocess.Popen(['unshare', '-m', 'sh', '-c', f'mount -t tmpfs tmpfs "{robot}" && exec "$@"',
+                                       'sh'] + worker, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        with S.Pool(scheduler=address) as pool:
+            seen = pool.client.run(os.listdir, str(robot))
+            assert list(seen.values()) == [[]], seen   # the worker sees an empty folder
+            rows = S.read_table(S.run_sweep(spec, str(tmp_path / 'out'), pool=pool, plot=False).table)
+    finally:
+        for p in reversed(procs):
+            p.send_signal(signal.SIGINT)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    assert [r['status'] for r in rows] == ['ok'] * 4, [r['message'] for r in rows]
+    assert len(os.listdir(robot)) == 3   # the client saw the files all along
+
+
+def test_a_sweep_of_nothing_but_invalid_rows_exits_1_with_the_first_message(tmp_path):
+    """Every draw makes an invalid scene (a negative mass): the table is written, and the CLI exits 1
+    naming the first row's reason (a sweep whose rows all failed is not a success)."""
+    spec = tmp_path / 'neg.yaml'
+    spec.write_text('scene: stanford_arm\nseed: 1\nsamples: 2\nduration: 0.02\nfigures: [energy_drift]\n'
+                    'random: {parts.0.dh.links.2.mass: {uniform: [-2.0, -1.0]}}\n')
+    r = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'sweep', str(spec), '--out', str(tmp_path / 'o'),
+                        '--workers', '0', '--no-plot', '--quiet'], capture_output=True, text=True, timeout=240)
+    assert r.returncode == 1, r.stdout + r.stderr
+    rows = S.read_table(str(tmp_path / 'o' / 'results.parquet'))
+    assert [x['status'] for x in rows] == ['invalid', 'invalid']
+    assert f'the first (run 0, invalid): {rows[0]["message"]}' in r.stderr and 'mass' in rows[0]['message'], r.stderr
+    assert 'Traceback' not in r.stderr

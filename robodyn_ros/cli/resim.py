@@ -123,7 +123,8 @@ class Resim:
         st = self.settings
         y0 = np.array(st['y0'], dtype=float) if st.get('y0') is not None else self.scene.y0
         return Simulator(self.scene.system, y0, integrator=st['integrator'], dt=st.get('dt'),
-                         rtol=st.get('rtol'), atol=st.get('atol'), command_timeout=st.get('command_timeout'))
+                         rtol=st.get('rtol'), atol=st.get('atol'), command_timeout=st.get('command_timeout'),
+                         step_budget=st.get('step_budget'))
 
     def time_of(self, t_ns: int, t_start: float) -> float:
         """Simulation time (s) of a log time, computed as the run computed it: ``t_start + k / rate``."""

@@ -25,6 +25,9 @@ def add_parser(sub):
     p.add_argument('--rtol', type=float, default=None, help='relative tolerance (adaptive integrators)')
     p.add_argument('--atol', type=float, default=None, help='absolute tolerance (adaptive integrators)')
     p.add_argument('--rate', type=float, default=None, help='publication/recording rate in Hz (default 100)')
+    p.add_argument('--step-budget', type=float, default=None, metavar='N',
+                   help='error-controlled integrators: stop (exit 1, naming the stiff mode) past N accepted steps '
+                        'per simulated second (default: the scene\'s simulation.step_budget, else 1e6; inf: none)')
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
     p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
     p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
@@ -74,12 +77,13 @@ def main(args) -> int:
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
-    st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration)
+    st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration,
+                          args.step_budget)
     st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
         st = resolve_auto(st, scene.system, scene.y0)   # integrator auto: the method it picks, and why
         sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                        atol=st['atol'])
+                        atol=st['atol'], step_budget=st.get('step_budget'))
     except ValueError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2

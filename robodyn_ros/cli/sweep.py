@@ -26,7 +26,8 @@ def add_parser(sub):
 
 def main(args) -> int:
     """Run the sweep; 0 when every run has a row, 130 when interrupted (re-run to resume), 2 for a bad
-    spec or a DIR of another sweep, 1 when the cluster cannot run it."""
+    spec or a DIR of another sweep, 1 when the cluster cannot run it or no run could be made (every
+    row invalid or error: the first one's message is printed)."""
     from ..sweep import ClusterError, Progress, SweepError, load_spec, read_table, run_sweep
     try:
         spec = load_spec(args.spec)
@@ -63,4 +64,9 @@ def main(args) -> int:
           f'in {res.wall:.1f} s wall')
     print('status       ' + ', '.join(f'{k} {v}' for k, v in sorted(status.items())))
     print(f'table        {res.table}' + (f'\nplot         {res.plot}' if res.plot else ''))
+    if rows and all(r['status'] in ('invalid', 'error') for r in rows):   # nothing ran: say why
+        first = rows[0]
+        print(f'robodyn sweep: no run could be made: all {len(rows)} rows are invalid or error; the first '
+              f'(run {first["run"]}, {first["status"]}): {first["message"]}', file=sys.stderr)
+        return 1
     return 0

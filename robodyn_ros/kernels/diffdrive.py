@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from .frames import frames_ws
-from .linalg import NINFO, OK, flag, fma, kkt_solve, project_velocities
+from .linalg import NINFO, OK, flag, kkt_solve, project_velocities
 from .rosenbrock import B1, B2, C21, GAMMA
 from .tree import P_, _JIT, crba_ws, energies, rnea_ws, transforms, workspace
 
@@ -388,12 +388,9 @@ def dd_contact_wrenches(fp, mi, mf, q, v, a, lam, bodies, wheels, f):
     forces acting on the wheel bodies ``wheels`` (2,) as external forces.
 
     The force at a contact, ``F = F_long heading + F_lat left``, and ``r × F`` (r = contact point
-    minus wheel centre) are taken to the wheel frame with ``Rᵀ x`` as a chain of fused
-    multiply-adds from +0.0 (:func:`fma`; signed zeros included): numpy's ``R.T @ x`` as OpenBLAS's
-    SkylakeX kernels compute it, which the compiled path called before issue 15, so the recordings
-    made then keep their bytes. The numbers no longer depend on the BLAS; they equal the numpy
-    method's (``dynamics`` poses and RNEA, not these kernels) to round-off (tested to 1e-11), not
-    to the bit.
+    minus wheel centre) are taken to the wheel frame with ``Rᵀ x`` (three products summed in
+    order, no BLAS). The numbers equal the numpy method's (``dynamics`` poses and RNEA, not these
+    kernels) to round-off (tested to 1e-11), not to the bit.
     """
     nb = mi.shape[0]
     W, R, p = frames_ws(mi, mf, q)
@@ -413,8 +410,8 @@ def dd_contact_wrenches(fp, mi, mf, q, v, a, lam, bodies, wheels, f):
         rxF[2] = r0 * F[1] - r1 * F[0]
         b = wheels[k]
         for j in range(3):
-            fext[b, j] = fma(R[b, 2, j], rxF[2], fma(R[b, 1, j], rxF[1], fma(R[b, 0, j], rxF[0], 0.0)))
-            fext[b, 3 + j] = fma(R[b, 2, j], F[2], fma(R[b, 1, j], F[1], fma(R[b, 0, j], F[0], 0.0)))
+            fext[b, j] = R[b, 0, j] * rxF[0] + R[b, 1, j] * rxF[1] + R[b, 2, j] * rxF[2]
+            fext[b, 3 + j] = R[b, 0, j] * F[0] + R[b, 1, j] * F[1] + R[b, 2, j] * F[2]
         for j in range(6):
             f[k, j] = 0.0
         f[k, 3] = F_long
@@ -433,10 +430,8 @@ def dd_outputs(ip, fp, mi, mf, mi_r, mf_r, u, y, pub, wrenches, bodies, wheels, 
     also solve for the ground forces (:func:`dd_solve` with the exact rank) and compute the
     wrenches of :func:`dd_contact_wrenches` for ``bodies``. Returns OK or SINGULAR.
 
-    The values are those the compiled path published before issue 15 (the kernels' report, then
-    the numpy method's operations in its order; its two-term ``volts @ i`` as OpenBLAS's SkylakeX
-    ddot computes it, an fma chain, see :func:`dd_contact_wrenches`): equal to the numpy method's
-    to round-off, and independent of the BLAS.
+    The values are the kernels' report, then the numpy method's operations in its order (its
+    two-term ``volts @ i`` as two products summed): equal to the numpy method's to round-off.
     """
     nv = ip[DD_NV]
     npub = pub.shape[0]
@@ -465,7 +460,7 @@ def dd_outputs(ip, fp, mi, mf, mi_r, mf_r, u, y, pub, wrenches, bodies, wheels, 
         ex[5 * k + 2] = volts[k] * cur[k]
         ex[5 * k + 3] = rep[DR_EL + 4 + k]
         ex[5 * k + 4] = rep[DR_FRICTION + k]
-    ex[10] = fma(volts[1], cur[1], fma(volts[0], cur[0], 0.0))
+    ex[10] = volts[0] * cur[0] + volts[1] * cur[1]
     R0, R1 = fp[DD_MOTOR + MOT_R], fp[DD_MOTOR + MOT_SIZE + MOT_R]
     ex[11] = R0 * cur[0] * cur[0] + R1 * cur[1] * cur[1]
     ex[12] = 1.0 if volts[0] != u[0] or volts[1] != u[1] else 0.0

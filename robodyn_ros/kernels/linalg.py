@@ -25,9 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from llvmlite import ir as llvm_ir
-from numba import njit, types
-from numba.extending import intrinsic
+from numba import njit
 
 from .tree import _JIT
 
@@ -39,22 +37,6 @@ NINFO = 4
 # ----------------------------------------------------------------------------------------------
 # small dense linear algebra
 # ----------------------------------------------------------------------------------------------
-
-
-@intrinsic
-def fma(typingctx, a, b, c):
-    """``a * b + c`` rounded once (IEEE 754 fused multiply-add, ``llvm.fma.f64``: the instruction
-    where the processor has it, else the C library's ``fma``; the same bits everywhere). A chain of
-    them from +0.0 is how OpenBLAS's SkylakeX kernels (the ones this machine's OpenBLAS picks)
-    compute numpy's ``@`` of small vectors; its Haswell, Zen and older kernels round the products
-    separately (test_compiled_systems checks both, with ``OPENBLAS_CORETYPE``)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        d = llvm_ir.DoubleType()
-        fn = builder.module.declare_intrinsic('llvm.fma', [d], llvm_ir.FunctionType(d, [d, d, d]))
-        return builder.call(fn, args)
-    return sig, codegen
 
 
 @njit(**_JIT)

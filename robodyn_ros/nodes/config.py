@@ -25,6 +25,8 @@ PARAMETERS = {
     'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
     'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
     'atol': (0.0, "absolute tolerance of error-controlled integrators; 0 = the scene's or the default"),
+    'step_budget': (0.0, "error-controlled integrators: accepted steps per simulated second past which the "
+                         "simulation stops, naming the stiff mode; .inf = none; 0 = the scene's or the default"),
     'publish_rate': (0.0, "control and publication rate (Hz); one period = 1/publish_rate; 0 = the scene's"),
     'mode': ('realtime', 'realtime, max (as fast as possible) or lockstep (one period per command)'),
     'rate_factor': (1.0, 'realtime mode: simulated seconds per wall second'),
@@ -73,15 +75,19 @@ class Config:
     publish_tf: bool = True
     backend: str = ''
     auto: str = ''   # why integrator auto chose ``integrator`` ('' when the settings named it)
+    step_budget: float | None = None
 
     def settings(self, namespace: str) -> dict:
         """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
-        return {'integrator': self.integrator, 'dt': self.dt, 'rtol': self.rtol, 'atol': self.atol,
-                'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
-                'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
-                'scripted_commands': self.scripted_commands, 'namespace': namespace,
-                'y0': [float(x) for x in self.y0], 'backend': self.backend,
-                **({'auto': self.auto} if self.auto else {})}
+        st = {'integrator': self.integrator, 'dt': self.dt, 'rtol': self.rtol, 'atol': self.atol,
+              'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
+              'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
+              'scripted_commands': self.scripted_commands, 'namespace': namespace,
+              'y0': [float(x) for x in self.y0], 'backend': self.backend,
+              **({'auto': self.auto} if self.auto else {})}
+        if self.step_budget is not None:   # (only when given: other recordings keep their bytes)
+            st['step_budget'] = self.step_budget
+        return st
 
 
 def check_number(name, v, positive=False, minimum=None) -> float:
@@ -123,8 +129,12 @@ def resolve_config(p: dict, scene) -> Config:
         raise ConfigError(f"parameter 'integrator': unknown integrator {p['integrator']!r}; "
                           f"valid names: auto, {', '.join(INTEGRATORS)}")
     opt = {k: (check_number(k, p[k], minimum=0.0) or None) for k in ('dt', 'rtol', 'atol', 'publish_rate')}
+    budget = p.get('step_budget', 0.0)
+    if isinstance(budget, bool) or not isinstance(budget, (int, float)) or math.isnan(budget) or budget < 0:
+        raise ConfigError(f"parameter 'step_budget' must be a number of steps per simulated second > 0 "
+                          f"(.inf: none; 0: the scene's or the default), got {budget!r}")
     st = resolve_settings(scene, p['integrator'].lower() or None, opt['dt'], opt['rtol'], opt['atol'],
-                          opt['publish_rate'])
+                          opt['publish_rate'], step_budget=float(budget) or None)
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
@@ -189,7 +199,8 @@ def resolve_config(p: dict, scene) -> Config:
                   duration=check_number('duration', p['duration'], minimum=0.0),
                   record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
                   diagnostics_period=check_number('diagnostics_period', p['diagnostics_period'], positive=True),
-                  y0=y0, publish_tf=p['publish_tf'], backend=check_backend(p.get('backend', '')))
+                  y0=y0, publish_tf=p['publish_tf'], backend=check_backend(p.get('backend', '')),
+                  step_budget=st.get('step_budget'))
 
 
 def check_backend(value) -> str:

@@ -37,7 +37,9 @@ class Scene:
     y0: (ny,) initial state; script: ``script(t, y) -> {port: (size,) array}`` for the
     commanded ports, or None; settings: simulation defaults (integrator, dt, publish_rate,
     duration, and rtol/atol when given); parts: part names in file order; stop: ``stop(t, y) ->
-    bool`` from ``stop_when`` (the run ends at the first publication where it is true), or None.
+    bool`` from ``stop_when`` (the run ends at the first publication where it is true), or None;
+    files: every file the scene references (a ``kind: urdf`` part's ``file``), as written in the
+    scene -> its bytes: with the scene text, all a run needs (a sweep ships both to its workers).
     """
 
     name: str
@@ -50,6 +52,7 @@ class Scene:
     settings: dict
     parts: list = field(default_factory=list)
     stop: Callable | None = None
+    files: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------------
@@ -109,13 +112,16 @@ def _assemble(ctx: SceneContext, parts: list) -> object:
 # --------------------------------------------------------------------------------------------
 # loading
 # --------------------------------------------------------------------------------------------
-def parse_scene(text: str, file: str = '<string>', path: str | None = None) -> Scene:
+def parse_scene(text: str, file: str = '<string>', path: str | None = None, files: dict | None = None) -> Scene:
     """Validate scene YAML text and build its :class:`Scene`.
 
-    text: the YAML; file: name used in error messages; path: file path stored in the Scene
-    (default ``file``). Raises :class:`SceneError` ``<file>: <key path>: <reason>``.
+    text: the YAML; file: name used in error messages and the file relative references start
+    from; path: file path stored in the Scene (default ``file``); files: the contents of the files
+    the scene references (``file`` of a ``kind: urdf`` part, as written -> bytes, e.g. another
+    Scene's ``files``): given, they are used instead of the disk, which is then never read
+    (a sweep's worker). Raises :class:`SceneError` ``<file>: <key path>: <reason>``.
     """
-    ctx = SceneContext(file)
+    ctx = SceneContext(file, files)
     try:
         data = yaml.load(text, Loader=SceneLoader)
     except yaml.YAMLError as e:
@@ -146,7 +152,7 @@ def parse_scene(text: str, file: str = '<string>', path: str | None = None) -> S
     settings = _settings(ctx, data.get('simulation', {}))
     stop = _stop_condition(ctx, data['stop_when'], system) if 'stop_when' in data else None
     return Scene(name=name, path=path or file, text=text, data=data, system=system, y0=y0, script=script,
-                 settings=settings, parts=[p.name for p in ctx.parts], stop=stop)
+                 settings=settings, parts=[p.name for p in ctx.parts], stop=stop, files=dict(ctx.files))
 
 
 def scene_dirs() -> list:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import PRISMATIC, REVOLUTE
-from ..validation import SceneContext
+from ..validation import SceneContext, typename
 from ..validation import key_path as _key
 
 #: run settings a scene's ``simulation`` section may override (the CLI/node may override again)
 DEFAULT_SETTINGS = {'integrator': 'auto', 'dt': 1e-3, 'publish_rate': 100.0, 'duration': 10.0}
-_SETTING_KEYS = ('integrator', 'dt', 'rtol', 'atol', 'publish_rate', 'duration')
+_SETTING_KEYS = ('integrator', 'dt', 'rtol', 'atol', 'publish_rate', 'duration', 'step_budget')
 
 
 def _initial_state(ctx: SceneContext, v, system) -> np.ndarray:
@@ -85,5 +85,11 @@ def _settings(ctx: SceneContext, v) -> dict:
     for k in ('dt', 'rtol', 'atol', 'publish_rate', 'duration'):
         if k in v:
             out[k] = ctx.number(v[k], _key('simulation', k), positive=True)
+    if 'step_budget' in v:   # steps per simulated second of an error-controlled integrator; .inf: none
+        b = v['step_budget']
+        if isinstance(b, bool) or not isinstance(b, (int, float)) or not b > 0:
+            ctx.fail('simulation.step_budget', f'expected a number of steps per simulated second > 0 '
+                                               f'(.inf: no budget), got {typename(b)} {b!r}')
+        out['step_budget'] = float(b)
     return out
 

@@ -2,6 +2,7 @@
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -27,6 +28,18 @@ def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
             for s in specs]
 
 
+def referenced_path(ref: str, scene_file: str) -> Path:
+    """Where a file reference of a scene points: ``ref`` itself when absolute, else relative to
+    the scene file's directory (to the working directory when ``scene_file`` is no file).
+    Path arithmetic only when ``scene_file`` is an absolute path (then no disk access)."""
+    src = Path(ref)
+    if src.is_absolute():
+        return src
+    scene = Path(scene_file)
+    base = scene.parent if scene.is_absolute() or scene.is_file() else Path.cwd()
+    return Path(os.path.abspath(base / src))
+
+
 def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     """Build a ``urdf`` part: a robot description imported by :func:`robodyn_ros.urdf.read_urdf`.
 
@@ -42,32 +55,45 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     ``limits`` mapping does for an arm link (world-mounted, non-floating robots). The part is an
     arm (its kind is ``arm`` once built) so it mounts wherever an arm does.
     """
-    from ..urdf import UrdfError, read_urdf
+    from ..urdf import UrdfError, UrdfText, read_urdf
     ctx.mapping(spec, path, required=('kind', 'name'), optional=_URDF_KEYS)
     name = ctx.string(spec['name'], _key(path, 'name'))
     mount = ctx.string(spec.get('mount', 'world'), _key(path, 'mount'))
     floating = ctx.boolean(spec.get('floating', False), _key(path, 'floating'))
     if ('file' in spec) == ('urdf' in spec):
         ctx.fail(path, "give exactly one of 'file' (a URDF file) or 'urdf' (the URDF text)")
+    alone, label, base_dir = False, None, None   # (the scene is this URDF alone; its name; its mesh directory)
     if 'file' in spec:
-        src = Path(ctx.string(spec['file'], _key(path, 'file')))
-        if not src.is_absolute():
-            base = Path(ctx.file).parent if Path(ctx.file).is_file() else Path.cwd()
-            src = base / src
-        if not src.is_file():
-            ctx.fail(_key(path, 'file'), f'no such URDF file {str(src)!r} (relative paths start at the scene file)')
         where = _key(path, 'file')
+        ref = ctx.string(spec['file'], where)
+        file = referenced_path(ref, ctx.file)
+        label = str(file)
+        if ctx.given_files is not None:   # the file's bytes came with the scene text: no disk access
+            if ref not in ctx.given_files:
+                ctx.fail(where, f'{ref!r} is not among the files given with the scene text '
+                                f'({", ".join(map(repr, sorted(ctx.given_files))) or "none"})')
+            src, base_dir = ctx.given_files[ref], file.parent
+        elif not file.is_file():
+            ctx.fail(where, f'no such URDF file {label!r} (relative paths start at the scene file)')
+        else:
+            try:
+                src = file.read_bytes()
+            except OSError as e:
+                ctx.fail(where, f'cannot read the URDF file {label!r}: {e.strerror or e}')
+            base_dir = file.resolve().parent
+            alone = Path(ctx.file).resolve() == file.resolve()
+        ctx.files[ref] = src
     else:
-        src = ctx.string(spec['urdf'], _key(path, 'urdf'))
+        src = UrdfText(ctx.string(spec['urdf'], _key(path, 'urdf')))
         where = _key(path, 'urdf')
     lpath = _key(path, 'locked')
     given = spec.get('locked', {})
     if not isinstance(given, dict):
         ctx.fail(lpath, f'expected a mapping joint: position, got {typename(given)} {given!r}')
     locked = {k: ctx.number(v, _key(lpath, k)) for k, v in given.items()}
-    alone = isinstance(src, Path) and Path(ctx.file).resolve() == src.resolve()  # the scene is this URDF alone
     try:
-        robot = read_urdf(src, floating=floating, locked=locked, file=ctx.file if alone else None)
+        robot = read_urdf(src, floating=floating, locked=locked, file=ctx.file if alone else label,
+                          base_dir=base_dir)
     except UrdfError as e:
         m = re.match(r"locked joint '([^']+)'", e.where)
         if m:
@@ -76,6 +102,7 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
             raise SceneError(str(e)) from None
         ctx.fail(where, str(e))
     specs = robot.specs
+    floating = floating or robot.floating   # the URDF may say so itself (a massless world link, a floating joint)
     if floating and (mount != 'world' or 'origin' in spec):
         ctx.fail(_key(path, 'floating'), 'a floating URDF base stands on its own: no mount or origin')
     if any(s.mimic is not None for s in specs) and (floating or mount != 'world'):

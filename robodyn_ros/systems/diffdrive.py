@@ -220,8 +220,7 @@ class DiffDriveSystem(System):
     numba): :mod:`robodyn_ros.kernels.diffdrive` evaluates the right-hand side, projection and
     constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
     in one call and :meth:`outputs` is one call of ``dd_outputs`` (the numbers of the numpy
-    method to round-off; numpy's small BLAS products evaluated as OpenBLAS's SkylakeX kernels do,
-    on every machine: see ``dd_contact_wrenches``); default
+    method to round-off); default
     :func:`robodyn_ros.systems.base.default_backend`.
 
     State ``y = [q (nv), v (nv), i (n_L)]`` with q, v as in (D1) and one current per motor with

@@ -36,8 +36,8 @@ __all__ = ['PlanarBaseSystem', 'odom_of', 'base_state_from_odom']
 def _odom_values(x, z, pitch, xd, zd, pitch_rate) -> tuple:
     """The 13 numbers of :func:`odom_of`: position (3), orientation (4), linear (3), angular (3).
 
-    ``math.sin``/``math.cos`` are the C library's functions, which ``np.sin``/``np.cos``
-    evaluate on float64 scalars (the same bits, a tenth of the time).
+    ``math.sin``/``math.cos`` (the C library's) take a tenth of ``np.sin``'s time on scalars; numpy
+    may use its own SIMD code instead, so its bits are not the C library's on every machine.
     """
     c, s = math.cos(pitch), math.sin(pitch)
     return (x, 0.0, z, 0.0, math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch),
@@ -53,7 +53,7 @@ def odom_of(x, z, pitch, xd, zd, pitch_rate) -> dict:
 
 def _base_from_odom(x, z, qy, qw, lx, lz, wy) -> tuple:
     """``((x, z, pitch), (ẋ, ż, pitch rate))`` from the odometry numbers :func:`base_state_from_odom` reads."""
-    pitch = float(2.0 * np.arctan2(qy, qw))   # numpy's arctan2 (not the C library's bits on every machine)
+    pitch = float(2.0 * np.arctan2(qy, qw))   # the one arctan2 of every path that rebuilds the pitch from odom
     c, s = math.cos(pitch), math.sin(pitch)
     return (x, z, pitch), (c * lx + s * lz, -s * lx + c * lz, wy)
 
