@@ -430,6 +430,8 @@ def _singular_joint(system, y) -> str:
         M = dyn.crba(model, q)
     except Exception:  # noqa: BLE001 - best effort: the caller reports the original error anyway
         return ''
+    if M.size == 0:   # nothing moves (a fixed-base robot of fixed joints): nothing to be singular
+        return ''
     if not np.all(np.isfinite(M)):
         return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)'
     d = np.diag(M)

@@ -418,3 +418,14 @@ def test_aligned_axes_with_no_inertia_between_them_are_refused_naming_the_joints
                                     '<joint name="yaw" type="revolute"><parent link="b"/><child link="c"/>'
                                     '<origin rpy="0 0.5 0"/>') + '\n')
     Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)   # no refusal: the axes no longer line up
+
+
+def test_a_robot_of_fixed_joints_only_runs_with_nothing_to_integrate():
+    """iris_simple and quadrotor_base of example-robot-data on a fixed base: no moving joint, so no
+    state; the preflight's mass-matrix check has nothing to look at, and the run goes through."""
+    text = _robot(_link('a'), _link('b'), _joint('j', 'a', 'b', kind='fixed', extra=''), name='rigid')
+    sc = parse_scene('name: x\nparts:\n  - kind: urdf\n    name: r\n    urdf: |\n      ' + text + '\n')
+    assert sc.system.ny == 0
+    sim = Simulator(sc.system, sc.y0, dt=1e-3)
+    run_headless(sim, 0.05, 100.0)
+    assert sim.t == pytest.approx(0.05)
