@@ -60,7 +60,7 @@ def test_the_committed_table_has_every_installed_urdf_and_consistent_counts():
     installed = {rel for rel, _ in bench_urdf.urdf_files()}
     assert {r[1] for r in rows} == installed and len(rows) == len(installed) == 69
     _consistent(counts, rows)
-    assert counts["runs"] >= 45  # before the implicit integrator: 21 are refused as stiff at 1 ms
+    assert counts["runs"] >= 66  # before the implicit integrator: 45 (21 refused as stiff at 1 ms)
 
 
 def test_the_table_dof_equals_pinocchio_nv():
@@ -69,7 +69,7 @@ def test_the_table_dof_equals_pinocchio_nv():
     _, rows = parse(DOC.read_text())
     d = example_robot_data_dir()
     checked = 0
-    for robot, rel, dof, verdict, _ in rows:
+    for robot, rel, dof, verdict, _, _ in rows:
         if dof is not None:
             assert dof == pin.buildModelFromUrdf(str(d / rel)).nv, robot
             checked += 1
@@ -104,7 +104,8 @@ def test_readme_and_docs_urdf_quote_the_table_counts():
     for f in (root / 'README.md', root / 'docs' / 'urdf.md'):
         text = ' '.join(f.read_text().split())
         m = re.search(r'of the (\d+) URDFs of example-robot-data [\d.]+, (\d+) run with defaults \(`robodyn run FILE '
-                      r'--duration 0.2`\); (\d+) are refused as stiff at the default 1 ms step.*?and (\d+) for what '
-                      r'their files hold', text, flags=re.I)
+                      r'--duration 0.2`: (\d+) with rk4, (\d+) with rosenbrock2.*?\); (\d+) are refused as stiff at '
+                      r'the default 1 ms step.*?and (\d+) for what their files hold', text, flags=re.I)
         assert m, f
-        assert tuple(int(x) for x in m.groups()) == (counts['total'], counts['runs'], stiff, other), f
+        assert tuple(int(x) for x in m.groups()) == (counts['total'], counts['runs'], counts.get('with rk4', 0),
+                                                     counts.get('with rosenbrock2', 0), stiff, other), f
