@@ -755,8 +755,12 @@ def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) 
     except UrdfError:
         raise UrdfError(where, reason) from None
     names = ', '.join(f'{j} at {q:.6g}' for j, q in at.items())
-    notes[:] = fresh + [f'{len(at)} moving joint{"s" if len(at) > 1 else ""} with no mass below '
-                        f'{"them" if len(at) > 1 else "it"} (nor below the joints that mimic '
-                        f'{"them" if len(at) > 1 else "it"}) locked as fixed: {names} (a joint with nothing '
-                        'to accelerate has no dynamics); give the links an <inertial> to move them']
+    follows = [n for n in fresh if any(f"mimics locked joint '{j}'" in n for j in at)]   # said once, below
+    them = 'them' if len(at) > 1 else 'it'
+    notes[:] = [n for n in fresh if n not in follows] + [
+        f'{len(at)} moving joint{"s" if len(at) > 1 else ""} with no mass below {them} (nor below the joints '
+        f'that mimic {them}) locked as fixed: {names}' +
+        (f', with the {len(follows)} joints that mimic {them}' if follows else '') +
+        f' ({len(at) + len(follows)} joint{"s" if len(at) + len(follows) > 1 else ""} in all)' +
+        ' (a joint with nothing to accelerate has no dynamics); give the links an <inertial> to move them']
     return robot

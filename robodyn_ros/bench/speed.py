@@ -1012,6 +1012,13 @@ def section_targets(args, names) -> str:
         if mj and math.isfinite(mj[1]):
             add('xarm7 RTF / MuJoCo implicitfast from Python', f'{ours[1] / mj[1]:.2f} ({ours[1]:.0f} / {mj[1]:.0f})',
                 '>= 1', ours[1] >= mj[1], 'wall time, same run, best of --repeat')
+        fine = [(k, v) for k, v in st.items() if k.startswith('MuJoCo implicitfast at') and math.isfinite(v[0])]
+        near = [(k, v) for k, v in fine if v[0] <= 10 * ours[0]] or fine[-1:]
+        if near:
+            k, v = near[0]
+            add('xarm7 RTF / MuJoCo implicitfast at its first step within 10x our error',
+                f'{ours[1] / v[1]:.2f} ({ours[1]:.0f} / {v[1]:.0f})', '(reported)', None,
+                f'{k}: error {v[0]:.2g} rad; ours {ours[0]:.2g} rad at 1 ms')
     m = f.get('memory')
     if m:
         add(f'memory growth after warm-up ({m["duration"]:g} s recorded run)', f'{m["growth"]:+.2f} %', '< 10 %',

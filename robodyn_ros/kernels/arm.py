@@ -18,7 +18,7 @@ from .fixed_step import M_RK4, M_ROSENBROCK2, M_SEMI_IMPLICIT_EULER
 from .linalg import chol_solve, cholesky
 from .passive import add_coulomb_friction, friction_jacobian_add
 from .profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval
-from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_velocity
+from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_rhs, stage_velocity
 from ..model import SPHERICAL
 from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
@@ -360,11 +360,7 @@ def solve_stage(L, Km, gh, force, bq, kv, tmp, cpl, red):
         stage_velocity(L, Km, gh, force, bq, kv, tmp)
         return
     nv = kv.shape[0]
-    for i in range(nv):
-        s = 0.0
-        for j in range(nv):
-            s += Km[i, j] * bq[j]
-        tmp[i] = force[i] - gh * s
+    stage_rhs(Km, gh, force, bq, tmp)
     col, mul = cpl[1], cpl[2]
     fr, xr = red[1][0], red[1][1]
     for a in range(fr.shape[0]):

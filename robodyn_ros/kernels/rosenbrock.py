@@ -102,16 +102,22 @@ def factor_iteration_matrix(H, Dm, Km, gh, A, L):
 
 
 @njit(**_JIT)
-def stage_velocity(L, Km, gh, force, bq, kv, tmp):
-    """kv (nv,) of (R6): ``A kv = force − γh Km bq`` with A = L Lᵀ; force = M bv (nv,), bq (nv,) the
-    stage's tangent rate; tmp (nv,) scratch."""
-    nv = kv.shape[0]
+def stage_rhs(Km, gh, force, bq, tmp):
+    """tmp (nv,) = ``force − γh Km bq``, the right-hand side of (R6) in the full coordinates."""
+    nv = tmp.shape[0]
     for i in range(nv):
         s = 0.0
         for j in range(nv):
             s += Km[i, j] * bq[j]
         tmp[i] = force[i] - gh * s
-    chol_solve(L, nv, tmp, kv)
+
+
+@njit(**_JIT)
+def stage_velocity(L, Km, gh, force, bq, kv, tmp):
+    """kv (nv,) of (R6): ``A kv = force − γh Km bq`` with A = L Lᵀ; force = M bv (nv,), bq (nv,) the
+    stage's tangent rate; tmp (nv,) scratch."""
+    stage_rhs(Km, gh, force, bq, tmp)
+    chol_solve(L, kv.shape[0], tmp, kv)
 
 
 @njit(**_JIT)
