@@ -145,3 +145,21 @@ def test_auto_keeps_rk4_for_every_bundled_scene_that_runs_it(name):
             return
     assert sim.settings['integrator'] == 'rk4', sim.choice.reason
     assert sim.settings['dt'] == scene.settings['dt']
+
+
+def test_xarm7_with_damping_only_against_pinocchio_as_the_mujoco_comparison_has_it():
+    """The speed table's xarm7 row (``robodyn bench stiff``): friction and limits removed, a 1 s fall at
+    1 ms by rosenbrock2 (auto's choice) against Pinocchio's ABA + damping by Radau at rtol 1e-10.
+    Measured 2.7e-7 rad; asserted < 3e-6 (MuJoCo's implicit integrators at 1 ms: 6e-4)."""
+    from robodyn_ros.bench import stiff
+    files = stiff.erd_urdfs(['xarm7'])
+    assert files, 'example-robot-data (test extras) has xarm7'
+    with open(files[0]) as f:
+        text = stiff.damping_only(f.read())
+    scene = stiff._load_urdf(files[0], text=text)
+    s = scene.system
+    ref = stiff.pinocchio_fall(text, list(s.joint_names), scene.y0[:s.nq], scene.y0[s.nq:])
+    q, sim, _ = stiff.robodyn_fall(scene, repeat=1)
+    assert sim.settings['integrator'] == 'rosenbrock2'
+    err = float(np.max(np.abs(q - ref)))
+    assert err < 3e-6, err
