@@ -760,7 +760,8 @@ def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) 
     notes[:] = [n for n in fresh if n not in follows] + [
         f'{len(at)} moving joint{"s" if len(at) > 1 else ""} with no mass below {them} (nor below the joints '
         f'that mimic {them}) locked as fixed: {names}' +
-        (f', with the {len(follows)} joints that mimic {them}' if follows else '') +
+        (f', with the {len(follows)} joints that mimic {them}' if len(follows) > 1 else
+         f', with the joint that mimics {them}' if follows else '') +
         f' ({len(at) + len(follows)} joint{"s" if len(at) + len(follows) > 1 else ""} in all)' +
         ' (a joint with nothing to accelerate has no dynamics); give the links an <inertial> to move them']
     return robot

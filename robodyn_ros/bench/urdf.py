@@ -38,7 +38,7 @@ CAUSES = [('stiff', 'stiff at the default step (needs an implicit integrator)', 
 NOTES = [(r'<limit effort="0">.* on (\d+) joint', 'effort="0" read as no limit ({} joints)'),
          (r"link '([^']*)' .*accepted as given", 'inertia of {} breaks the triangle inequality: kept as given'),
          (r"link '([^']*)' .*balanced as MuJoCo", 'inertia of {} balanced'),
-         (r'with no mass below .*?locked as fixed: (.*?)(?:, with the \d+ joints that mimic \w+)? \((\d+) joints? in all\)',
+         (r'with no mass below .*?locked as fixed: (.*?)(?:, with the (?:\d+ joints that mimic|joint that mimics) \w+)? \((\d+) joints? in all\)',
           'no mass below {}: locked ({} joints in all)'),
          (r'ignored elements that are not URDF: (.*)', 'ignored {}'),
          (r'ignored what follows </robot>', 'ignored bytes after </robot>')]
