@@ -56,6 +56,7 @@ setup(
             'sim = robodyn_ros.nodes.sim:main',
             'robodyn = robodyn_ros.cli:main',
             'diver_controller = robodyn_ros.nodes.diver_controller:main',
+            'pd_hold_controller = robodyn_ros.nodes.pd_hold_controller:main',
         ],
     },
 )

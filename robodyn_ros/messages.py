@@ -25,15 +25,22 @@ TOPIC_TYPES = {
 }
 WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 WRENCH_PREFIX = 'constraint_wrenches/'
+#: the ground's wrench on a link (``SystemOutputs.contacts``): world axes, about the link's centre of pressure
+CONTACT_PREFIX = 'contact_wrenches/'
 
 
-def wrench_topic(name: str) -> str:
-    """Topic ``constraint_wrenches/<name>`` of a joint or contact wrench; characters a ROS topic
-    name cannot hold (URDF joint names such as ``wrist_3_link-tool0_fixed_joint``) become ``_``,
-    and a token starting with a digit gets a leading ``_``."""
+def wrench_topic(name: str, prefix: str = WRENCH_PREFIX) -> str:
+    """Topic ``constraint_wrenches/<name>`` of a joint or contact wrench (``contact_wrenches/<link>`` with
+    ``prefix=CONTACT_PREFIX``); characters a ROS topic name cannot hold (URDF joint names such as
+    ``wrist_3_link-tool0_fixed_joint``) become ``_``, and a token starting with a digit gets a leading ``_``."""
     import re
     token = re.sub(r'[^A-Za-z0-9_]', '_', name)
-    return WRENCH_PREFIX + ('_' + token if token[:1].isdigit() else token)
+    return prefix + ('_' + token if token[:1].isdigit() else token)
+
+
+def contact_topic(link: str) -> str:
+    """Topic ``contact_wrenches/<link>`` of the ground's wrench on a link (:func:`wrench_topic`)."""
+    return wrench_topic(link, CONTACT_PREFIX)
 
 PORT_TOPICS = {'effort': 'effort_commands', 'wheel_voltage': 'wheel_voltage_commands',
                'base_wrench': 'base_wrench_command'}
@@ -131,7 +138,8 @@ def diagnostic_array(t_ns: int, name: str, level: int, message: str, values: dic
 def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):
     """The state messages of one publication: ``[(topic, type, dict), ...]`` (no /clock, diagnostics).
 
-    out: :class:`robodyn_ros.systems.SystemOutputs`; wrenches: include constraint wrenches;
+    out: :class:`robodyn_ros.systems.SystemOutputs`; wrenches: include constraint wrenches (the
+    ground's ``contact_wrenches/<link>`` are always in, after them);
     tf: a :class:`robodyn_ros.tf.TfTree` to append ``/tf`` (last; left out when it has no
     transform), or None.
     """
@@ -142,6 +150,8 @@ def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):
     if wrenches:
         for name, (frame, w) in out.wrenches.items():
             msgs.append((wrench_topic(name), WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
+    for link, (frame, w) in out.contacts.items():
+        msgs.append((contact_topic(link), WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
     if tf is not None:
         tf_msg = tf.message(t_ns, out)
         if tf_msg['transforms']:

@@ -62,6 +62,24 @@ def refuse_spherical(model, what: str):
             '(robodyn_ros.kernels.CompiledModel)')
 
 
+@dataclass(frozen=True)
+class Collision:
+    """One ``<collision>`` shape of a link (URDF), for ground contact (:mod:`robodyn_ros.systems.contact`).
+
+    kind: ``'sphere'``, ``'box'``, ``'cylinder'``, ``'capsule'`` or ``'mesh'``; origin (4, 4): the
+    shape's frame in the link frame; size: sphere ``(radius,)``, box ``(x, y, z)`` (full edge
+    lengths), cylinder and capsule ``(radius, length)`` along the shape's z axis (a capsule's length
+    is that of its cylinder part, between the centres of its end spheres), mesh ``()``; mesh: the
+    mesh file as written (a relative path made absolute), scale (3,) its scale.
+    """
+
+    kind: str
+    origin: np.ndarray
+    size: tuple = ()
+    mesh: str = ''
+    scale: tuple = (1.0, 1.0, 1.0)
+
+
 @dataclass
 class LinkSpec:
     """One body and the joint that connects it to its parent.
@@ -87,7 +105,8 @@ class LinkSpec:
     inertia_as_given: the importer accepted a positive-definite inertia that breaks the triangle
     inequality (and warned, :mod:`robodyn_ros.urdf`): :func:`build_model` then does not refuse it;
     mimic: ``(joint, multiplier, offset)``: this 1-DOF joint follows another 1-DOF joint,
-    ``q = multiplier · q_joint + offset`` (URDF ``<mimic>``, :func:`mimic_table`).
+    ``q = multiplier · q_joint + offset`` (URDF ``<mimic>``, :func:`mimic_table`); collisions: the
+    link's URDF ``<collision>`` shapes (:class:`Collision`), the geometry a ground part may use.
     """
 
     name: str
@@ -112,6 +131,7 @@ class LinkSpec:
     velocity_limit: float | None = None
     inertia_as_given: bool = False
     mimic: tuple | None = None
+    collisions: tuple = ()
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,9 @@ Panels (:data:`PANELS`, in their default order) and where their data come from:
 ``constraint``  ``diagnostics`` ``constraint_residual`` / ``constraint_velocity_residual``
                 (log scale).
 ``wrenches``    ``constraint_wrenches/*``: |force| and |torque| of every joint/contact wrench.
+``contacts``    ``contact_wrenches/*`` (a ground): vertical force F_z of every touching link and
+                their sum (the ground's total reaction: m g at rest), and the horizontal
+                force |F_xy| (friction on a level ground), world axes.
 ``stick``       ``/tf`` + ``/tf_static`` of a base in the x–z plane (``odom`` orientation a
                 pure pitch, e.g. the diver): stick-figure snapshots (every link frame joined
                 to its parent's, side view, every 0.1 s), and the somersault angle (odom
@@ -55,7 +58,7 @@ __all__ = ['PANELS', 'DPI', 'WIDTH_IN', 'PlotError', 'UnreadableRecording', 'cho
 
 #: every panel name, in the order panels are stacked by default
 PANELS = ('joints', 'path', 'speed', 'yaw_rate', 'currents', 'energy', 'momentum', 'constraint', 'wrenches',
-          'stick')
+          'contacts', 'stick')
 #: resolution of the PNG (dots per inch); fixed so the output does not depend on the machine
 DPI = 100
 #: figure width (inches); 12 in at 100 dpi = 1200 px
@@ -83,6 +86,7 @@ MATPLOTLIB_HINT = ('robodyn plot needs matplotlib, which is not installed: pip i
 # topic suffixes (relative names of the interface contract)
 _JS, _ODOM, _DIAG, _VOLT, _DESC = 'joint_states', 'odom', 'diagnostics', 'wheel_voltage_commands', 'robot_description'
 _WRENCH = 'constraint_wrenches/'
+_CONTACT = 'contact_wrenches/'
 
 
 class PlotError(ValueError):
@@ -102,9 +106,9 @@ def _find_topic(topics, name: str) -> Optional[str]:
     return hits[0] if hits else None
 
 
-def _wrench_topics(topics) -> List[str]:
-    """Recorded ``constraint_wrenches/<name>`` topics, sorted."""
-    return sorted(t for t in topics if ('/' + _WRENCH) in t and not t.endswith('/' + _WRENCH))
+def _wrench_topics(topics, prefix=_WRENCH) -> List[str]:
+    """Recorded ``constraint_wrenches/<name>`` topics (``contact_wrenches/<link>`` with prefix=_CONTACT), sorted."""
+    return sorted(t for t in topics if ('/' + prefix) in t and not t.endswith('/' + prefix))
 
 
 def _nonempty(summary: dict) -> Dict[str, dict]:
@@ -143,6 +147,8 @@ def choose_panels(summary: dict) -> List[str]:
         out.append('energy')
     if _wrench_topics(topics):
         out.append('wrenches')
+    if _wrench_topics(topics, _CONTACT):
+        out.append('contacts')
     return out   # 'stick' is added by plot_recording when the loaded odom is a pitch-only base
 
 
@@ -170,7 +176,7 @@ class RecordingData:
     odom_*: (n, 3) position in odom, (n,) yaw, (n, 3) linear and angular velocity in base_link;
     diag: key -> ((n,) times, (n,) values) for every numeric diagnostics value;
     voltage_t, voltage: commanded wheel voltages (n,), (n, 2); wrenches: name -> ((n,) t,
-    (n, 3) force, (n, 3) torque).
+    (n, 3) force, (n, 3) torque); contacts: link -> the same, of ``contact_wrenches/<link>``.
     """
 
     path: str
@@ -191,6 +197,7 @@ class RecordingData:
     voltage_t: np.ndarray = None
     voltage: np.ndarray = None
     wrenches: Dict[str, tuple] = field(default_factory=dict)
+    contacts: Dict[str, tuple] = field(default_factory=dict)
     #: stick panel: times (n,), link name -> (n, 3) world positions of its frame, (parent, child) pairs
     tf_t: np.ndarray = None
     tf_pos: Dict[str, np.ndarray] = field(default_factory=dict)
@@ -266,6 +273,8 @@ def _topics_for(panels, topics) -> List[str]:
         want.update(filter(None, [_find_topic(topics, _VOLT)]))
     if 'wrenches' in panels:
         want.update(_wrench_topics(topics))
+    if 'contacts' in panels:
+        want.update(_wrench_topics(topics, _CONTACT))
     if 'stick' in panels and _find_topic(topics, _ODOM):
         want.update(filter(None, [_find_topic(topics, _ODOM), _find_topic(topics, 'tf'),
                                   _find_topic(topics, 'tf_static')]))
@@ -289,6 +298,7 @@ def load_recording(path, panels=PANELS, summary: Optional[dict] = None) -> Recor
     diag: Dict[str, tuple] = {}
     v_t, v_rows = [], []
     wr: Dict[str, tuple] = {}
+    cw: Dict[str, tuple] = {}
     js_topic, od_topic, diag_topic = _find_topic(topics, _JS), _find_topic(topics, _ODOM), _find_topic(topics, _DIAG)
     volt_topic, desc_topic = _find_topic(topics, _VOLT), _find_topic(topics, _DESC)
     tf_topic, tfs_topic = _find_topic(topics, 'tf'), _find_topic(topics, 'tf_static')
@@ -334,10 +344,11 @@ def load_recording(path, panels=PANELS, summary: Optional[dict] = None) -> Recor
             v_rows.append(msg.data)
         elif topic == desc_topic:
             d.joint_types = _urdf_joint_types(msg.data)
-        elif topic in wanted:  # a constraint wrench
-            name = topic.split('/' + _WRENCH, 1)[1]
+        elif topic in wanted:  # a constraint or contact wrench
+            contact = ('/' + _CONTACT) in topic
+            name = topic.split('/' + (_CONTACT if contact else _WRENCH), 1)[1]
             w = msg.wrench
-            e = wr.setdefault(name, ([], [], []))
+            e = (cw if contact else wr).setdefault(name, ([], [], []))
             e[0].append(t)
             e[1].append((w.force.x, w.force.y, w.force.z))
             e[2].append((w.torque.x, w.torque.y, w.torque.z))
@@ -357,8 +368,8 @@ def load_recording(path, panels=PANELS, summary: Optional[dict] = None) -> Recor
     if v_t:
         d.voltage_t = np.asarray(v_t)
         d.voltage = _rows(v_rows, max(len(r) for r in v_rows))
-    d.wrenches = {k: (np.asarray(a), np.asarray(b, dtype=float), np.asarray(c, dtype=float))
-                  for k, (a, b, c) in sorted(wr.items())}
+    d.wrenches, d.contacts = ({k: (np.asarray(a), np.asarray(b, dtype=float), np.asarray(c, dtype=float))
+                               for k, (a, b, c) in sorted(x.items())} for x in (wr, cw))
     if diag_topic in wanted:
         s['diagnostic_keys'] = sorted(diag)
     if tf_frames:
@@ -735,6 +746,30 @@ def _rows_wrenches(data) -> List[_Row]:
                           column(1, '|torque| (N·m)', 'constraint wrenches: torque magnitude')])]
 
 
+def _rows_contacts(data) -> List[_Row]:
+    names = list(data.contacts)
+    if not names:
+        return []   # no ground in this recording
+    cols = _colors(len(names))
+
+    def vertical(ax, last):
+        ys = [data.contacts[n][1][:, 2] for n in names]
+        for c, name, y, ls in zip(cols, names, ys, _styles(ys)):
+            ax.plot(data.contacts[name][0], y, color=c, linestyle=ls, label=name)
+        t = data.contacts[names[0]][0]
+        if len(names) > 1 and all(len(data.contacts[n][0]) == len(t) for n in names):
+            ax.plot(t, np.sum(ys, axis=0), color='k', lw=1.4, linestyle='--', label='sum')
+        _decorate(ax, 'F_z (N)', 'ground reaction: vertical force per link')
+        if last:
+            _legend(ax, True, ncol=1 if len(names) <= 12 else 2)
+
+    def horizontal(ax, last):
+        for c, name in zip(cols, names):
+            ax.plot(data.contacts[name][0], np.linalg.norm(data.contacts[name][1][:, :2], axis=1), color=c, label=name)
+        _decorate(ax, '|F_xy| (N)', 'ground reaction: horizontal force per link')
+    return [_Row(ROW_IN, [vertical, horizontal])]
+
+
 def _pitch_only(data) -> bool:
     """Is the recorded odom orientation a rotation about y only (a base in the x–z plane)?"""
     return data.odom_q is not None and bool(np.abs(data.odom_q[:, [0, 2]]).max() < 1e-9) and \
@@ -786,7 +821,7 @@ def _mpl_cmap(name):
 
 _ROWS = {'joints': _rows_joints, 'path': _rows_path, 'speed': _rows_speed, 'yaw_rate': _rows_yaw_rate,
          'currents': _rows_currents, 'energy': _rows_energy, 'momentum': _rows_momentum,
-         'constraint': _rows_constraint, 'wrenches': _rows_wrenches, 'stick': _rows_stick}
+         'constraint': _rows_constraint, 'wrenches': _rows_wrenches, 'contacts': _rows_contacts, 'stick': _rows_stick}
 
 
 def _has_data(panel: str, data: RecordingData) -> bool:
@@ -805,6 +840,8 @@ def _has_data(panel: str, data: RecordingData) -> bool:
         return 'constraint_residual' in data.diag or 'constraint_velocity_residual' in data.diag
     if panel == 'stick':
         return data.tf_t is not None and data.odom_t is not None and _pitch_only(data)
+    if panel == 'contacts':
+        return bool(data.contacts)
     return bool(data.wrenches)
 
 

@@ -27,11 +27,12 @@ __all__ = ['COMMAND_PROFILES', 'build_script']
 
 
 def _profile(kind: str, n: int, P=None, times=None, values=None, BT=None, Bq=None, state=None, gravity=None,
-             block: bool = True):
+             block: bool = True, velocity=None):
     """The profile ``f(t, y) -> u (n,)``: :func:`robodyn_ros.kernels.profiles.command_eval` of its
     program ``(kind code, P, times, values, BT, Bq)`` (C-contiguous float64), the profiles' one
-    implementation. For ``CMD_GRAVITY_SINE``, ``state(y)`` gives q (nq,) and ``gravity(q)`` the
-    gravity torques (nv,) by the system's own RNEA.
+    implementation. For ``CMD_GRAVITY_SINE`` and ``CMD_PD_HOLD``, ``state(y)`` gives q (nq,),
+    ``velocity(y)`` v (nv,) and ``gravity(q)`` the gravity torques (nv,) by the system's own RNEA
+    (each None where the profile reads none of it).
 
     With the compiled kernels and ``block``, f also carries ``f.program``, which the Simulator's
     block path runs inside the arm's compiled loop (it computes the gravity torques there with the
@@ -48,11 +49,12 @@ def _profile(kind: str, n: int, P=None, times=None, values=None, BT=None, Bq=Non
 
     def f(t, y):
         u = np.empty(n)
-        if gravity is None:
-            run(*program, none, none, float(t), u)
+        if state is None:
+            run(*program, none, none, none, float(t), u)
         else:
             q = c(state(y), dtype=float)
-            run(*program, q, c(gravity(q), dtype=float), float(t), u)
+            run(*program, q, none if velocity is None else c(velocity(y), dtype=float),
+                none if gravity is None else c(gravity(q), dtype=float), float(t), u)
         return u
     if kernels.AVAILABLE and block:
         f.program = program
@@ -171,6 +173,67 @@ def _gravity_compensation_sine_profile(params, path, ctx, system, port):
                     gravity=gravity, block=block)
 
 
+def _pd_hold_profile(params, path, ctx, system, port):
+    """``pd_hold``: u = K_p (q* − q) − K_d q̇ (+ g(q) with ``gravity_compensation: true``), per actuated joint.
+
+    Keys: ``posture`` q* (a mapping joint -> position, the others at their initial position; or one
+    value per actuated joint; default: the initial state's), ``kp`` (N·m/rad or N/m) and ``kd``
+    (N·m·s/rad or N·s/m): one value for every joint or one per actuated joint (>= 0), and
+    ``gravity_compensation`` (default false): add the gravity torques ``g(q) = RNEA(q, 0, 0)`` of the
+    tree (for a floating tree, those that would hold it still with its root held: a swing leg's, not
+    a stance leg's). Sampled at the start of each period and held, as a controller node's command
+    (``examples/pd_hold_controller.py`` runs the same law over ROS topics). Needs an arm's ``effort``
+    port whose actuated joints are 1-DOF (revolute, prismatic), on a fixed or free root.
+    """
+    from .model import PRISMATIC, REVOLUTE
+    ctx.mapping(params, path, required=('profile', 'kp', 'kd'), optional=('posture', 'gravity_compensation'))
+    model = getattr(system, 'model', None)
+    if port != 'effort' or model is None or not hasattr(system, 'B') or not hasattr(system, 'actuated') \
+            or hasattr(system, 'minimal') or not hasattr(system, 'inverse_dynamics'):
+        ctx.fail(_key(path, 'profile'), "pd_hold needs the 'effort' port of an arm or urdf part (fixed base, "
+                                        "mount: free or floating: true)")
+    names = list(system.actuated)
+    n = len(names)
+    Bq = np.zeros((n, model.nq))
+    for k, name in enumerate(names):
+        i, _ = model.state_index(name)
+        if model.jtype[i] not in (REVOLUTE, PRISMATIC):
+            ctx.fail(_key(path, 'profile'), f'pd_hold holds 1-DOF joints; {name!r} is a component of a spherical '
+                                            'joint (leave it out of actuated, or use another profile)')
+        Bq[k, int(model.q_idx[i])] = 1.0
+    q0 = Bq @ system.split(ctx.y0)[0]
+    what = f'values (one per actuated joint: {", ".join(names)})'
+
+    def gains(key):
+        v = params[key]
+        if isinstance(v, list):
+            return ctx.vector(v, _key(path, key), n, what, minimum=0.0)
+        return np.full(n, ctx.number(v, _key(path, key), minimum=0.0))
+    kp, kd = gains('kp'), gains('kd')
+    posture = q0.copy()
+    if 'posture' in params:
+        ppath = _key(path, 'posture')
+        if isinstance(params['posture'], dict):
+            for name, val in ctx.mapping(params['posture'], ppath, optional=names).items():
+                posture[names.index(name)] = ctx.number(val, _key(ppath, name))
+        else:
+            posture = ctx.vector(params['posture'], ppath, n, what)
+    gc = ctx.boolean(params.get('gravity_compensation', False), _key(path, 'gravity_compensation'))
+    zeros = np.zeros(model.nv)
+
+    def state(y):
+        return system.split(y)[0]
+
+    def velocity(y):
+        return system.split(y)[1]
+
+    def gravity(q):
+        return system.inverse_dynamics(q, zeros, zeros)
+    block = getattr(system, '_km', None) is not None and getattr(system, '_B_is_selection', False)
+    return _profile('CMD_PD_HOLD', n, P=np.array([posture, kp, kd, np.full(n, 1.0 if gc else 0.0)]), BT=system.B.T,
+                    Bq=Bq, state=state, velocity=velocity, gravity=gravity if gc else None, block=block)
+
+
 #: command profile name -> builder(params, path, ctx, system, port) -> f(t, y)
 COMMAND_PROFILES: dict[str, Callable] = {
     'zero': _zero_profile,
@@ -178,6 +241,7 @@ COMMAND_PROFILES: dict[str, Callable] = {
     'piecewise_constant': _piecewise_constant_profile,
     'sine': _sine_profile,
     'gravity_compensation_sine': _gravity_compensation_sine_profile,
+    'pd_hold': _pd_hold_profile,
 }
 
 

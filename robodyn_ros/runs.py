@@ -84,6 +84,12 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     ]
     if 'limit_work' in e:   # joint-limit moments (Huston eq. 20.2.1): their part of the work
         lines[-1] += f'; joint-limit work {e["limit_work"]:.6g} J'
+    contact = getattr(scene.system, 'contact', None)
+    if contact is not None:   # the ground: its law, its part of the work, the contacts at the end
+        x = sim.outputs(wrenches=False).extra
+        lines.append(f'contact      {contact.n_points} points on {len(contact.links)} links ({contact.law_words()}); '
+                     f'contact work {e.get("contact_work", 0.0):.6g} J; at the end {x["contact_active"]} touching, '
+                     f'penetration {x["contact_max_penetration"]:.3g} m, slip {x["contact_max_slip_speed"]:.3g} m/s')
     if d.velocity_limit_exceeded:   # URDF <limit velocity>: reported, not enforced
         lines.append(f'limits       {d.velocity_limit_exceeded} published joint velocities above the velocity limits')
     clamped = {k: p.clamped for k, p in sim.ports.items() if p.clamped}

@@ -546,10 +546,11 @@ class PeriodBlock:
     Period k starts at ``t_cmd[k]`` (its scripted commands, ``commands[port][k]``, are applied
     then) and ends at ``t_out[k]``, where the system's outputs are ``position``, ``velocity``,
     ``effort`` (K, ·) and, when computed, the joint wrenches ``wrenches`` (K, n, 6) in the order
-    of ``template.wrenches``. template: the SystemOutputs of one such period (names, frames, how
-    wrenches are computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and
-    work quadrature ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the
-    last one.
+    of ``template.wrenches``; ``odom`` (K, 13: position, orientation, linear, angular) of a system
+    that publishes one, and the ground's ``contacts`` (K, nl, 6) in the order of ``template.contacts``
+    (else None). template: the SystemOutputs of one such period (names, frames, how wrenches are
+    computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and work quadrature
+    ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the last one.
     """
     t_cmd: np.ndarray
     t_out: np.ndarray
@@ -560,6 +561,8 @@ class PeriodBlock:
     wrenches: np.ndarray | None
     template: SystemOutputs
     z: np.ndarray
+    odom: np.ndarray | None = None
+    contacts: np.ndarray | None = None
 
 
 class _BlockRunner:
@@ -568,8 +571,9 @@ class _BlockRunner:
     Taken when the system runs periods in compiled code (``system.fused_periods``: the arms),
     the integrator is fixed-step, the scripted commands have compiled forms (``script.programs``,
     :mod:`robodyn_ros.profiles`) and every sink takes blocks (``sink.takes_blocks``: it has
-    ``block_periods`` and ``on_block``, see ``McapRunSink``); not with a
-    ``stop`` condition, a command timeout, effort or velocity limits (counted per period). The
+    ``block_periods`` and ``on_block``, see ``McapRunSink``); not with a ``stop`` condition or a
+    command timeout, nor with effort limits unless the system clamps in its loop
+    (``system.clamps_in_blocks``; the clamps are counted there, the velocity-limit samples here). The
     numbers are those of the per-period path (same compiled functions, same arithmetic; the
     recordings test compares files byte for byte); a period the compiled loop refuses (a
     non-finite command or state) is redone on the per-period path, which raises as it always has.
@@ -583,11 +587,11 @@ class _BlockRunner:
     def plan(cls, sim, script, sinks, stop, wrenches):
         sys_ = sim.system
         if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
-                or sim.integrator.spec.kind != 'fixed' or sim._velocity_limit_of or len(sys_.inputs) != 1 \
+                or sim.integrator.spec.kind != 'fixed' or len(sys_.inputs) != 1 \
                 or not all(getattr(s, 'takes_blocks', False) for s in sinks):
             return None
         (port, spec), = sys_.inputs.items()
-        if spec.limit is not None:
+        if spec.limit is not None and not getattr(sys_, 'clamps_in_blocks', False):
             return None
         program = None
         if script is not None:
@@ -647,7 +651,8 @@ class _BlockRunner:
         """The Simulator at the end of period b - 1 of the block, as advance() calls leave it;
         the sinks get periods a..b-1."""
         sim, sys_ = self.sim, self.sim.system
-        _, _, Zs, Us, outs, Fs, steps = res
+        _, _, Zs, Us, outs, Fs, steps = res[:7]
+        more = res[7] if len(res) > 7 else {}
         ny = sys_.ny
         z = Zs[b - 1]
         st = IntegratorStats.of_fused_steps(sim.settings['integrator'], int(steps[a:b].sum()), b - a)
@@ -663,13 +668,24 @@ class _BlockRunner:
         if self.program is not None:
             p = sim.ports[self.port]
             p.value = Us[b - 1].copy()
-            p.applied = p.value
+            p.applied = p.value if p.limit is None else np.clip(p.value, -p.limit, p.limit)
             p.stamp = float(t_cmd[b - 1])
             p.timed_out = False
+            if p.limit is not None:   # the clamped components of these periods' commands, as set_command counts them
+                p.clamped += int(np.count_nonzero(np.abs(Us[a:b]) > p.limit))
             commands[self.port] = Us[a:b]
         position, velocity, effort = outs
+        lim = sim._velocity_limits(self.template.joint_names)
+        if lim is not None:   # each published state's velocities against their limits, as Simulator.outputs counts them
+            sim.diag.velocity_limit_exceeded += int(np.count_nonzero(np.abs(velocity[a:b]) > lim))
+            sim._velocity_checked_at = sim.t
+        extra = getattr(sys_, 'state_extra', None)
+        if extra is not None:   # what outputs() would have put in diag.extra at the last state
+            sim.diag.extra.update(extra(sim.y))
+        odom, contacts = more.get('odom'), more.get('contacts')
         block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
                             velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
-                            template=self.template, z=Zs[a:b])
+                            template=self.template, z=Zs[a:b], odom=None if odom is None else odom[a:b],
+                            contacts=None if contacts is None else contacts[a:b])
         for s in self.sinks:
             s.on_block(block, sim)

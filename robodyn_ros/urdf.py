@@ -7,10 +7,13 @@ resolved), leniently where the robot is unambiguous and never with a traceback:
   element's end (a trailing NUL, an editor's junk) are ignored, with a note;
 * elements the URDF format does not define (``<ros2_control>``, ``<mujoco>``, ``<contact>``
   under a link, ...) are ignored, with one note listing them; ``<transmission>``, ``<gazebo>``,
-  ``<collision>``, ``<calibration>`` and ``<safety_controller>`` are URDF, not dynamics, and are
-  ignored silently; a top-level ``<material>`` needs no name (its colour is copied into the
-  visuals that use it, so the exported description stands alone); a robot without a name takes
-  the file's;
+  ``<calibration>`` and ``<safety_controller>`` are URDF, not dynamics, and are ignored silently;
+  a top-level ``<material>`` needs no name (its colour is copied into the visuals that use it, so
+  the exported description stands alone); a robot without a name takes the file's;
+* ``<collision>`` shapes (``sphere``, ``box``, ``cylinder``, ``capsule``, ``mesh``, with their
+  origin) are read into ``LinkSpec.collisions`` (:class:`robodyn_ros.model.Collision`) for a scene's
+  ground contact; they enter no dynamics, so a shape that cannot be read (no geometry, an unknown
+  one, a size that is not a positive number) is left out with a note instead of refusing the robot;
 * everything the dynamics reads must be there and be a finite number: a missing mass value or
   diagonal moment, two ``<inertial>`` in one link, ``nan`` in an origin... is refused.
 
@@ -87,7 +90,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
+from .model import COULOMB_VELOCITY, Collision, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
 from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis, rpy_to_R
 
 __all__ = ['UrdfError', 'UrdfWarning', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
@@ -281,6 +284,7 @@ class _Link:
     name: str
     inertial: tuple | None
     visuals: tuple
+    collisions: tuple = ()
 
 
 @dataclass
@@ -348,6 +352,51 @@ def _visuals(elem, base_dir, materials, link) -> tuple:
     return tuple(out)
 
 
+#: collision geometry -> its size attributes, in Collision.size order
+_SHAPES = {'sphere': ('radius',), 'box': ('size',), 'cylinder': ('radius', 'length'), 'capsule': ('radius', 'length'),
+           'mesh': ()}
+
+
+def _collisions(elem, base_dir, where, notes) -> tuple:
+    """The ``<collision>`` shapes of a link (:class:`robodyn_ros.model.Collision`); one that cannot be
+    read is left out with a note (collision shapes enter no dynamics: only a ground part uses them)."""
+    out = []
+    for k, c in enumerate(elem.findall('collision')):
+        what = f'{where} <collision> number {k + 1}'
+        geom = c.find('geometry')
+        shapes = [g for g in (geom if geom is not None else []) if isinstance(g.tag, str)]
+        if len(shapes) != 1 or shapes[0].tag not in _SHAPES:
+            found = ', '.join(f'<{g.tag}>' for g in shapes) or 'nothing'
+            notes.append(f'{what}: left out: its <geometry> holds {found} (one of '
+                         f'{", ".join(f"<{t}>" for t in _SHAPES)} expected)')
+            continue
+        g = shapes[0]
+        try:
+            T = _origin(_one(c, 'origin', what), what)
+            if g.tag == 'box':
+                size = tuple(float(x) for x in _floats(g, 'size', 3, what))
+            else:
+                size = tuple(float(_floats(g, a, 1, what)[0]) for a in _SHAPES[g.tag])
+            scale = tuple(float(x) for x in _floats(g, 'scale', 3, what, (1.0, 1.0, 1.0))) if g.tag == 'mesh' \
+                else (1.0, 1.0, 1.0)
+        except UrdfError as e:
+            notes.append(f'{what}: left out: {e.reason}')
+            continue
+        if any(x <= 0.0 for x in size) or any(x == 0.0 for x in scale):
+            notes.append(f'{what}: left out: <{g.tag}> sizes must be positive, got {list(size or scale)}')
+            continue
+        mesh = ''
+        if g.tag == 'mesh':
+            mesh = g.get('filename', '')
+            if not mesh:
+                notes.append(f'{what}: left out: <mesh> without a filename')
+                continue
+            if base_dir is not None and '://' not in mesh:
+                mesh = str((base_dir / mesh).resolve())
+        out.append(Collision(kind=g.tag, origin=T, size=size, mesh=mesh, scale=scale))
+    return tuple(out)
+
+
 def _joint(e, where) -> _Joint:
     """A parsed ``<joint>`` (its name, type, parent and child already checked)."""
     lim, dyn, mim = _one(e, 'limit', where), _one(e, 'dynamics', where), _one(e, 'mimic', where)
@@ -395,7 +444,7 @@ def _parse_robot(root, base_dir, notes, default_name):
         if in_el is not None:
             note_unknown(in_el, 'inertial', '<inertial>/')
         links[name] = _Link(name, _inertial(in_el, where) if in_el is not None else None,
-                            _visuals(e, base_dir, materials, name))
+                            _visuals(e, base_dir, materials, name), _collisions(e, base_dir, where, notes))
     joints = []
     for k, e in enumerate(root.findall('joint')):
         name = e.get('name')
@@ -626,7 +675,7 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
     ``<limit effort="0">`` is read as no limit are appended to no_effort."""
     mass, com, Ic = lk.inertial if lk.inertial is not None else (0.0, np.zeros(3), np.zeros((3, 3)))
     kw = dict(name=lk.name, joint=jname, parent=None, joint_type=jtype, mass=mass, com=tuple(com), inertia=Ic,
-              visuals=lk.visuals)
+              visuals=lk.visuals, collisions=lk.collisions)
     if j is None:
         return LinkSpec(**kw)
     jw = f'joint {j.name!r}'

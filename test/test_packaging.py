@@ -21,7 +21,8 @@ VENV_BIN = Path(sys.executable).parent  # not resolved: the venv's bin, not the 
 EXEC_DEPENDS = ('rclpy', 'std_msgs', 'sensor_msgs', 'nav_msgs', 'geometry_msgs', 'rosgraph_msgs',
                 'diagnostic_msgs', 'std_srvs', 'python3-numpy', 'python3-scipy')
 CONSOLE_SCRIPTS = {'sim': 'robodyn_ros.nodes.sim:main', 'robodyn': 'robodyn_ros.cli:main',
-                   'diver_controller': 'robodyn_ros.nodes.diver_controller:main'}
+                   'diver_controller': 'robodyn_ros.nodes.diver_controller:main',
+                   'pd_hold_controller': 'robodyn_ros.nodes.pd_hold_controller:main'}
 COLCON_TIMEOUT_S = 120
 
 

@@ -76,7 +76,7 @@ def test_parse_panels():
     assert parse_panels(None) is None and parse_panels('auto') is None
     assert parse_panels('path, joints,path') == ['path', 'joints']
     assert set(PANELS) == {'joints', 'path', 'speed', 'yaw_rate', 'currents', 'energy', 'momentum',
-                           'constraint', 'wrenches', 'stick'}
+                           'constraint', 'wrenches', 'contacts', 'stick'}
     with pytest.raises(PlotError, match='unknown panel.*bogus'):
         parse_panels('joints,bogus')
 
@@ -186,13 +186,16 @@ def test_every_panel_draws_from_synthetic_data(tmp_path):
         diag={k: (td, np.array([0.0, 1e-12, 2e-12]) if 'residual' in k else td + i) for i, k in enumerate(keys)},
         voltage_t=t, voltage=np.full((n, 2), 6.0),
         wrenches={'joint1': (t, np.ones((n, 3)), np.ones((n, 3))),
-                  'base_plane': (t, np.ones((n, 3)), np.zeros((n, 3)))})
+                  'base_plane': (t, np.ones((n, 3)), np.zeros((n, 3)))},
+        contacts={'left_foot': (t, np.ones((n, 3)), np.zeros((n, 3))),
+                  'right_foot': (t, 2 * np.ones((n, 3)), np.zeros((n, 3)))})
     fig = make_figure(data, list(PANELS))
     # joints: 3 arm rows + 1 wheel row of 3; path, speed, yaw_rate: 1 each; currents: 3; energy: 2;
-    # momentum: 3; constraint: 1; wrenches: 2
-    assert len(fig.axes) == 3 + 3 + 3 + 3 + 2 + 3 + 1 + 2
+    # momentum: 3; constraint: 1; wrenches: 2; contacts: 2
+    assert len(fig.axes) == 3 + 3 + 3 + 3 + 2 + 3 + 1 + 2 + 2
     labels = [ax.get_ylabel() for ax in fig.axes]
     assert 'position (rad; prismatic: m)' in labels and 'current (A)' in labels and 'p (kg·m/s)' in labels
+    assert 'F_z (N)' in labels and '|F_xy| (N)' in labels
     fig.savefig(tmp_path / 'all.png', dpi=40)
     assert (tmp_path / 'all.png').read_bytes()[:8] == PNG_SIGNATURE
 

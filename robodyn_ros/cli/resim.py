@@ -46,7 +46,7 @@ def _relative(topic: str, namespace: str) -> str:
 def _is_state(rel: str) -> bool:
     # /tf and /tf_static (absolute; 'tf' relative to an empty namespace) are derived from the
     # state (robodyn_ros.tf): compared too
-    return (rel in ('joint_states', 'odom') or rel.startswith('constraint_wrenches/')
+    return (rel in ('joint_states', 'odom') or rel.startswith(('constraint_wrenches/', 'contact_wrenches/'))
             or rel.lstrip('/') in ('tf', 'tf_static'))
 
 

@@ -59,7 +59,8 @@ try:
         raise ImportError('ROBODYN_BACKEND=numpy')
     if not NUMBA:
         raise ImportError("No module named 'numba'")
-    from . import arm, augmented, diffdrive, fixed_step, frames, freeflyer, linalg, prescribed, profiles, tree  # noqa: F401
+    from . import (arm, augmented, contact, diffdrive, fixed_step, frames, freeflyer, linalg,  # noqa: F401
+                   prescribed, profiles, tree)
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
 except ImportError as _e:  # the compiled path is off: the systems use the numpy reference
@@ -81,7 +82,9 @@ def merge_fixed(model: Model) -> dict:
     transform) and its children hang from the host with ``Xtree`` composed, so joint-space
     results (``qdd``, ``tau``, ``M``, energies) are unchanged while the loops visit fewer bodies
     (the massless ``tool`` link of a DH arm disappears, as Pinocchio turns it into a frame).
-    FIXED roots (welded to the world) stay. Returns the arrays :func:`pack_model` needs.
+    FIXED roots (welded to the world) stay. Returns the arrays :func:`pack_model` needs, and
+    ``host`` (nb,): the merged body each body of the model is welded into, ``Xh`` (nb, 6, 6): the
+    motion transform from that host's frame to the body's.
     """
     from ..model import FIXED as _FIXED
     nb = model.nb
@@ -107,7 +110,8 @@ def merge_fixed(model: Model) -> dict:
         Xtree.append(model.Xtree[i] if p < 0 else model.Xtree[i] @ Xh[p])
     return {'parent': np.array(parent, dtype=np.int64), 'jtype': model.jtype[keep], 'axis': model.axis[keep],
             'Xtree': np.array(Xtree).reshape(-1, 6, 6), 'I': np.array([I[i] for i in keep]).reshape(-1, 6, 6),
-            'q_idx': model.q_idx[keep], 'v_idx': model.v_idx[keep], 'gravity': model.gravity}
+            'q_idx': model.q_idx[keep], 'v_idx': model.v_idx[keep], 'gravity': model.gravity,
+            'host': np.array([new[host[i]] for i in range(nb)], dtype=np.int64), 'Xh': np.array(Xh).reshape(-1, 6, 6)}
 
 
 def pack_model(model: Model, merge: bool = False):
@@ -183,6 +187,7 @@ class CompiledModel:
             self.coupled = coupled
             self.col, self.mul, self.nr = coupled.coupling(self.mimic, self.nv)
             self.cpl = (self.mimic, self.col, self.mul)
+        self.con = None   # the packed ground contacts (kernels.contact), set by systems.contact
         self.gen = None
         if specialize and self.coupled is None:   # a coupled tree stays on the generic kernels
             from . import codegen
@@ -292,7 +297,7 @@ class CompiledModel:
         """
         run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, self.lim, tau_app, self.nq,
-                   FUSED_METHODS[method], z, float(dt), int(n_full), float(h_last), self.cpl)
+                   FUSED_METHODS[method], z, float(dt), int(n_full), float(h_last), self.cpl, self.con)
 
     def passive_jacobian(self, q, v, h=None):
         """``(D, K)`` (nv, nv) of the linearly implicit step at (q, v), tangent coordinates, as

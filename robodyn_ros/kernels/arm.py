@@ -13,16 +13,17 @@ import math
 import numpy as np
 from numba import njit
 
+from .contact import contact_jacobian_add, contact_points, ground_fext_ws, link_wrenches, point_body_forces
 from .coupled import couple_into, coupled_fd_ws, reduce_into
 from .fixed_step import M_RK4, M_ROSENBROCK2, M_SEMI_IMPLICIT_EULER
 from .linalg import chol_solve, cholesky
 from .passive import add_coulomb_friction, friction_jacobian_add
-from .profiles import CMD_GRAVITY_SINE, CMD_NONE, command_eval
+from .profiles import CMD_GRAVITY_SINE, CMD_NONE, CMD_PD_HOLD, command_eval
 from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_rhs, stage_velocity
 from ..model import SPHERICAL
 from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
-                   rnea_ws, tangent_rate_into, transforms, workspace)
+                   rnea_ws, tangent_rate_into, transforms, workspace, world_kinematics_ws)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -61,7 +62,7 @@ def arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv):
 
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs):
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx):
     """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v − F tanh(v/v_s) +
     τ_lim``;
     for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
@@ -70,23 +71,35 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
     regularisation speed; lim: the joint-limit table
     (:func:`limit_forces_add`, 0 rows = none); tauv (nv,) scratch; cpl: None, or ``(mimic table,
     col, mul)`` of a tree with mimic joints (:mod:`.coupled`), whose v̇ is then the coupled
-    dynamics (:func:`.coupled.coupled_fd_ws`, scratch cs) instead of ABA.
-    (ArmSystem.rhs, .input_power and .limit_power of the reference path.)
+    dynamics (:func:`.coupled.coupled_fd_ws`, scratch cs) instead of ABA. con: None, or the packed
+    ground contacts (:mod:`.contact`) whose body forces (into the scratch fx (nb, 6)) enter ABA; then
+    ``z`` ends with the contact work ``W_c`` (``[q, v, W(, W_lim), W_c]``), whose rate is their power
+    (also part of W's). (ArmSystem.rhs, .input_power and .work_component_powers of the reference path.)
     """
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
-    P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    if con is None:   # a None argument prunes the contact code at compile time
+        P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    else:
+        P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:z.shape[0] - 1], dz, tauv)
     transforms(mi, mf, q, W)
     if cpl is not None:   # a None argument prunes this branch at compile time: no coupled code for other trees
         coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
+        dz[nq + nv] = P
+    elif con is not None:
+        world_kinematics_ws(mi, mf, v, W)
+        Pc = ground_fext_ws(con, W, fx)
+        aba_ws(mi, mf, q, v, tauv, fx, True, dz[nq:nq + nv], W)
+        dz[nq + nv] = P + Pc
+        dz[z.shape[0] - 1] = Pc
     else:
         aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
-    dz[nq + nv] = P
+        dz[nq + nv] = P
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl):
+def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con):
     """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
     ``n_full`` steps of dt and one of h_last (if > 0).
 
@@ -96,20 +109,23 @@ def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, d
     stage, ``y += h/6 acc``; symplectic Euler: ``[v, W] += h f[nq:]``, then ``q += h q̇(q,
     v_new)``); free-joint quaternions are renormalised and mimic joints set from their sources
     (cpl: None, or see :func:`arm_rhs`) after every step, as the Simulator's projection does.
-    Returns the index of the first step whose result is non-finite (z then holds that result), or -1.
+    con: None, or the ground contacts of :func:`arm_rhs`. Returns the index of the first step whose
+    result is non-finite (z then holds that result), or -1.
     """
     if cpl is None:
-        return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None)
+        return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None,
+                         con)
     nv = damping.shape[0]
     nr = nv - cpl[0].shape[0]
     cs = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nr, nr)), np.zeros((nr, nr)), np.zeros(nr), np.zeros(nr))
-    return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs)
+    return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, None)
 
 
 @njit(**_JIT)
-def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs):
+def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, con):
     """The steps of :func:`integrate_arm` (cs: the coupled dynamics' scratch, None with cpl)."""
     nb = mi.shape[0]
+    fx = np.zeros((nb, 6))
     n = z.shape[0]
     nv = damping.shape[0]
     W = workspace(nb)
@@ -129,19 +145,19 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
         h = dt if k < n_full else h_last
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
@@ -153,7 +169,8 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
                 taken = -1.0
                 while taken < 0.0:
                     taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs,
-                                                splits < MAX_SPLITS, W, K, Y, acc, tauv, vec, mat, cpl, cs, red)
+                                                splits < MAX_SPLITS, W, K, Y, acc, tauv, vec, mat, cpl, cs, red,
+                                                con, fx)
                     if taken == -math.inf:
                         break
                     if taken < 0.0:
@@ -164,14 +181,14 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
                     break
                 rest = 0.0 if hs >= rest else rest - hs
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx)
             for a in range(n):
                 z[a] += K[a] * h
         normalize_into(mi, z[:nq])
@@ -400,7 +417,7 @@ def retract(mi, simple, q, dq, h, out):
 
 @njit(**_JIT)
 def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, h, split, W, dz, Y, k1, tauv, vec,
-                        mat, cpl, cs, red):
+                        mat, cpl, cs, red, con, fx):
     """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R6)) of an arm,
     ``z = [q, v, W(, W_lim)]`` in place. Returns h when taken; ``−s`` (z untouched) when the step meets a
     stiff stop it should enter as a shorter step s (with split; :func:`limit_event`: the caller takes s,
@@ -459,7 +476,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         Y[nq + a] = v[a] + h * kv1[a]
     for a in range(nq + nv, n):
         Y[a] = z[a] + h * k1[a]
-    arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs)
+    arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx)
     tangent_rate(mi, simple, Y[:nq], Y[nq:nq + nv], fq)
     for a in range(nv):
         fq[a] += C21 * kq1[a]                       # bq of stage 2
@@ -481,15 +498,19 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
 
 @njit(**_JIT)
 def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, method, z, dt, t_start, n_full, h_last,
-                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f):
+                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs):
     """K publication periods of an arm in one call: per period k the scripted command at its
-    start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), ``τ_app = B u``,
-    :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
-    ``Zs[k] = z``, ``Us[k] = u``, ``TAUs[k] = τ_app`` and, with want_f, the joint wrenches
-    ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v − F tanh(v/v_s) + τ_lim``, :func:`arm_forces`) -- the
-    numbers the Simulator's per-period path computes with the same functions.
+    start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), clamped to the
+    effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``, :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then
+    the outputs at its end: ``Zs[k] = z``, ``Us[k] = u`` (as commanded), ``TAUs[k] = τ_app`` and, with
+    want_f, the joint wrenches ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v − F tanh(v/v_s) + τ_lim``,
+    :func:`arm_forces`, and on a ground the contacts' forces on their own links,
+    :func:`.contact.point_body_forces`) -- the numbers the Simulator's per-period path computes with
+    the same functions. con: None, or the ground contacts (:func:`arm_rhs`; z then ends with W_c), with
+    cpo = ``(body_of, link_of)`` (each point's body of the full tree and its link's row in Cs) and the
+    links' contact wrenches ``Cs[k]`` (nl, 6) (:func:`.contact.link_wrenches`).
 
-    z: ``[q, v, W(, W_lim)]`` in place; u (n,) the command held before period 0. Returns
+    z: ``[q, v, W(, W_lim)(, W_c)]`` in place; u (n,) the command held before period 0. Returns
     ``(k, code)``: code 0 after all K periods; 1: the command of period k is non-finite (not
     applied: u and z are those of the end of period k − 1); 2: the state became non-finite in
     period k (z as the failed integration left it; ``Zs[k − 1]`` is the end of period k − 1).
@@ -498,32 +519,36 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
     K = t_start.shape[0]
     nv = damping.shape[0]
     n = z.shape[0]
+    nw = n - 1 if con is not None else n   # z without W_c: what arm_forces reads
     nu = u.shape[0]
     g = np.zeros(nv)
     zeros = np.zeros(nv)
     un = np.empty(nu)
+    ua = np.empty(nu)
     tau_app = np.empty(nv)
     dz = np.empty(n)
     tauv = np.empty(nv)
     zf = np.zeros((mi.shape[0], 6))
     for k in range(K):
         if kind != CMD_NONE:
-            if kind == CMD_GRAVITY_SINE:   # the gravity torques RNEA(q, 0, 0), as CompiledModel.rnea
-                rnea_into(mi_r, mf_r, z[:nq], zeros, zeros, g)
-            command_eval(kind, P, times, values, BT, Bq, z[:nq], g, t_start[k], un)
+            if kind == CMD_GRAVITY_SINE or (kind == CMD_PD_HOLD and P[3, 0] != 0.0):
+                rnea_into(mi_r, mf_r, z[:nq], zeros, zeros, g)   # gravity torques RNEA(q, 0, 0) (CompiledModel.rnea)
+            command_eval(kind, P, times, values, BT, Bq, z[:nq], z[nq:nq + nv], g, t_start[k], un)
             for i in range(nu):
                 if not math.isfinite(un[i]):
                     return k, 1
             for i in range(nu):
                 u[i] = un[i]
+        for i in range(nu):
+            ua[i] = (ulim[i] if u[i] > 0.0 else -ulim[i]) if abs(u[i]) > ulim[i] else u[i]
         for r in range(nv):
             acc = 0.0
             for i in range(nu):
-                acc += B[r, i] * u[i]
+                acc += B[r, i] * ua[i]
             tau_app[r] = acc
         # (the block path declines trees with mimic joints: ArmSystem.fused_periods)
         if integrate_arm(mi_r, mf_r, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full[k],
-                         h_last[k], None) >= 0:
+                         h_last[k], None, con) >= 0:
             return k, 2
         for a in range(n):
             Zs[k, a] = z[a]
@@ -531,9 +556,14 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
             Us[k, i] = u[i]
         for r in range(nv):
             TAUs[k, r] = tau_app[r]
+        if con is not None:   # the contacts at the period's end: per link, and (for the joint wrenches) per body
+            Pc = contact_points(con, mi_r, mf_r, z[:nq], z[nq:nq + nv])
+            link_wrenches(con[0], Pc, cpo[1], Cs[k])
+            if want_f:
+                point_body_forces(mi, mf, z[:nq], Pc, cpo[0], zf)
         if want_f:
-            arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
-            _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, False)
+            arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:nw], dz, tauv)
+            _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, con is not None)
             for b in range(f.shape[0]):
                 for c in range(6):
                     Fs[k, b, c] = f[b, c]

@@ -12,12 +12,12 @@ from .jit import njit
 from .tree import _JIT
 
 #: command profile kind codes (profiles.py ``COMMAND_PROFILES`` -> ``f.program``)
-CMD_NONE, CMD_ZERO, CMD_CONSTANT, CMD_PIECEWISE, CMD_SINE, CMD_GRAVITY_SINE = -1, 0, 1, 2, 3, 4
+CMD_NONE, CMD_ZERO, CMD_CONSTANT, CMD_PIECEWISE, CMD_SINE, CMD_GRAVITY_SINE, CMD_PD_HOLD = -1, 0, 1, 2, 3, 4, 5
 
 
 @njit(**_JIT)
-def command_eval(kind, P, times, values, BT, Bq, q, g, t, u):
-    """u (n,) = a scene's command profile at time t (s) and configuration q (nq,):
+def command_eval(kind, P, times, values, BT, Bq, q, v, g, t, u):
+    """u (n,) = a scene's command profile at time t (s) and state (q (nq,), v (nv,)):
 
     - ``CMD_ZERO``: 0; ``CMD_CONSTANT``: ``P[0]``;
     - ``CMD_PIECEWISE``: ``values[j]`` with ``j = searchsorted(times, t, 'right') - 1`` (0 before
@@ -26,10 +26,12 @@ def command_eval(kind, P, times, values, BT, Bq, q, g, t, u):
     - ``CMD_GRAVITY_SINE`` (P rows A, ω, φ, K, center): ``Bᵀ g + K (center − B_q q) + A sin(ω t + φ)``
       with g (nv,) the gravity torques ``RNEA(q, 0, 0)`` the caller computed (the system's own
       RNEA; :func:`robodyn_ros.kernels.tree.rnea_into` on the merged tree in the arm's loop).
+    - ``CMD_PD_HOLD`` (P rows posture q*, K_p, K_d, gravity flag): ``K_p (q* − B_q q) − K_d Bᵀ v``, plus
+      ``Bᵀ g`` when the flag (any entry of its row) is nonzero (g as for ``CMD_GRAVITY_SINE``).
 
-    ``Bᵀ g`` and ``B_q q`` are sums from +0.0 in index order; over the 0/1 selection matrices of
-    the bundled scenes every summation order gives the same bits. q and g are read by
-    ``CMD_GRAVITY_SINE`` only.
+    ``Bᵀ g``, ``Bᵀ v`` and ``B_q q`` are sums from +0.0 in index order; over the 0/1 selection
+    matrices of the bundled scenes every summation order gives the same bits. q, v and g are read
+    by ``CMD_GRAVITY_SINE`` and ``CMD_PD_HOLD`` only.
     """
     n = u.shape[0]
     if kind == CMD_ZERO:
@@ -50,6 +52,23 @@ def command_eval(kind, P, times, values, BT, Bq, q, g, t, u):
     elif kind == CMD_SINE:
         for i in range(n):
             u[i] = P[0, i] + P[1, i] * math.sin(P[2, i] * t + P[3, i])
+    elif kind == CMD_PD_HOLD:
+        nv = v.shape[0]
+        nq = q.shape[0]
+        for i in range(n):
+            bq = 0.0
+            for j in range(nq):
+                bq += Bq[i, j] * q[j]
+            bv = 0.0
+            for j in range(nv):
+                bv += BT[i, j] * v[j]
+            ui = P[1, i] * (P[0, i] - bq) - P[2, i] * bv
+            if P[3, 0] != 0.0:
+                gi = 0.0
+                for j in range(g.shape[0]):
+                    gi += BT[i, j] * g[j]
+                ui += gi
+            u[i] = ui
     else:
         nv = g.shape[0]
         nq = q.shape[0]

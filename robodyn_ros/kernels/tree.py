@@ -750,15 +750,15 @@ def crba_ws(mi, mf, H, W):
 
 
 @njit(**_JIT)
-def energies_ws(mi, mf, q, v, W):
-    """``(kinetic, potential)`` (J): ``½ Σ vᵢᵀ Iᵢ vᵢ`` and ``-gᵀ Σ mᵢ cᵢ`` (world coms).
+def world_kinematics_ws(mi, mf, v, W):
+    """Every body's root-to-body transform and velocity into W (Xup already there: :func:`transforms`).
 
-    Root-to-body transforms ``X0_i = Xup_i X0_p``: ``E0_i = E_i E0_p``, ``r0_i = r0_p + E0_pᵀ r_i``.
+    ``X0_i = Xup_i X0_p``: ``E0_i = E_i E0_p`` (``W[i, E0_]``, row major: world -> body axes) and
+    ``r0_i = r0_p + E0_pᵀ r_i`` (``W[i, R0_]``: the body origin in the root frame); the body velocity
+    ``v_i = X_i v_p + S_i q̇_i`` (``W[i, V_]``, ``[ω; v_O]`` in body coordinates, book eq. 5.7).
     """
     nb = mi.shape[0]
     s_ = nb
-    kin = 0.0
-    mc0, mc1, mc2 = 0.0, 0.0, 0.0
     for i in range(nb):
         p = mi[i, PARENT]
         joint_motion(mi, mf, v, i, W, s_, S1_)
@@ -779,6 +779,20 @@ def energies_ws(mi, mf, q, v, W):
                 for b in range(3):
                     W[i, E0_ + 3 * a + b] = (W[i, E_ + 3 * a] * W[p, E0_ + b] + W[i, E_ + 3 * a + 1] * W[p, E0_ + 3 + b]
                                              + W[i, E_ + 3 * a + 2] * W[p, E0_ + 6 + b])
+
+
+@njit(**_JIT)
+def energies_ws(mi, mf, q, v, W):
+    """``(kinetic, potential)`` (J): ``½ Σ vᵢᵀ Iᵢ vᵢ`` and ``-gᵀ Σ mᵢ cᵢ`` (world coms).
+
+    The world poses and body velocities come from :func:`world_kinematics_ws`.
+    """
+    nb = mi.shape[0]
+    s_ = nb
+    kin = 0.0
+    mc0, mc1, mc2 = 0.0, 0.0, 0.0
+    world_kinematics_ws(mi, mf, v, W)
+    for i in range(nb):
         rigid_inertia_times(mf, i, W, i, V_, s_, S2_)
         for a in range(6):
             kin += W[i, V_ + a] * W[s_, S2_ + a]

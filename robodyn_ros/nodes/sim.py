@@ -5,6 +5,7 @@ Run it as ``sim --ros-args -p scene:=stanford_arm -p mode:=lockstep -p record:=r
 except ``/clock``): one command subscription per input port of the scene's system
 (``effort_commands``, ``wheel_voltage_commands``, ``base_wrench_command``); publishes
 ``joint_states``, ``odom`` (systems with a base), ``constraint_wrenches/<joint>``,
+``contact_wrenches/<link>`` (on a ground),
 ``robot_description`` (transient local), ``/tf`` and ``/tf_static`` (transient local; when
 ``tf2_msgs`` is importable and ``publish_tf`` is true), ``/clock``, ``diagnostics``; services
 ``~/reset`` (std_srvs/Trigger) and ``~/pause`` (std_srvs/SetBool). Parameters: see
@@ -59,7 +60,8 @@ FINISH_LINGER = 0.3
 
 def _finite_outputs(out) -> bool:
     """True when everything about to be published is finite (one isfinite over all the numbers)."""
-    arrays = [out.position, out.velocity, out.effort] + [w for _, w in out.wrenches.values()]
+    arrays = [out.position, out.velocity, out.effort] + [w for _, w in out.wrenches.values()] + \
+        [w for _, w in out.contacts.values()]
     if out.odom is not None:
         arrays += list(out.odom.values())
     return bool(np.isfinite(np.concatenate([np.asarray(a, dtype=float).reshape(-1) for a in arrays])).all())
@@ -152,6 +154,9 @@ def make_node_class():
                 topic = M.wrench_topic(name)
                 self.wrench_pubs[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
             self.pub.update(self.wrench_pubs)
+            for link in out0.contacts:   # the ground's wrench on each link that has contact points
+                topic = M.contact_topic(link)
+                self.pub[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                                  reliability=ReliabilityPolicy.RELIABLE)
             self.description = M.string(self.scene.system.urdf())

@@ -59,6 +59,10 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
             topic = M.wrench_topic(name)
             if want is None or want(topic):
                 recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
+    for link, (frame, w) in out.contacts.items():
+        topic = M.contact_topic(link)
+        if want is None or want(topic):
+            recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
     if tf is not None and (want is None or want('/tf')):
         trs = tf.transforms(out.joint_names, out.position, out.odom)
         if trs:
@@ -74,7 +78,7 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
 
 class _PeriodLayout:
     """The records of one publication period laid out once: commands applied at its start, then
-    joint_states, odom, constraint wrenches, /tf and /clock, each a 31-byte record-header gap
+    joint_states, odom, constraint wrenches, contact wrenches, /tf and /clock, each a 31-byte record-header gap
     and its CDR, back to back in a row of fixed length whose numbers sit at fixed offsets.
 
     K periods are K copies of the row (a ``(K, R)`` uint8 array); their numbers are written with
@@ -131,6 +135,13 @@ class _PeriodLayout:
                              [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
                 self.wrench_cols.append(slice(col, col + 6))
                 col += 6
+        self.contact_cols = []
+        for link, (frame, _) in out.contacts.items():   # the ground's wrenches, computed with the outputs
+            tpl, at = cdr.wrench_stamped_layout(frame)
+            msgs.append((M.contact_topic(link), M.WRENCH_TYPE, tpl, False,
+                         [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
+            self.contact_cols.append(slice(col, col + 6))
+            col += 6
         self.n_values = col
         self.tf = None
         if tf is not None:
@@ -181,6 +192,8 @@ class _PeriodLayout:
         elif self.wrench_cols:
             for sl, (_, w) in zip(self.wrench_cols, out.wrenches.values()):
                 row[sl] = w
+        for sl, (_, w) in zip(self.contact_cols, out.contacts.values()):
+            row[sl] = w
 
     def fill_block(self, rows, blk, i, m):
         """Write periods ``i..i+m`` of a :class:`robodyn_ros.simulation.PeriodBlock` into ``rows`` (m, n_values),
@@ -191,8 +204,12 @@ class _PeriodLayout:
         rows[:, js[0]] = blk.position[i:i + m]
         rows[:, js[1]] = blk.velocity[i:i + m]
         rows[:, js[2]] = blk.effort[i:i + m]
+        if self.odom_cols is not None:
+            rows[:, self.odom_cols:self.odom_cols + 13] = blk.odom[i:i + m]
         if self.wrench_block is not None:
             rows[:, self.wrench_block] = blk.wrenches[i:i + m].reshape(m, -1)
+        for j, sl in enumerate(self.contact_cols):
+            rows[:, sl] = blk.contacts[i:i + m, j]
 
     def rows(self, values, times, filled=False):
         """The records of K periods: ``(K, R)`` uint8 (record headers left for the writer).
@@ -369,7 +386,8 @@ class McapRunSink:
         """What periods encoded together share: commands (port, size), joint_states names and
         sizes, odom or not, the wrenches' names, frames and how they are computed."""
         return (cmd_kind, tuple(out.joint_names), len(out.position), len(out.velocity), len(out.effort),
-                out.odom is None, _wrench_kind(out.wrenches) if self.wants_wrenches else ())
+                out.odom is None, _wrench_kind(out.wrenches) if self.wants_wrenches else (),
+                tuple((k, f) for k, (f, _) in out.contacts.items()))
 
     @property
     def takes_blocks(self) -> bool:
@@ -473,6 +491,7 @@ class McapRunSink:
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
         topics += [] if out.odom is None else ['odom']
         topics += [M.wrench_topic(k) for k in out.wrenches] if self.wants_wrenches else []
+        topics += [M.contact_topic(k) for k in out.contacts]
         if self.tf is not None and self.tf.frames(out.odom is not None):
             topics.append('/tf')
         return all(t in self._channels for t in topics)

@@ -19,6 +19,7 @@ from ..validation import key_path as _key
 from .arm import build_arm_part
 from .diff_drive import _assemble_diff_drive, build_diff_drive_part
 from .free_base import _assemble_free_base, build_free_base_part
+from .ground import attach_ground, build_ground_part
 from .kinematic_arm import build_kinematic_arm_part
 from .prescribed_arm import build_prescribed_arm_part
 from .state import _initial_state, _settings, _stop_condition
@@ -86,15 +87,23 @@ SceneLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _con
 #: part kind -> builder(spec, path, ctx) -> Part
 PART_KINDS: dict[str, Callable] = {'arm': build_arm_part, 'prescribed_arm': build_prescribed_arm_part,
                                    'free_base': build_free_base_part, 'diff_drive': build_diff_drive_part,
-                                   'urdf': build_urdf_part, 'kinematic_arm': build_kinematic_arm_part}
+                                   'urdf': build_urdf_part, 'kinematic_arm': build_kinematic_arm_part,
+                                   'ground': build_ground_part}
 
 
 def _assemble(ctx: SceneContext, parts: list) -> object:
     """The scene's System from its parts.
 
-    For now a scene is one part mounted on the world; composing parts (an arm on a
-    differential-drive platform or on a free-flying base) is added here by later work.
+    A ``ground`` part is not a system: the others are assembled, then put on it (:func:`attach_ground`).
     """
+    grounds = [p for p in parts if p.kind == 'ground']
+    if grounds:
+        if len(grounds) > 1:
+            ctx.fail(_key(grounds[1].path, 'kind'), 'a scene can have one ground part')
+        rest = [p for p in parts if p.kind != 'ground']
+        if not rest:
+            ctx.fail(grounds[0].path, 'a ground needs something to stand on it: add an arm or urdf part')
+        return attach_ground(ctx, grounds[0], _assemble(ctx, rest))
     if any(p.kind == 'free_base' for p in parts):
         return _assemble_free_base(ctx, parts)
     if any(p.kind == 'diff_drive' for p in parts):  # the platform, or the mobile manipulator

@@ -10,7 +10,8 @@ class Part:
     """One built part of a scene.
 
     name: part name; kind: its PART_KINDS key; mount: 'world' or the part it sits on;
-    system: the part's :class:`robodyn_ros.systems.System`; path: its key path in the file.
+    system: the part's :class:`robodyn_ros.systems.System` (None for a part that is not one, the
+    ground); path: its key path in the file; data: what such a part parsed (the ground's law and points).
     """
 
     name: str
@@ -18,3 +19,4 @@ class Part:
     mount: str
     system: object
     path: str
+    data: object = None

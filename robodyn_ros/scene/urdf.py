@@ -43,11 +43,13 @@ def referenced_path(ref: str, scene_file: str) -> Path:
 def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     """Build a ``urdf`` part: a robot description imported by :func:`robodyn_ros.urdf.read_urdf`.
 
-    Keys: ``file`` (path, relative to the scene file) or ``urdf`` (inline URDF text), exactly
-    one; ``mount: world | <diff_drive part> | <free_base part>`` (default world; the URDF's root
-    link is then the frame it hangs from, placed by ``origin``); ``floating`` (default false:
-    the root link is welded to the mount; true: it is a free 6-DOF base in the scene's gravity,
-    environment ``free_fall`` — no ground contact — or ``orbit`` with zero gravity);
+    Keys: ``file`` (path, relative to the scene file, or ``package://<package>/<path>``: a ROS
+    package's file, found as :func:`robodyn_ros.meshes.resolve_uri` finds meshes, e.g.
+    ``package://example-robot-data/robots/...``) or ``urdf`` (inline URDF text), exactly one;
+    ``mount: world | <diff_drive part> | <free_base part>`` (default world; the URDF's root link is
+    then the frame it hangs from, placed by ``origin``); ``floating`` (default false: the root link
+    is welded to the mount; true: it is a free 6-DOF base in the scene's gravity, environment
+    ``free_fall`` — on a scene's ``ground`` part, if it has one — or ``orbit`` with zero gravity);
     ``locked: {joint: position}`` freezes joints (gripper fingers, ``<mimic>`` joints);
     ``actuated`` as for an arm (default every 1-DOF joint); ``position_limits: {stiffness,
     damping, return}`` (optional; absent = URDF position limits reported only) enforces every
@@ -66,7 +68,14 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     if 'file' in spec:
         where = _key(path, 'file')
         ref = ctx.string(spec['file'], where)
-        file = referenced_path(ref, ctx.file)
+        if ref.startswith('package://'):   # e.g. package://example-robot-data/robots/...: a ROS package's file
+            from ..meshes import MeshError, resolve_uri
+            try:
+                file = resolve_uri(ref)
+            except MeshError as e:
+                ctx.fail(where, str(e))
+        else:
+            file = referenced_path(ref, ctx.file)
         label = str(file)
         if ctx.given_files is not None:   # the file's bytes came with the scene text: no disk access
             if ref not in ctx.given_files:

@@ -40,7 +40,7 @@ BATCH_KERNEL_AFTER = 10_000
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
 #: what fused_periods computes in its compiled loop instead of calling it (each period's outputs)
-_PERIOD_METHODS_OF = ('outputs', '_outputs', 'split', '_wrenches_one')
+_PERIOD_METHODS_OF = ('outputs', '_outputs', 'split', '_wrenches_one', '_contact_outputs', '_wrenches_fext')
 
 
 
@@ -61,6 +61,9 @@ class ArmSystem(System):
     model by :mod:`robodyn_ros.kernels.codegen`: a few seconds on first use of a model, cached
     on disk; trees with FREE joints stay generic); default :func:`default_backend`.
     """
+
+    #: the block path (fused_periods) clamps commands to the effort limits as the Simulator does
+    clamps_in_blocks = True
 
     def __init__(self, model: Model, actuated=None, backend=None):
         backend = default_backend() if backend is None else str(backend).lower()
@@ -119,6 +122,24 @@ class ArmSystem(System):
         self._wrench_frames = tuple(model.link_names[:model.nb])
         self._wrench_index = {n: i for i, n in enumerate(self._wrench_names)}
         self._wrenches_many = self._wrenches_many   # one bound method: a stable batch key
+        self.contact = None   # ground contact (attach_ground)
+
+    def attach_ground(self, contact):
+        """Put the tree on a ground: contact: a :class:`robodyn_ros.systems.contact.GroundContact` of this
+        model. Its body forces enter the dynamics (compiled kernels only; not on a tree with mimic
+        joints), its power the work (``work_components`` gains ``'contact'``), its wrenches and
+        diagnostics the outputs. A tree on the ground runs on the generic compiled kernels (the
+        generated ones know no contact)."""
+        if self._km is None:
+            raise ValueError(f'{self.model.name}: ground contact is computed by the compiled kernels only; '
+                             "backend 'numpy' cannot simulate it (use 'numba')")
+        if self._coupled:
+            raise ValueError(f'{self.model.name}: ground contact on a tree with mimic joints is not supported '
+                             '(lock the mimic joints)')
+        self.contact = contact
+        self._km.con = contact.con
+        self._km.gen = None
+        self._grids = {}
 
     def split(self, y):
         """Views ``(q, v)`` of the state vector."""
@@ -164,13 +185,40 @@ class ArmSystem(System):
 
     @property
     def work_components(self) -> tuple:
-        """Parts of the work quadrature the Simulator integrates on their own: ``('limit',)``
-        (:meth:`limit_power`) when the model has joint-limit moments, else ``()``."""
-        return ('limit',) if self._lim.shape[0] else ()
+        """Parts of the work quadrature the Simulator integrates on their own: ``'limit'``
+        (:meth:`limit_power`) when the model has joint-limit moments, ``'contact'`` (the ground's,
+        :meth:`contact_power`) on a ground, in that order."""
+        return (('limit',) if self._lim.shape[0] else ()) + (('contact',) if self.contact is not None else ())
 
     def work_component_powers(self, t, y, u) -> np.ndarray:
         """The powers (W) of :attr:`work_components` at state y, in that order."""
-        return np.array([self.limit_power(y)]) if self._lim.shape[0] else np.zeros(0)
+        out = [self.limit_power(y)] if self._lim.shape[0] else []
+        if self.contact is not None:
+            out.append(self.contact_power(y))
+        return np.array(out, dtype=float)
+
+    def contact_fext(self, y):
+        """``(fext (nb_r, 6), power)``: the ground's forces on the bodies of the merged tree (body
+        coordinates, ``kernels.contact.ground_fext``) and their power (W) at state y."""
+        from ..kernels.contact import ground_fext
+        q, v = self.split(y)
+        return ground_fext(self.contact.con, self._km.mi_r, self._km.mf_r, np.ascontiguousarray(q, dtype=float),
+                           np.ascontiguousarray(v, dtype=float))
+
+    def contact_jacobian(self, y):
+        """``(D_c, K_c)`` (nv, nv): the ground's damping and stiffness at state y in velocity coordinates
+        (``kernels.contact.contact_jacobian``: ``−∂τ_c/∂v``, ``−∂τ_c/∂q``, symmetric positive
+        semi-definite), the contact's share of a linearly implicit step's Jacobian; zeros off the ground."""
+        if self.contact is None:
+            return np.zeros((self.nv, self.nv)), np.zeros((self.nv, self.nv))
+        from ..kernels.contact import contact_jacobian
+        q, v = self.split(y)
+        return contact_jacobian(self.contact.con, self._km.mi_r, self._km.mf_r, np.ascontiguousarray(q, dtype=float),
+                                np.ascontiguousarray(v, dtype=float))
+
+    def contact_power(self, y) -> float:
+        """Power (W) of the ground's forces at state y (0 off the ground)."""
+        return float(self.contact_fext(y)[1]) if self.contact is not None else 0.0
 
     def limit_power(self, y) -> float:
         """Power (W) of the joint-limit moments at state y (<= 0 for the seed's law: dissipation)."""
@@ -253,6 +301,13 @@ class ArmSystem(System):
         """``[q̇; v̇]`` with v̇ from the articulated-body algorithm."""
         q, v = self.split(y)
         out = np.empty(self.ny)
+        if self.contact is not None:   # ABA with the ground's body forces, on the merged tree
+            from ..kernels.tree import aba_fext_into
+            km = self._km
+            out[:self.nq] = km.qdot(q, v)
+            aba_fext_into(km.mi_r, km.mf_r, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+                          self.generalized_forces(y, u), self.contact_fext(y)[0], out[self.nq:])
+            return out
         if self._km is not None:
             out[:self.nq] = self._km.qdot(q, v)
             out[self.nq:] = self._km.aba(q, v, self.generalized_forces(y, u))
@@ -314,20 +369,22 @@ class ArmSystem(System):
 
         The block path of :func:`robodyn_ros.simulation.run_headless`: per period the scripted
         command at its start (program: a compiled command profile ``(kind, P, times, values, BT,
-        Bq)`` from :mod:`robodyn_ros.profiles`, None: u held), the fused integration of
-        :meth:`fused_advance` over the same step grid, and the outputs at its end. z: ``[y, W(,
-        W_lim)]`` (advanced in place: scratch, the periods' states are Zs); t_start, t_end (K,):
-        the periods; u (n,): the command held before the first period (updated in place).
-        Declines where :meth:`fused_advance` does, for joint_states that are not ``(q, v)`` as
-        they are (spherical joints, a free root), for mimic joints (their efforts are the coupling's
-        forces, computed per period), for input matrices that are not 0/1 selections,
-        and where :meth:`outputs` (or what it calls for joint states and wrenches) is not
-        ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps)``: see
-        ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's end, Fs None
-        without wrenches, steps (K,) per period.
+        Bq)`` from :mod:`robodyn_ros.profiles`, None: u held), clamped to the port's effort limits,
+        the fused integration of :meth:`fused_advance` over the same step grid, and the outputs at
+        its end. z: ``[y, W(, W_lim)(, W_c)]`` (advanced in place: scratch, the periods' states are
+        Zs); t_start, t_end (K,): the periods; u (n,): the command held before the first period
+        (updated in place: the last command as commanded). Declines where :meth:`fused_advance`
+        does, for spherical joints (joint_states hold their Bryan angles), for mimic joints (their
+        efforts are the coupling's forces, computed per period), for input matrices that are not 0/1
+        selections, and where :meth:`outputs` (or what it calls for joint states and wrenches) is
+        not ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps,
+        more)``: see ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's
+        end, Fs None without wrenches, steps (K,) per period; more: ``{'odom': (K, 13) position,
+        orientation, linear, angular of a free root (else None), 'contacts': (K, nl, 6) the links'
+        contact wrenches (else None)}``.
         """
-        if not self._fuses(integrator_name, z) or not self._simple or not self._B_is_selection or self._coupled \
-                or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
+        if not self._fuses(integrator_name, z) or self.model.has_spherical or not self._B_is_selection \
+                or self._coupled or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         from ..kernels import arm as karm
         from ..kernels import profiles as kprofiles
@@ -345,21 +402,46 @@ class ArmSystem(System):
         Us = np.empty((K, u.shape[0]))
         TAUs = np.empty((K, self.nv))
         Fs = np.empty((K, nb, 6) if wrenches else (0, nb, 6))
+        c = self.contact
+        Cs = np.empty((K, len(c.links) if c is not None else 0, 6))
+        lim = self.inputs['effort'].limit
+        ulim = np.full(u.shape[0], np.inf) if lim is None else np.asarray(lim, dtype=float)
         km = self._km
         run = karm.run_arm_periods if km.gen is None else km.gen.run_arm_periods
         k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.friction, km.v_s, km.lim, self._B, self.nq,
                       kernels.FUSED_METHODS[integrator_name], z, float(dt), np.ascontiguousarray(t_start, dtype=float),
-                      n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches))
+                      n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches), ulim,
+                      None if c is None else c.con, None if c is None else c.point_rows, Cs)
         steps = n_full + (h_last > 0.0)
-        outs = (Zs[:, :self.nq], Zs[:, self.nq:self.nq + self.nv], TAUs)   # joint_states of a simple arm
-        return k, code, Zs, Us, outs, (Fs if wrenches else None), steps
+        more = {'odom': None, 'contacts': Cs if c is not None else None}
+        if self._simple:
+            outs = (Zs[:, :self.nq], Zs[:, self.nq:self.nq + self.nv], TAUs)   # joint_states = (q, v) as they are
+        else:   # a free root: its pose and twist go to odom, the 1-DOF joints to joint_states
+            q0, v0 = int(self.model.q_idx[self.free_body]), int(self.model.v_idx[self.free_body])
+            pq = np.array([q for _, q, _ in self._pub], dtype=int)
+            outs = (Zs[:, pq], Zs[:, self.nq + self._pub_v], TAUs[:, self._pub_v])
+            more['odom'] = np.concatenate([Zs[:, q0:q0 + 7], Zs[:, self.nq + v0 + 3:self.nq + v0 + 6],
+                                           Zs[:, self.nq + v0:self.nq + v0 + 3]], axis=1)
+        return k, code, Zs, Us, outs, (Fs if wrenches else None), steps, more
+
+    def state_extra(self, y) -> dict:
+        """The diagnostics values :meth:`outputs` puts in ``extra`` at state y (the contact ones on a
+        ground; none otherwise), for the block path, which builds no outputs per period."""
+        if self.contact is None:
+            return {}
+        q, v = self.split(y)
+        return self.contact.diagnostics(self.contact.point_outputs(self._km, q, v))
 
     def _fuses(self, integrator_name, z) -> bool:
         """True when the fused loop computes what the Python path would for this integrator and
         ``z``: compiled kernels, a method it implements, this class's dynamics (:meth:`_fused_exact`),
-        ``z = [y, W]`` or ``[y, W, W_lim]``."""
+        ``z = [y, W, W_parts]`` with the parts of :attr:`work_components` or without W_lim (``z = [y, W(, W_c)]``:
+        the limit work not kept apart)."""
+        nc = 1 if self.contact is not None else 0
+        if nc and integrator_name == 'rosenbrock2':
+            return False   # (its stage 1 does not take the ground's forces yet)
         return self._km is not None and integrator_name in kernels.FUSED_METHODS and self._fused_exact() \
-            and z.shape in ((self.ny + 1,), (self.ny + 2,))
+            and z.shape in ((self.ny + 1 + nc,), (self.ny + 2 + nc,))
 
     def _fused_exact(self) -> bool:
         """True when this object computes dy/dt, power, projection and q̇ exactly as ArmSystem
@@ -377,6 +459,8 @@ class ArmSystem(System):
             if wrenches:
                 w = {self.model.joint_names[i]: (self.model.link_names[i], f[i].copy()) for i in range(self.model.nb)}
             return self._outputs(q.copy(), v.copy(), tau_cmd, w)
+        if self.contact is not None:
+            return self._contact_outputs(q.copy(), v.copy(), tau_cmd, self.generalized_forces(y, u), wrenches)
         if wrenches:
             if self._km is not None:   # computed when read, or for many publications at once by a recorder
                 q1, v1 = q.copy(), v.copy()
@@ -388,6 +472,27 @@ class ArmSystem(System):
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
         return self._outputs(q.copy(), v.copy(), tau_cmd, w)
+
+    def _contact_outputs(self, q, v, tau_cmd, tau, wrenches):
+        """The outputs of a tree on the ground: the joint wrenches under the ground's forces too, one
+        wrench per touching link (``SystemOutputs.contacts``) and the contact diagnostics (``extra``)."""
+        c = self.contact
+        P = c.point_outputs(self._km, q, v)
+        w = {}
+        if wrenches:
+            fext = c.body_forces(self._km, q, P)
+            w = LazyWrenches(self._wrench_names, self._wrench_frames, self._wrenches_fext, self._wrenches_fext_many,
+                             (q, v, tau, fext), self._wrench_index)
+        out = self._outputs(q, v, tau_cmd, w)
+        out.contacts = {link: (c.frame, wr) for link, wr in zip(c.links, c.wrenches(P))}
+        out.extra.update(c.diagnostics(P))
+        return out
+
+    def _wrenches_fext(self, q, v, tau, fext):
+        return self._km.joint_wrenches(q, v, tau, fext)[1]
+
+    def _wrenches_fext_many(self, args):
+        return np.array([self._wrenches_fext(*a) for a in args])
 
     def _outputs(self, q, v, tau_cmd, w):
         def energy():
@@ -431,6 +536,8 @@ class ArmSystem(System):
         return kin + pot
 
     def input_power(self, t, y, u):
-        """``vᵀ (B u - D v + τ_lim)``: actuator power minus damping and joint-limit dissipation (W)."""
+        """``vᵀ (B u - D v + τ_lim)``: actuator power minus damping and joint-limit dissipation (W), plus
+        the ground's power on a ground."""
         _, v = self.split(y)
-        return float(v @ self.generalized_forces(y, u))
+        P = float(v @ self.generalized_forces(y, u))
+        return P + self.contact_power(y) if self.contact is not None else P

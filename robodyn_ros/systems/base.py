@@ -249,7 +249,9 @@ class SystemOutputs:
     'orientation' (x, y, z, w), 'linear' (3,) and 'angular' (3,) in base_link (the link named by
     ``odom_child``);
     energy: mapping of named energies (J; may be a :class:`LazyValues`, computed when read);
-    extra: other diagnostics values.
+    extra: other diagnostics values; contacts: link -> (world frame, (6,) [moment; force]) of the
+    ground on that link, world axes, about its centre of pressure (``contact_wrenches/<link>``,
+    :mod:`robodyn_ros.systems.contact`), empty off the ground.
     """
 
     joint_names: list
@@ -261,6 +263,7 @@ class SystemOutputs:
     energy: dict = field(default_factory=dict)
     odom_child: str = 'base_link'   # child_frame_id of odom (the free root's link for a floating tree)
     extra: dict = field(default_factory=dict)
+    contacts: dict = field(default_factory=dict)
 
 
 class System:

@@ -1,0 +1,332 @@
+"""``robodyn bench contact``: the standing quadruped (``a1_stand``) against MuJoCo on the same URDF.
+
+Two parts, each printed as a table (``--out FILE`` writes them as markdown; ``make bench`` writes
+``docs/bench_contact.md``):
+
+* **comparison** — the drop and stand of ``a1_stand`` run by robodyn and by MuJoCo on the same URDF
+  (MuJoCo reads its collision primitives; the robot on a free joint, a plane at height 0, the same μ,
+  the same PD law at the same rate, effort limits and no joint-limit constraints on both sides):
+  time of first impact, base height at rest, total vertical ground force at rest, the feet's
+  penetration. MuJoCo's compliance is matched at rest: its ``solref`` time constant is calibrated
+  (two short runs) so that its feet sink as deep as ours (its penetration at rest grows as the
+  square of the time constant); its damping ratio is 1, its ``solimp`` the default.
+* **speed** — real-time factor of ``a1_stand`` at its step (1 ms), fully recorded (every topic, as
+  ``robodyn run --record``), beside MuJoCo (implicitfast, 1 ms) stepped from Python with the PD
+  computed in Python at the same rate and its state copied out every period, measured in the
+  same run (CPU time, median of ``--repeat`` runs).
+
+Figures are printed, never asserted here; ``test/test_contact_mujoco.py`` asserts the comparison's
+tolerances.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import time
+import warnings
+
+import numpy as np
+
+HELP = 'the standing quadruped (a1_stand) against MuJoCo on the same URDF: drop, rest, real-time factor'
+#: the scene compared and timed
+SCENE = 'a1_stand'
+#: MuJoCo's joint-space PD uses the scene's pd_hold parameters; its first guess of the time constant
+MUJOCO_TIMECONST0 = 0.02
+
+
+def add_arguments(p):
+    """Options of the contact benchmark."""
+    p.add_argument('--out', default=None, help='also write the tables (markdown) to this file')
+    p.add_argument('--duration', type=float, default=3.0, help='simulated seconds of each run (default 3)')
+    p.add_argument('--integrator', default=None, help='our integrator (default: the scene\'s)')
+    p.add_argument('--dt', type=float, default=None, help='our step (default: the scene\'s)')
+    p.add_argument('--repeat', type=int, default=3, help='timed runs of each (median; default 3)')
+    p.add_argument('--skip-speed', action='store_true', help='the comparison only')
+    return p
+
+
+# ------------------------------------------------------------------------------------------------
+# ours
+# ------------------------------------------------------------------------------------------------
+def load(scene=SCENE):
+    """The loaded scene (its URDF's warnings silenced)."""
+    from ..scene import load_scene
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        return load_scene(scene)
+
+
+def urdf_path(sc) -> str:
+    """The file of the scene's URDF part (its ``package://`` path resolved)."""
+    from ..meshes import resolve_uri
+    return str(resolve_uri(str(sc.data['parts'][0]['file'])))
+
+
+def pd_params(sc) -> dict:
+    """The scene's pd_hold keys and rate: ``{posture: {joint: q}, kp, kd, rate}``."""
+    c = sc.data['commands']['effort']
+    names = list(sc.system.actuated)
+
+    def per_joint(v):
+        return dict(zip(names, v)) if isinstance(v, list) else {n: float(v) for n in names}
+    return {'posture': dict(c['posture']), 'kp': per_joint(c['kp']), 'kd': per_joint(c['kd']),
+            'rate': float(sc.settings['publish_rate'])}
+
+
+def ours(sc, duration, integrator=None, dt=None, impact_step=1e-3):
+    """Drop and stand of scene sc: ``{'impact': first time a point touches (s, to impact_step), 't', 'z'
+    (base height per period), 'fz' (Σ vertical ground force per period), 'depth' (feet at the end)}``."""
+    from ..kernels.contact import PACTIVE, PDEPTH, PF
+    from ..simulation import Simulator
+    s = sc.system
+    integrator = integrator or sc.settings['integrator']
+    dt = dt or sc.settings['dt']
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(s, sc.y0, integrator=integrator, dt=dt)
+    rate = float(sc.settings['publish_rate'])
+    n = int(round(duration * rate))
+    sub = max(1, int(round(1.0 / (rate * impact_step))))
+    impact, ts, zs, fz = None, [], [], []
+    for k in range(n):
+        for port, val in sc.script(sim.t, sim.y).items():
+            sim.set_command(port, val)
+        t0 = k / rate
+        for j in range(1, sub + 1):
+            sim.advance(t0 + j / (rate * sub))
+            if impact is None:
+                P = s.contact.point_outputs(s._km, sim.y[:s.nq], sim.y[s.nq:])
+                if (P[:, PACTIVE] > 0).any():
+                    impact = sim.t
+        P = s.contact.point_outputs(s._km, sim.y[:s.nq], sim.y[s.nq:])
+        ts.append(sim.t)
+        zs.append(sim.y[2])
+        fz.append(float(P[P[:, PACTIVE] > 0, PF + 2].sum()))
+    on = P[:, PACTIVE] > 0
+    return {'impact': impact, 't': np.array(ts), 'z': np.array(zs), 'fz': np.array(fz),
+            'depth': P[on, PDEPTH], 'sim': sim}
+
+
+# ------------------------------------------------------------------------------------------------
+# MuJoCo
+# ------------------------------------------------------------------------------------------------
+def mujoco_ground_model(urdf_path, mu, timeconst, dampratio=1.0, dt=1e-3, height=0.0):
+    """MuJoCo model of a URDF on a free joint above a plane, or ``(None, reason)``.
+
+    Every geom of the robot collides with the plane only (contype 1, conaffinity 0; the plane 0, 1), with
+    sliding friction mu (torsional and rolling 0); contact ``solref (timeconst, dampratio)``, default
+    ``solimp``; joint limits off (ours are reported, not enforced, on a floating URDF); integrator
+    implicitfast at step dt."""
+    try:
+        import mujoco
+    except ImportError:
+        return None, 'mujoco not installed'
+    try:
+        spec = mujoco.MjSpec.from_file(str(urdf_path))
+    except Exception as e:   # MuJoCo's URDF importer refuses some files: say why
+        return None, f'MuJoCo cannot load the URDF ({" ".join(str(e).split())})'
+    spec.compiler.boundinertia = 1e-9
+    root = spec.worldbody.first_body()
+    root.add_freejoint()
+    for g in spec.geoms:
+        g.contype, g.conaffinity = 1, 0
+        g.friction = [mu, 0.0, 0.0]
+        g.solref = [timeconst, dampratio]
+        g.condim = 3
+    floor = spec.worldbody.add_geom()
+    floor.type = mujoco.mjtGeom.mjGEOM_PLANE
+    floor.size = [0.0, 0.0, 1.0]
+    floor.pos = [0.0, 0.0, height]
+    floor.contype, floor.conaffinity = 0, 1
+    floor.friction = [mu, 0.0, 0.0]
+    floor.solref = [timeconst, dampratio]
+    floor.condim = 3
+    m = spec.compile()
+    m.jnt_limited[:] = 0
+    m.opt.timestep = dt
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    return m, ''
+
+
+class MujocoPD:
+    """The scene's drop and stand in MuJoCo: state mapped from ours, the PD computed in Python at the
+    scene's rate (clamped to the URDF's effort limits) and applied as generalised forces."""
+
+    def __init__(self, m, sc):
+        import mujoco
+        self.m = m
+        s = sc.system
+        model = s.model
+        self.names = list(s.actuated)
+        self.qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in self.names])
+        self.vadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in self.names])
+        p = pd_params(sc)
+        self.posture = np.array([p['posture'].get(n, 0.0) for n in self.names])
+        self.kp = np.array([p['kp'][n] for n in self.names])
+        self.kd = np.array([p['kd'][n] for n in self.names])
+        self.rate = p['rate']
+        specs = {sp.joint: sp for sp in model.specs}
+        self.limit = np.array([specs[n].effort_limit or np.inf for n in self.names])
+        q0 = sc.y0[:s.nq]
+        d = mujoco.MjData(m)
+        d.qpos[0:3] = q0[0:3]
+        d.qpos[3:7] = [q0[6], q0[3], q0[4], q0[5]]          # MuJoCo: w x y z
+        for n, a in zip(self.names, self.qadr):
+            d.qpos[a] = q0[model.q_idx[model.joint_names.index(n)]]
+        mujoco.mj_forward(m, d)
+        self.d0 = d
+
+    def run(self, duration, copy_state=False):
+        """``{'impact', 't', 'z', 'fz', 'depth'}`` as :func:`ours` (impact to the step)."""
+        import mujoco
+        m = self.m
+        d = mujoco.MjData(m)
+        d.qpos[:] = self.d0.qpos
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(m, d)
+        nstep = max(1, int(round(1.0 / (self.rate * m.opt.timestep))))
+        n = int(round(duration * self.rate))
+        impact, ts, zs, fz = None, np.empty(n), np.empty(n), np.empty(n)
+        Q = np.empty((n, m.nq)) if copy_state else None
+        V = np.empty((n, m.nv)) if copy_state else None
+        F = np.empty(6)
+        step = mujoco.mj_step
+        for k in range(n):
+            tau = self.kp * (self.posture - d.qpos[self.qadr]) - self.kd * d.qvel[self.vadr]
+            d.qfrc_applied[self.vadr] = np.clip(tau, -self.limit, self.limit)
+            if impact is None:
+                for _ in range(nstep):
+                    step(m, d)
+                    if impact is None and d.ncon > 0:
+                        impact = d.time
+            else:
+                step(m, d, nstep)
+            ts[k], zs[k] = d.time, d.qpos[2]
+            if copy_state:
+                Q[k], V[k] = d.qpos, d.qvel
+            else:
+                f = 0.0
+                for c in range(d.ncon):
+                    mujoco.mj_contactForce(m, d, c, F)
+                    f += (d.contact[c].frame[:3] * F[0])[2]   # the normal force along world z
+                fz[k] = f
+        depth = np.array([-d.contact[c].dist for c in range(d.ncon)])
+        return {'impact': impact, 't': ts, 'z': zs, 'fz': fz, 'depth': depth}
+
+
+def calibrated_mujoco(sc, target_depth, duration=2.0, mu=None):
+    """MuJoCo model whose feet sink ``target_depth`` at rest (the time constant scaled twice by
+    ``sqrt(target/measured)``: penetration at rest grows as its square), and its last run."""
+    path = urdf_path(sc)
+    mu = sc.system.contact.ground.friction if mu is None else mu
+    tc = MUJOCO_TIMECONST0
+    for _ in range(3):
+        m, why = mujoco_ground_model(path, mu, tc)
+        if m is None:
+            return None, why, None
+        r = MujocoPD(m, sc).run(duration)
+        depth = float(np.mean(r['depth'])) if len(r['depth']) else 0.0
+        if depth <= 0.0 or abs(depth / target_depth - 1.0) < 0.02:
+            break
+        tc *= math.sqrt(target_depth / depth)
+    return m, f'solref ({tc:.4g} s, 1)', r
+
+
+def compare(duration=3.0, integrator=None, dt=None):
+    """The comparison's figures: ``{'ours': ..., 'mujoco': ..., 'solref': str, 'mass': kg}``."""
+    sc = load()
+    a = ours(sc, duration, integrator, dt)
+    depth = float(np.mean(a['depth']))
+    m, solref, b = calibrated_mujoco(sc, depth)
+    if m is None:
+        return {'ours': a, 'mujoco': None, 'why': solref, 'mass': _mass(sc)}
+    b = MujocoPD(m, sc).run(duration)
+    return {'ours': a, 'mujoco': b, 'solref': solref, 'mass': _mass(sc), 'mujoco_model': m, 'scene': sc}
+
+
+def _mass(sc) -> float:
+    return float(sum(sp.mass for sp in sc.system.model.specs))
+
+
+def rest(r, last=0.5):
+    """Mean base height and vertical ground force over the last ``last`` seconds of a run."""
+    sel = r['t'] >= r['t'][-1] - last
+    return float(np.mean(r['z'][sel])), float(np.mean(r['fz'][sel]))
+
+
+# ------------------------------------------------------------------------------------------------
+# speed
+# ------------------------------------------------------------------------------------------------
+def our_recorded_run(sc, duration, integrator, dt):
+    """CPU seconds of ``robodyn run SCENE --record`` (in process): the Simulator, every topic recorded."""
+    from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
+    from ..runs import DIAGNOSTICS_PERIOD, resolve_settings
+    from ..simulation import Simulator, run_headless
+    st = resolve_settings(sc, integrator, dt, None, None, None, duration)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sim = Simulator(sc.system, sc.y0, integrator=st['integrator'], dt=st['dt'])
+    with tempfile.TemporaryDirectory() as tmp:
+        sink = McapRunSink(os.path.join(tmp, 'run.mcap'), sc, {**st, 'mode': 'headless'},
+                           diagnostics_period=DIAGNOSTICS_PERIOD, batch=HEADLESS_BATCH)
+        c0 = time.process_time()
+        run_headless(sim, st['duration'], st['rate'], sc.script, [sink])
+        sink.close()
+        return time.process_time() - c0
+
+
+def speed(duration, integrator, dt, repeat):
+    """``{'ours': median CPU s, 'mujoco': median CPU s, 'duration': s}`` of the timed runs."""
+    sc = load()
+    our_recorded_run(sc, 0.2, integrator, dt)   # compiled code loaded
+    t_ours = sorted(our_recorded_run(sc, duration, integrator, dt) for _ in range(repeat))[repeat // 2]
+    m, _ = mujoco_ground_model(urdf_path(sc), sc.system.contact.ground.friction, MUJOCO_TIMECONST0)
+    t_mj = None
+    if m is not None:
+        pd = MujocoPD(m, sc)
+        times = []
+        for _ in range(repeat):
+            c0 = time.process_time()
+            pd.run(duration, copy_state=True)
+            times.append(time.process_time() - c0)
+        t_mj = sorted(times)[repeat // 2]
+    return {'ours': t_ours, 'mujoco': t_mj, 'duration': duration}
+
+
+def main(args) -> int:
+    """Print the comparison and the speed tables (and write them with --out)."""
+    sc = load()
+    integ = args.integrator or sc.settings['integrator']
+    dt = args.dt or sc.settings['dt']
+    c = compare(args.duration, integ, dt)
+    a, b = c['ours'], c['mujoco']
+    lines = [f'# {SCENE}: robodyn against MuJoCo', '',
+             f'Drop from 0.1 m and stand, {args.duration:g} s; ours {integ} at {dt:g} s; MuJoCo implicitfast at 1 ms, '
+             f'{c.get("solref", c.get("why"))}. Rest: the last 0.5 s. Weight m g = {c["mass"] * 9.81:.2f} N.', '',
+             '| figure | robodyn | MuJoCo |', '|---|---|---|']
+    za, fa = rest(a)
+    if b is not None:
+        zb, fb = rest(b)
+        lines += [f'| first impact (s) | {a["impact"]:.4f} | {b["impact"]:.4f} |',
+                  f'| base height at rest (m) | {za:.5f} | {zb:.5f} |',
+                  f'| vertical ground force at rest (N) | {fa:.3f} | {fb:.3f} |',
+                  f'| feet penetration at rest (mm) | {1e3 * np.mean(a["depth"]):.3f} | '
+                  f'{1e3 * np.mean(b["depth"]):.3f} |']
+    else:
+        lines += [f'| first impact (s) | {a["impact"]:.4f} | {c["why"]} |', f'| base height at rest (m) | {za:.5f} | |']
+    if not args.skip_speed:
+        sp = speed(args.duration, integ, dt, args.repeat)
+        lines += ['', f'Real-time factor, ours {integ} at {dt:g} s, MuJoCo at 1 ms ({args.duration:g} s simulated, CPU '
+                      f'time, median of {args.repeat}):', '',
+                  '| run | CPU s | real-time factor |', '|---|---|---|',
+                  f'| robodyn, {integ}, every topic recorded | {sp["ours"]:.3f} | {sp["duration"] / sp["ours"]:.0f} |']
+        if sp['mujoco'] is not None:
+            lines.append(f'| MuJoCo implicitfast from Python, PD in Python, state copied out | {sp["mujoco"]:.3f} | '
+                         f'{sp["duration"] / sp["mujoco"]:.0f} |')
+    text = '\n'.join(lines) + '\n'
+    print(text)
+    if args.out:
+        with open(args.out, 'w', encoding='utf-8') as f:
+            f.write(text)
+    return 0

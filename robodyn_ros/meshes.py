@@ -1,0 +1,146 @@
+"""Mesh files for contact geometry: where a URDF's mesh is, and a sphere that encloses it.
+
+A ground part replaces a ``<collision>`` mesh by a sphere that encloses it (with a warning): the
+centre of the mesh's axis-aligned bounding box and the largest distance of a vertex from it (not the
+smallest enclosing sphere, which is at most that much smaller). Read here with numpy and the standard
+library: STL (binary and ASCII), Wavefront OBJ (``v`` lines) and COLLADA ``.dae`` (the
+``<float_array>`` of every ``<source>`` whose id names positions, times its ``<unit meter>``; the
+scene graph's node transforms are not applied, so a ``.dae`` whose geometry is placed by them gets a
+sphere around its untransformed vertices: stated, not corrected).
+
+Where: an absolute path, ``file://`` URI, or ``package://<package>/<path>``, found through the ament
+index (a sourced ROS install), the example-robot-data wheel (its package name), or a directory named
+``<package>`` above the URDF file.
+"""
+from __future__ import annotations
+
+import re
+import struct
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'bounding_sphere', 'mesh_sphere']
+
+
+class MeshError(ValueError):
+    """A mesh that cannot be found or read; the message says which and why."""
+
+
+def resolve_uri(name: str, urdf_dir: Path | None = None) -> Path:
+    """The file of a URDF mesh reference, or of a scene's ``file: package://...`` (see the module
+    docstring); raises MeshError when not found."""
+    if name.startswith('file://'):
+        p = Path(name[len('file://'):])
+    elif name.startswith('package://'):
+        pkg, _, rest = name[len('package://'):].partition('/')
+        p = None
+        for base in _package_dirs(pkg, urdf_dir):
+            if (base / rest).is_file():
+                p = base / rest
+                break
+        if p is None:
+            raise MeshError(f'{name}: package {pkg!r} not found (no ament index entry, not example-robot-data, no '
+                            f'directory {pkg!r} above the URDF)')
+    elif '://' in name:
+        raise MeshError(f'{name}: only file://, package:// and plain paths are read')
+    else:
+        p = Path(name) if urdf_dir is None else urdf_dir / name
+    if not p.is_file():
+        raise MeshError(f'{name}: no such file {str(p)!r}')
+    return p
+
+
+def _package_dirs(pkg: str, urdf_dir: Path | None):
+    """Candidate directories of ROS package ``pkg``, in the order :func:`resolve_uri` tries them."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+        try:
+            yield Path(get_package_share_directory(pkg))
+        except (PackageNotFoundError, OSError, ValueError):
+            pass
+    except ImportError:
+        pass
+    from .urdf import example_robot_data_dir
+    erd = example_robot_data_dir()
+    if erd is not None and pkg == erd.parent.name:
+        yield erd.parent
+    d = urdf_dir
+    while d is not None and d != d.parent:
+        if d.name == pkg:
+            yield d
+        if (d / pkg).is_dir():
+            yield d / pkg
+        d = d.parent
+
+
+def mesh_vertices(path) -> np.ndarray:
+    """The vertices (n, 3) of an STL, OBJ or DAE file (see the module docstring); raises MeshError."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise MeshError(f'{path}: cannot read: {e.strerror or e}') from None
+    ext = path.suffix.lower()
+    try:
+        if ext == '.stl':
+            v = _stl(data)
+        elif ext == '.obj':
+            v = np.array([[float(x) for x in line.split()[1:4]] for line in data.decode('utf-8', 'replace').splitlines()
+                          if line.startswith('v ')], dtype=float).reshape(-1, 3)
+        elif ext == '.dae':
+            v = _dae(data)
+        else:
+            raise MeshError(f'{path}: unknown mesh format {ext!r} (STL, OBJ and DAE are read)')
+    except (ValueError, struct.error, ET.ParseError) as e:
+        if isinstance(e, MeshError):
+            raise
+        raise MeshError(f'{path}: cannot read the mesh: {e}') from None
+    v = v[np.all(np.isfinite(v), axis=1)]
+    if not len(v):
+        raise MeshError(f'{path}: no vertices')
+    return v
+
+
+def _stl(data: bytes) -> np.ndarray:
+    """Vertices of a binary or ASCII STL."""
+    if len(data) >= 84:
+        n = struct.unpack_from('<I', data, 80)[0]
+        if 84 + 50 * n == len(data):   # binary: 80-byte header, count, 50 bytes per triangle
+            rec = np.frombuffer(data, dtype=np.dtype([('n', '<f4', 3), ('v', '<f4', (3, 3)), ('a', '<u2')]),
+                                count=n, offset=84)
+            return rec['v'].reshape(-1, 3).astype(float)
+    text = data.decode('ascii', 'replace')
+    return np.array([[float(x) for x in m.split()] for m in re.findall(r'vertex\s+(\S+\s+\S+\s+\S+)', text)],
+                    dtype=float).reshape(-1, 3)
+
+
+def _dae(data: bytes) -> np.ndarray:
+    """Vertices of a COLLADA file: its position sources' float arrays (node transforms not applied)."""
+    root = ET.fromstring(data)
+    out = []
+    for src in root.iter():
+        if not (isinstance(src.tag, str) and src.tag.endswith('source')) or \
+                'position' not in (src.get('id') or '').lower():
+            continue
+        for fa in src:
+            if isinstance(fa.tag, str) and fa.tag.endswith('float_array') and fa.text:
+                out.append(np.array(fa.text.split(), dtype=float).reshape(-1, 3))
+    if not out:
+        raise MeshError('no <source> of positions')
+    unit = next((u for u in root.iter() if isinstance(u.tag, str) and u.tag.endswith('unit')), None)
+    return np.vstack(out) * float(unit.get('meter', 1.0) if unit is not None else 1.0)
+
+
+def bounding_sphere(vertices, scale=(1.0, 1.0, 1.0)):
+    """``(centre (3,), radius)`` of a sphere enclosing the scaled vertices: the centre of their bounding
+    box and the largest distance from it."""
+    v = np.asarray(vertices, dtype=float) * np.asarray(scale, dtype=float)
+    c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    return c, float(np.sqrt(((v - c) ** 2).sum(axis=1).max()))
+
+
+def mesh_sphere(name: str, scale=(1.0, 1.0, 1.0), urdf_dir: Path | None = None):
+    """:func:`bounding_sphere` of a URDF mesh reference (resolved by :func:`resolve_uri`); raises MeshError."""
+    return bounding_sphere(mesh_vertices(resolve_uri(name, urdf_dir)), scale)
