@@ -303,13 +303,18 @@ class CompiledModel:
         """``(D, K)`` (nv, nv) of the linearly implicit step at (q, v), tangent coordinates, as
         ``arm.arm_rosenbrock_step`` assembles them: the damping ``−∂τ_p/∂v`` and stiffness ``−∂τ_p/∂q`` of the
         passive forces (``arm.passive_jacobian``: damping, friction slope, joint-limit moments on their
-        branches at (q, v)) and, with a step h (s), the gravity stiffness ``∂g/∂q`` of the 1-DOF joints
-        (``tree.gravity_stiffness_ws``)."""
-        D = np.zeros((self.nv, self.nv))
-        K = np.zeros((self.nv, self.nv))
+        branches at (q, v)), on a ground the contacts' ``D_c, K_c`` (``contact.contact_jacobian``, as
+        ``arm.contact_bias_mass`` adds them) and, with a step h (s), the gravity stiffness ``∂g/∂q`` of the
+        1-DOF joints (``tree.gravity_stiffness_ws``)."""
         q = np.ascontiguousarray(q, dtype=float)
-        arm.passive_jacobian(self.damping, self.friction, self.v_s, self.lim, q,
-                              np.ascontiguousarray(v, dtype=float), q, False, D, K)
+        v = np.ascontiguousarray(v, dtype=float)
+        if self.con is not None:
+            from . import contact
+            D, K = contact.contact_jacobian(self.con, self.mi_r, self.mf_r, q, v)
+        else:
+            D = np.zeros((self.nv, self.nv))
+            K = np.zeros((self.nv, self.nv))
+        arm.passive_jacobian(self.damping, self.friction, self.v_s, self.lim, q, v, q, False, D, K)
         if h is not None:
             G = np.empty((self.nv, self.nv))
             tree.gravity_stiffness_into(self.mi_r, self.mf_r, q, G)

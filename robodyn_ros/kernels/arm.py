@@ -23,7 +23,8 @@ from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix,
 from ..model import SPHERICAL
 from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
-                   rnea_ws, tangent_rate_into, transforms, workspace, world_kinematics_ws)
+                   rnea_ws, tangent_rate_into, tangent_velocity_into, transforms, workspace,
+                   world_kinematics_ws)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -140,6 +141,7 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
         mat = np.empty((ROS_MATRICES, nv, nv))
         nr = nv if cpl is None else nv - cpl[0].shape[0]
         red = (np.empty((2, nr, nr)), np.empty((2, nr)))   # the iteration matrix in independent joints
+        cj = (np.empty((3, nv)), np.empty(nv, dtype=np.int64))   # a contact point's Jacobian and its columns
     n_steps = n_full + (1 if h_last > 0.0 else 0)
     for k in range(n_steps):
         h = dt if k < n_full else h_last
@@ -170,7 +172,7 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
                 while taken < 0.0:
                     taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs,
                                                 splits < MAX_SPLITS, W, K, Y, acc, tauv, vec, mat, cpl, cs, red,
-                                                con, fx)
+                                                con, fx, cj)
                     if taken == -math.inf:
                         break
                     if taken < 0.0:
@@ -322,10 +324,60 @@ def arm_bias_mass(mi, mf, q, v, zero, bias, H, G, W):
 
 
 @njit(**_JIT)
-def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red):
+def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W):
+    """:func:`arm_bias_mass` on a ground (con: :func:`arm_rhs`): ``bias = C + g − τ_c`` with the contacts'
+    generalised force ``τ_c = Σ J_iᵀ F_i`` (their body forces fx (nb, 6), :func:`.contact.ground_fext_ws`,
+    given to :func:`rnea_ws`), H, G as there, and the contacts' damping and stiffness ``Dc, Kc`` (nv, nv) =
+    ``Σ J_iᵀ D_i J_i``, ``Σ J_iᵀ K_i J_i`` (:func:`.contact.contact_jacobian_add`, (C4)-(C5); cj: its
+    scratch) at one transform and world-kinematics pass. Returns the contacts' power ``Σ F_i·u_i`` (W) and
+    the number of touching points."""
+    transforms(mi, mf, q, W)
+    world_kinematics_ws(mi, mf, v, W)
+    Pc = ground_fext_ws(con, W, fx)
+    nv = H.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            Dc[a, b] = 0.0
+            Kc[a, b] = 0.0
+            H[a, b] = 0.0
+    touching = contact_jacobian_add(con, mi, mf, W, Dc, Kc, cj[0], cj[1])
+    rnea_ws(mi, mf, q, v, zero, fx, True, bias, W)
+    crba_ws(mi, mf, H, W)
+    gravity_stiffness_ws(mi, mf, W, G)
+    return Pc, touching
+
+
+@njit(**_JIT)
+def contact_stage_jacobian(mi, mf, con, qs, vs, touching, Dc, Kc, D2, K2, cj, W):
+    """Touch-down within a step: when more points touch at the stage point (qs, vs) than the ``touching``
+    at zₙ (a point's friction slope ``μ f_n / v_s`` and spring then act within the step but were not in
+    J at zₙ, where f_n = 0: over a step with ``h μ f_n / (v_s m) >> 1`` they would be explicit), J's
+    contact part ``Dc, Kc`` is taken at the stage point instead (any J keeps the W-method's order 2);
+    returns how many points touch there (Dc, Kc unchanged when not more than ``touching``). The
+    friction's and the spring's slopes at the stage point are those the step meets. D2, K2 (nv, nv), cj,
+    W: scratch."""
+    transforms(mi, mf, qs, W)
+    world_kinematics_ws(mi, mf, vs, W)
+    nv = Dc.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            D2[a, b] = 0.0
+            K2[a, b] = 0.0
+    ty = contact_jacobian_add(con, mi, mf, W, D2, K2, cj[0], cj[1])
+    if ty > touching:
+        for a in range(nv):
+            for b in range(nv):
+                Dc[a, b] = D2[a, b]
+                Kc[a, b] = K2[a, b]
+    return ty
+
+
+@njit(**_JIT)
+def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red, touching):
     """The iteration matrix ``A = M + γh D + γ²h² K`` (R5) of :func:`arm_rosenbrock_step` and its Cholesky
     factor, into ``mat = [H (= M, given), D, K, A, L, G (given)]``: D, K from :func:`passive_jacobian`
-    (stops at the stage configuration qs too with use_qs) plus the gravity stiffness G = ∂g/∂q of the
+    (stops at the stage configuration qs too with use_qs), on a ground (con) the contacts' ``D_c, K_c``
+    (``mat[6], mat[7]``, :func:`contact_bias_mass`; touching: how many points touch, 0 or −1 off the ground), plus the gravity stiffness G = ∂g/∂q of the
     1-DOF joints (:func:`arm_bias_mass`), which is dropped when A is not positive
     definite with it (a load above its axis stiff enough to matter at this step). Returns the γ of the
     step: ``GAMMA`` (1 − 1/√2), or ``GAMMA_STOP`` (1 + 1/√2) when a joint stop is in J, whose law switches
@@ -338,11 +390,18 @@ def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs
     against 3.5e-6)."""
     H, Dm, Km, A, L, G = mat[0], mat[1], mat[2], mat[3], mat[4], mat[5]
     nv = Km.shape[0]
-    for a in range(nv):
-        for b in range(nv):
-            Dm[a, b] = 0.0
-            Km[a, b] = G[a, b]
-    gamma = GAMMA_STOP if passive_jacobian(damping, friction, v_s, lim, q, v, qs, use_qs, Dm, Km) else GAMMA
+    if touching <= 0:
+        for a in range(nv):
+            for b in range(nv):
+                Dm[a, b] = 0.0
+                Km[a, b] = G[a, b]
+    else:   # the ground's D_c, K_c (contact_bias_mass) are passive terms as the joints' are
+        for a in range(nv):
+            for b in range(nv):
+                Dm[a, b] = mat[6][a, b]
+                Km[a, b] = G[a, b] + mat[7][a, b]
+    stops = passive_jacobian(damping, friction, v_s, lim, q, v, qs, use_qs, Dm, Km)
+    gamma = GAMMA_STOP if stops or touching > 0 else GAMMA
     if factor_stage_matrix(H, Dm, Km, gamma * h, A, L, cpl, red):
         return gamma
     for a in range(nv):   # without the gravity part
@@ -392,7 +451,7 @@ def solve_stage(L, Km, gh, force, bq, kv, tmp, cpl, red):
 #: sub-steps a step may be cut into where it enters stiff stops (then the stops join J at once)
 MAX_SPLITS = 16
 #: rows of the vector (nv,) and matrix (nv, nv) work arrays of :func:`arm_rosenbrock_step`
-ROS_VECTORS, ROS_MATRICES = 9, 6
+ROS_VECTORS, ROS_MATRICES = 10, 10
 
 
 @njit(**_JIT)
@@ -403,6 +462,19 @@ def tangent_rate(mi, simple, q, v, out):
             out[a] = v[a]
     else:
         tangent_rate_into(mi, q, v, out)
+
+
+@njit(**_JIT)
+def stiffness_rate(mi, simple, con, q, bq, out):
+    """The stage rate bq (tangent coordinates) in the coordinates K acts on: bq itself, but on a ground
+    (con) of a tree with a free root ``Φ bq`` (:func:`~robodyn_ros.kernels.tree.tangent_velocity_into`):
+    the contacts' K_c is ``−∂τ_c/∂q`` for q-increments in velocity coordinates (body-frame linear part),
+    while the stage algebra's tangent increments have the free root's position in the world frame
+    (``K_tan = K_c Φ``; in A, ``K_tan T = K_c``, so the iteration matrix keeps K_c). Returns the array to use."""
+    if con is None or simple:
+        return bq
+    tangent_velocity_into(mi, q, bq, out)
+    return out
 
 
 @njit(**_JIT)
@@ -417,7 +489,7 @@ def retract(mi, simple, q, dq, h, out):
 
 @njit(**_JIT)
 def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, h, split, W, dz, Y, k1, tauv, vec,
-                        mat, cpl, cs, red, con, fx):
+                        mat, cpl, cs, red, con, fx, cj):
     """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R6)) of an arm,
     ``z = [q, v, W(, W_lim)]`` in place. Returns h when taken; ``−s`` (z untouched) when the step meets a
     stiff stop it should enter as a shorter step s (with split; :func:`limit_event`: the caller takes s,
@@ -434,8 +506,10 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     :func:`~robodyn_ros.kernels.tree.retract_into`); the work entries W (no J rows) take ``k = P`` (the power) and
     ``k2 = P(Y) − 2 k1``. With mimic joints (cpl, cs: see :func:`arm_rhs`) the stages are solved in the
     independent joints (:func:`factor_stage_matrix`, :func:`solve_stage`; red: their work arrays) and
-    f(Y) is the coupled dynamics. dz, Y, k1 (n,), tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat
-    (ROS_MATRICES, nv, nv): work arrays.
+    f(Y) is the coupled dynamics. On a ground (con, fx: see :func:`arm_rhs`; ``z`` ends with W_c) the
+    contacts' forces are in the residual r and their ``D_c, K_c`` in J (:func:`contact_bias_mass`; cj: its
+    scratch). dz, Y, k1 (n,), tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv): work
+    arrays.
     """
     n = z.shape[0]
     q = z[:nq]
@@ -443,35 +517,57 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     H, Dm, Km, A, L = mat[0], mat[1], mat[2], mat[3], mat[4]
     r, fq, kq1, kv1, kq2, kv2, x, y, zero = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7], vec[8]
     # stage 1 at z_n: τ and the powers (W, W_lim), the bias C + g, M, the passive Jacobian, A = L Lᵀ
-    P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    if con is None:   # a None argument prunes the contact code at compile time
+        P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    else:
+        P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:n - 1], dz, tauv)
     for a in range(nq + nv, n):
         k1[a] = dz[a]
     k1[nq + nv] = P
     for a in range(nv):
         zero[a] = 0.0
-    arm_bias_mass(mi, mf, q, v, zero, y, H, mat[5], W)
+    touching = -1
+    if con is None:
+        arm_bias_mass(mi, mf, q, v, zero, y, H, mat[5], W)
+    else:
+        Pc, touching = contact_bias_mass(mi, mf, con, q, v, zero, y, H, mat[5], mat[6], mat[7], fx, cj, W)
+        k1[nq + nv] = P + Pc
+        k1[n - 1] = Pc
     for a in range(nv):
         r[a] = tauv[a] - y[a]
     simple = nq == nv   # only 1-DOF joints: tangent coordinates are q itself
     tangent_rate(mi, simple, q, v, fq)
     use_qs = False
-    for attempt in range(2):   # a second time with the stops the stage point met (limit_event)
-        gh = h * arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, Y[:nq], use_qs, W, mat, cpl, red)
+    for attempt in range(2):   # a second time with the stops / contacts the stage point met
+        gh = h * arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, Y[:nq], use_qs, W, mat, cpl, red,
+                                     touching)
         if gh == 0.0:
             return -math.inf
-        solve_stage(L, Km, gh, r, fq, kv1, x, cpl, red)
+        solve_stage(L, Km, gh, r, stiffness_rate(mi, simple, con, q, fq, vec[9]), kv1, x, cpl, red)
         tangent_rate(mi, simple, q, kv1, kq1)
         for a in range(nv):
             kq1[a] = fq[a] + gh * kq1[a]
         retract(mi, simple, q, kq1, h, Y[:nq])   # stage 2 at Y = z_n ⊕ h k1
-        if attempt or not lim.shape[0]:
+        if attempt:
             break
-        s = limit_event(lim, q, v, h, Y[:nq], H)
-        if s >= h:
+        redo = False
+        if con is not None:   # touch-down within the step: J's contact part from the stage point
+            for a in range(nv):
+                Y[nq + a] = v[a] + h * kv1[a]
+            ty = contact_stage_jacobian(mi, mf, con, Y[:nq], Y[nq:nq + nv], touching, mat[6], mat[7], mat[8], mat[9],
+                                        cj, W)
+            if ty > touching:
+                touching = ty
+                redo = True
+        if lim.shape[0]:
+            s = limit_event(lim, q, v, h, Y[:nq], H)
+            if s < h:
+                if s > 0.0 and split:
+                    return -s           # retake the step as a shorter one (z untouched)
+                use_qs = True
+                redo = True
+        if not redo:
             break
-        if s > 0.0 and split:
-            return -s           # retake the step as a shorter one (z untouched)
-        use_qs = True
     for a in range(nv):
         Y[nq + a] = v[a] + h * kv1[a]
     for a in range(nq + nv, n):
@@ -482,7 +578,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         fq[a] += C21 * kq1[a]                       # bq of stage 2
         x[a] = dz[nq + a] + C21 * kv1[a]            # bv of stage 2
     mat_vec(H, x, r)                                # M bv
-    solve_stage(L, Km, gh, r, fq, kv2, x, cpl, red)
+    solve_stage(L, Km, gh, r, stiffness_rate(mi, simple, con, q, fq, vec[9]), kv2, x, cpl, red)
     tangent_rate(mi, simple, q, kv2, kq2)
     for a in range(nv):
         kq2[a] = fq[a] + gh * kq2[a]

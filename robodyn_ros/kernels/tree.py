@@ -876,6 +876,27 @@ def tangent_rate_into(mi, q, v, out):
 
 
 @njit(**_JIT)
+def tangent_velocity_into(mi, q, t, out):
+    """The inverse of :func:`tangent_rate_into` at q: the velocity coordinates out (nv,) of a tangent
+    vector t (nv,): t itself but for a free joint's linear part, ``R(q)ᵀ t_lin`` (world frame -> body)."""
+    for i in range(mi.shape[0]):
+        jt = mi[i, JTYPE]
+        s = mi[i, VIDX]
+        if jt == FREE:
+            q0 = mi[i, QIDX]
+            x, y, z, w = q[q0 + 3], q[q0 + 4], q[q0 + 5], q[q0 + 6]
+            l0, l1, l2 = t[s + 3], t[s + 4], t[s + 5]
+            out[s], out[s + 1], out[s + 2] = t[s], t[s + 1], t[s + 2]
+            out[s + 3] = (1 - 2 * (y * y + z * z)) * l0 + 2 * (x * y + z * w) * l1 + 2 * (x * z - y * w) * l2
+            out[s + 4] = 2 * (x * y - z * w) * l0 + (1 - 2 * (x * x + z * z)) * l1 + 2 * (y * z + x * w) * l2
+            out[s + 5] = 2 * (x * z + y * w) * l0 + 2 * (y * z - x * w) * l1 + (1 - 2 * (x * x + y * y)) * l2
+        elif jt == SPHERICAL:
+            out[s], out[s + 1], out[s + 2] = t[s], t[s + 1], t[s + 2]
+        elif jt != FIXED:
+            out[s] = t[s]
+
+
+@njit(**_JIT)
 def retract_into(mi, q, dq, h, out):
     """``out (nq,) = q ⊕ h dq`` for a tangent increment dq (nv,) (:func:`tangent_rate_into`'s
     coordinates): ``q + h dq`` for 1-DOF joints and a free joint's position; ``quat ⊗ exp(h ω/2)`` for

@@ -256,8 +256,8 @@ class ArmSystem(System):
     def passive_jacobian(self, t, y, u, h=None):
         """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``): ``[[0, Q], [−M⁻¹K Φ,
         −M⁻¹D]]`` with D, K from ``CompiledModel.passive_jacobian`` (damping, friction slope, joint-limit
-        moments, and at a step h the gravity stiffness of the 1-DOF joints; the reference backend:
-        damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent coordinates of a change of q); with
+        moments, on a ground the contacts' D_c, K_c, and at a step h the gravity stiffness of the 1-DOF
+        joints; the reference backend: damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent coordinates of a change of q); with
         mimic joints M⁻¹ is the coupled one, ``G (Gᵀ M G)⁻¹ Gᵀ``. The fused loop assembles the same D and K
         itself."""
         q, v = self.split(np.asarray(y, dtype=float))
@@ -438,8 +438,6 @@ class ArmSystem(System):
         ``z = [y, W, W_parts]`` with the parts of :attr:`work_components` or without W_lim (``z = [y, W(, W_c)]``:
         the limit work not kept apart)."""
         nc = 1 if self.contact is not None else 0
-        if nc and integrator_name == 'rosenbrock2':
-            return False   # (its stage 1 does not take the ground's forces yet)
         return self._km is not None and integrator_name in kernels.FUSED_METHODS and self._fused_exact() \
             and z.shape in ((self.ny + 1 + nc,), (self.ny + 2 + nc,))
 
