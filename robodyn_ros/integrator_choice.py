@@ -2,7 +2,9 @@
 
 The default wherever a scene, a command line or the node's parameters name no integrator. The choice is
 made once, at the initial state, from the step preflight's eigen-analysis
-(:func:`robodyn_ros.stability.analyse_step` on one finite-difference linearisation), on this ladder:
+(:func:`robodyn_ros.stability.analyse_step` on one finite-difference linearisation), and also at the states
+the system names in ``analysis_states`` (a robot above a ground: resting on it, where the contact's
+stiffness and friction slope show; every rung must hold at each), on this ladder:
 
 1. ``rk4`` at dt, when no mode is too fast for it: nothing is stiff. The scenes that run today keep
    their method and their bytes.
@@ -71,14 +73,24 @@ def choose_integrator(system, y, dt, rtol=None, atol=None, t: float = 0.0, u=Non
     y = np.asarray(y, dtype=float)
     if getattr(system, 'ny', y.size) == 0:
         return IntegratorChoice('rk4', h, None, None, 'auto chose rk4: the system has no state to integrate')
-    J = linearisation(system, y, u, t)
-    a4 = analyse_step(system, 'rk4', h, y, u, t, J=J)
+    states = [y] + [np.asarray(s, dtype=float) for s in system.analysis_states(y)] \
+        if hasattr(system, 'analysis_states') else [y]
+    Js = [linearisation(system, s, u, t) for s in states]
+
+    def worst(name):   # the analysis at the state where the method fares worst (a refusal first), its words
+        out = [analyse_step(system, name, h, s, u, t, J=J) for s, J in zip(states, Js)]
+        k = next((i for i, a in enumerate(out) if a.verdict == 'refuse'), 0)
+        return out[k], out, ('' if len(out) == 1 else ' resting on the ground (the state a landing meets)' if k
+                             else ' at the initial state and resting on the ground')
+    a4, _, where = worst('rk4')
     if a4.verdict != 'refuse':
         return IntegratorChoice('rk4', h, None, None,
-                                f'auto chose rk4 at dt={h:g} s: no mode is stiff ({_fastest(a4)}; rk4 is '
+                                f'auto chose rk4 at dt={h:g} s: no mode is stiff{where} ({_fastest(a4)}; rk4 is '
                                 f'stable up to h·|λ| ≈ 2.8)', a4)
-    why4 = f'rk4 is unstable at dt={h:g} s ({_fastest(a4)})'
-    a2 = analyse_step(system, 'rosenbrock2', h, y, u, t, J=J)
+    why4 = f'rk4 is unstable at dt={h:g} s{where} ({_fastest(a4)})'
+    a2, all2, _ = worst('rosenbrock2')
+    if a2.verdict != 'refuse':
+        a2 = max(all2, key=_local_error)
     if a2.verdict != 'refuse':
         err = _local_error(a2)
         if rtol is None or err <= rtol:

@@ -179,3 +179,97 @@ def test_box_slides_down_a_stiff_slope_at_1ms_as_the_fine_reference():
     ref, _ = _slide(1e-5, 'rk4', 0.5, 1e5)
     y, sim = _slide(1e-3, 'rosenbrock2', 0.5, 1e5)
     assert np.abs(y - ref).max() < 1e-5, np.abs(y - ref).max()
+
+
+# --------------------------------------------------------------------------------------------
+# integrator auto on a ground
+# --------------------------------------------------------------------------------------------
+def test_auto_sees_the_ground_a_body_will_land_on(monkeypatch):
+    """a1_stand starts 0.1 m above the ground, where nothing is stiff; auto also analyses it resting on
+    the ground (ArmSystem.analysis_states: m g / k deep), where the friction slope refuses rk4 at 1 ms,
+    and chooses rosenbrock2, saying why. Without that state it would choose rk4, which the contact makes
+    inaccurate (8.7e-2 rad, docs/contact.md)."""
+    import warnings
+
+    from robodyn_ros.integrator_choice import choose_integrator
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.systems.arm import ArmSystem
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sc = load_scene('a1_stand')
+    s = sc.system
+    assert not (s.contact.point_outputs(s._km, sc.y0[:s.nq], sc.y0[s.nq:])[:, PACTIVE] > 0).any()
+    (rest,) = s.analysis_states(sc.y0)
+    P = s.contact.point_outputs(s._km, rest[:s.nq], rest[s.nq:])
+    mass = float(sum(sp.mass for sp in s.model.specs))
+    assert abs(P[:, PDEPTH].max() - mass * G / s.contact.ground.stiffness) < 1e-12
+    c = choose_integrator(s, sc.y0, 1e-3)
+    assert c.integrator == 'rosenbrock2' and 'resting on the ground' in c.reason, c.reason
+    monkeypatch.setattr(ArmSystem, 'analysis_states', lambda self, y: [])
+    assert choose_integrator(s, sc.y0, 1e-3).integrator == 'rk4'
+
+
+def test_broken_ground_refused_by_robodyn_run_with_exit_2(tmp_path):
+    """The command line: μ < 0 in a bundled ground scene -> ``file: key: reason`` on stderr, exit 2."""
+    import subprocess
+    import sys
+
+    from robodyn_ros.scene import find_scene
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(find_scene('a1_stand').read_text().replace('friction: 0.8', 'friction: -0.8', 1))
+    p = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'run', str(bad), '--duration', '0.01'],
+                       capture_output=True, text=True, timeout=240)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert f'{bad}: parts[1].friction: must be >= 0.0, got -0.8' in p.stderr, p.stderr
+    assert 'Traceback' not in p.stderr
+
+
+# --------------------------------------------------------------------------------------------
+# the bundled ground scenes' integrator and step (figures in docs/contact.md)
+# --------------------------------------------------------------------------------------------
+def _scene_run(name, integrator=None, dt=None):
+    """The scene over its duration with its settings (or integrator/dt): per publication the joint
+    positions, the base height and whether a point touches."""
+    import warnings
+
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.simulation import run_headless
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sc = load_scene(name)
+        sim = Simulator(sc.system, sc.y0, integrator=integrator or sc.settings['integrator'],
+                        dt=dt or sc.settings['dt'])
+    s = sc.system
+    rows = []
+
+    class Sink:
+        def on_start(self, sim):
+            pass
+
+        def on_command(self, t, port, values):
+            pass
+
+        def on_output(self, t, out, sim):
+            on = (s.contact.point_outputs(s._km, sim.y[:s.nq], sim.y[s.nq:])[:, PACTIVE] > 0).any()
+            rows.append((sim.y[7:s.nq].copy(), sim.y[2], on))
+
+        def close(self):
+            pass
+    run_headless(sim, sc.settings['duration'], sc.settings['publish_rate'], sc.script, sinks=[Sink()])
+    q = np.array([r[0] for r in rows])
+    return q, np.array([r[1] for r in rows]), int(np.flatnonzero([r[2] for r in rows])[0]), sim, sc
+
+
+@pytest.mark.parametrize('name, integrator, dt, q_err, z_err, q_rest', [
+    ('a1_stand', 'rosenbrock2', 1e-3, 2e-2, 1e-4, 1e-2)])      # docs: 4.9e-3 rad, 1.8e-5 m
+def test_ground_scenes_at_their_step_against_a_fine_reference(name, integrator, dt, q_err, z_err, q_rest):
+    """The scene's own integrator and step against rk4 at 50 µs over the scene's duration: the same
+    publication of first impact, the joint positions within q_err (q_rest at the end), the base height
+    at the end within z_err; docs/contact.md's table gives the figures measured against rk4 at 25 µs."""
+    q, z, first, sim, sc = _scene_run(name)
+    assert (sc.settings['integrator'], sc.settings['dt']) == (integrator, dt)
+    q_ref, z_ref, first_ref, _, _ = _scene_run(name, 'rk4', 5e-5)
+    assert first == first_ref
+    assert np.abs(q - q_ref).max() < q_err, np.abs(q - q_ref).max()
+    assert np.abs(q[-1] - q_ref[-1]).max() < q_rest, np.abs(q[-1] - q_ref[-1]).max()
+    assert abs(z[-1] - z_ref[-1]) < z_err, (z[-1], z_ref[-1])

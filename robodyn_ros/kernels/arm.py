@@ -13,7 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .contact import contact_jacobian_add, contact_points, ground_fext_ws, link_wrenches, point_body_forces
+from .contact import (contact_jacobian_add, contact_points, ground_fext_ws, link_wrenches, point_body_forces,
+                      touching_points)
 from .coupled import couple_into, coupled_fd_ws, reduce_into
 from .fixed_step import M_RK4, M_ROSENBROCK2, M_SEMI_IMPLICIT_EULER
 from .linalg import chol_solve, cholesky
@@ -348,28 +349,25 @@ def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W):
 
 
 @njit(**_JIT)
-def contact_stage_jacobian(mi, mf, con, qs, vs, touching, Dc, Kc, D2, K2, cj, W):
-    """Touch-down within a step: when more points touch at the stage point (qs, vs) than the ``touching``
-    at zₙ (a point's friction slope ``μ f_n / v_s`` and spring then act within the step but were not in
-    J at zₙ, where f_n = 0: over a step with ``h μ f_n / (v_s m) >> 1`` they would be explicit), J's
-    contact part ``Dc, Kc`` is taken at the stage point instead (any J keeps the W-method's order 2);
-    returns how many points touch there (Dc, Kc unchanged when not more than ``touching``). The
-    friction's and the spring's slopes at the stage point are those the step meets. D2, K2 (nv, nv), cj,
-    W: scratch."""
-    transforms(mi, mf, qs, W)
-    world_kinematics_ws(mi, mf, vs, W)
+def contact_stage_jacobian(mi, mf, con, touching, Dc, K2, cj, W):
+    """Touch-down within a step: when more points touch at the stage point Y (whose poses and velocities
+    W holds: :func:`arm_rhs` at Y) than the ``touching`` at zₙ -- a point's friction slope ``μ f_n / v_s``
+    acts within the step but was not in J at zₙ, where f_n = 0: over a step with ``h μ f_n / (v_s m) >> 1``
+    it would be explicit -- J's contact damping Dc is taken at Y instead (the slopes the step meets; any
+    J keeps the W-method's order 2). The stiffness stays zₙ's: a new point's spring in K would act on the
+    whole step's displacement (``−γh K bq``) as if it touched at zₙ, pushing from above the plane (A1 at
+    1 ms: the step that crosses the plane ends its feet 0.5 mm short of rk4's, 0.2 mm with D alone).
+    Returns how many points touch at Y (Dc unchanged when not more than ``touching``). K2 (nv, nv), cj:
+    scratch."""
+    ty = touching_points(con, W)
+    if ty <= touching:
+        return ty
     nv = Dc.shape[0]
     for a in range(nv):
         for b in range(nv):
-            D2[a, b] = 0.0
+            Dc[a, b] = 0.0
             K2[a, b] = 0.0
-    ty = contact_jacobian_add(con, mi, mf, W, D2, K2, cj[0], cj[1])
-    if ty > touching:
-        for a in range(nv):
-            for b in range(nv):
-                Dc[a, b] = D2[a, b]
-                Kc[a, b] = K2[a, b]
-    return ty
+    return contact_jacobian_add(con, mi, mf, W, Dc, K2, cj[0], cj[1])
 
 
 @njit(**_JIT)
@@ -451,7 +449,7 @@ def solve_stage(L, Km, gh, force, bq, kv, tmp, cpl, red):
 #: sub-steps a step may be cut into where it enters stiff stops (then the stops join J at once)
 MAX_SPLITS = 16
 #: rows of the vector (nv,) and matrix (nv, nv) work arrays of :func:`arm_rosenbrock_step`
-ROS_VECTORS, ROS_MATRICES = 10, 10
+ROS_VECTORS, ROS_MATRICES = 10, 9
 
 
 @njit(**_JIT)
@@ -538,7 +536,8 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     simple = nq == nv   # only 1-DOF joints: tangent coordinates are q itself
     tangent_rate(mi, simple, q, v, fq)
     use_qs = False
-    for attempt in range(2):   # a second time with the stops / contacts the stage point met
+    stops_checked = False
+    for attempt in range(3):   # again with the stops the stage point met (limit_event), the contacts it touches
         gh = h * arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, Y[:nq], use_qs, W, mat, cpl, red,
                                      touching)
         if gh == 0.0:
@@ -548,31 +547,25 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         for a in range(nv):
             kq1[a] = fq[a] + gh * kq1[a]
         retract(mi, simple, q, kq1, h, Y[:nq])   # stage 2 at Y = z_n ⊕ h k1
-        if attempt:
-            break
-        redo = False
-        if con is not None:   # touch-down within the step: J's contact part from the stage point
-            for a in range(nv):
-                Y[nq + a] = v[a] + h * kv1[a]
-            ty = contact_stage_jacobian(mi, mf, con, Y[:nq], Y[nq:nq + nv], touching, mat[6], mat[7], mat[8], mat[9],
-                                        cj, W)
-            if ty > touching:
-                touching = ty
-                redo = True
-        if lim.shape[0]:
+        if not stops_checked and lim.shape[0]:
+            stops_checked = True
             s = limit_event(lim, q, v, h, Y[:nq], H)
             if s < h:
                 if s > 0.0 and split:
                     return -s           # retake the step as a shorter one (z untouched)
                 use_qs = True
-                redo = True
-        if not redo:
+                continue
+        for a in range(nv):
+            Y[nq + a] = v[a] + h * kv1[a]
+        for a in range(nq + nv, n):
+            Y[a] = z[a] + h * k1[a]
+        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx)
+        if con is None or attempt == 2:
             break
-    for a in range(nv):
-        Y[nq + a] = v[a] + h * kv1[a]
-    for a in range(nq + nv, n):
-        Y[a] = z[a] + h * k1[a]
-    arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx)
+        ty = contact_stage_jacobian(mi, mf, con, touching, mat[6], mat[8], cj, W)
+        if ty <= touching:
+            break
+        touching = ty           # a touch-down within the step: stage 1 again with J's contact part from Y
     tangent_rate(mi, simple, Y[:nq], Y[nq:nq + nv], fq)
     for a in range(nv):
         fq[a] += C21 * kq1[a]                       # bq of stage 2

@@ -67,15 +67,9 @@ PX, PF, PDEPTH, PSLIP, PPOWER, PACTIVE, NP = 0, 3, 6, 7, 8, 9, 10
 
 
 @njit(**_JIT)
-def point_force(gp, cf, c, b, W):
-    """Force of the ground on point c (a row of cf) of body b, from W (transforms and
-    :func:`~robodyn_ros.kernels.tree.world_kinematics_ws` done).
-
-    Returns ``(active, x0, x1, x2, F0, F1, F2, δ, |u_t|, F·u)``: whether it penetrates, the contact
-    point x_c and the force F (world coordinates, law (C1)-(C3)), the penetration, slip speed and
-    power. The body's origin is ``r0 = W[b, R0_]``, its axes ``E0 = W[b, E0_]`` (world -> body) and
-    its velocity ``[ω; v_O] = W[b, V_]`` in body coordinates.
-    """
+def point_depth(gp, cf, c, b, W):
+    """``(x0, x1, x2, δ)``: the contact point x_c of point c (a row of cf) of body b (world coordinates)
+    and its penetration (C1), from the body poses in W (``W[b, R0_]``, ``W[b, E0_]``)."""
     n0, n1, n2 = gp[GN], gp[GN + 1], gp[GN + 2]
     p0, p1, p2 = cf[c, 0], cf[c, 1], cf[c, 2]
     # world position of the point (a sphere: its centre): x = r0 + E0ᵀ p
@@ -87,7 +81,38 @@ def point_force(gp, cf, c, b, W):
         x0 -= r * n0
         x1 -= r * n1
         x2 -= r * n2
-    depth = gp[GH] - (n0 * x0 + n1 * x1 + n2 * x2)          # (C1)
+    return x0, x1, x2, gp[GH] - (n0 * x0 + n1 * x1 + n2 * x2)          # (C1)
+
+
+@njit(**_JIT)
+def touching_points(con, W):
+    """How many points penetrate the plane (δ > 0) at the configuration whose body poses are in W
+    (``W[:, R0_]``, ``W[:, E0_]``: :func:`~robodyn_ros.kernels.tree.world_kinematics_ws` done): the
+    count :func:`contact_jacobian_add` returns, from the poses alone."""
+    gp, cg, cgf, cf = con
+    n = 0
+    for g in range(cg.shape[0]):
+        if _group_clear(gp, cg, cgf, g, W):
+            continue
+        b = cg[g, 0]
+        for c in range(cg[g, 1], cg[g, 2]):
+            if point_depth(gp, cf, c, b, W)[3] > 0.0:
+                n += 1
+    return n
+
+
+@njit(**_JIT)
+def point_force(gp, cf, c, b, W):
+    """Force of the ground on point c (a row of cf) of body b, from W (transforms and
+    :func:`~robodyn_ros.kernels.tree.world_kinematics_ws` done).
+
+    Returns ``(active, x0, x1, x2, F0, F1, F2, δ, |u_t|, F·u)``: whether it penetrates, the contact
+    point x_c and the force F (world coordinates, law (C1)-(C3)), the penetration, slip speed and
+    power. The body's origin is ``r0 = W[b, R0_]``, its axes ``E0 = W[b, E0_]`` (world -> body) and
+    its velocity ``[ω; v_O] = W[b, V_]`` in body coordinates.
+    """
+    n0, n1, n2 = gp[GN], gp[GN + 1], gp[GN + 2]
+    x0, x1, x2, depth = point_depth(gp, cf, c, b, W)
     if depth <= 0.0:
         return False, x0, x1, x2, 0.0, 0.0, 0.0, depth, 0.0, 0.0
     # the contact point in body coordinates, s = E0 (x − r0), and its velocity v_O + ω × s (body), then world

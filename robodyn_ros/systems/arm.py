@@ -216,6 +216,29 @@ class ArmSystem(System):
         return contact_jacobian(self.contact.con, self._km.mi_r, self._km.mf_r, np.ascontiguousarray(q, dtype=float),
                                 np.ascontiguousarray(v, dtype=float))
 
+    def analysis_states(self, y) -> list:
+        """On a ground, for a tree with a free root whose points do not press the ground at y: y with the
+        root moved along the ground's normal until its lowest point sinks ``m g / k`` (the whole weight on
+        one point: the stiffest normal spring and friction slope ``μ m g / v_s`` a landing can meet), at
+        rest: the state whose contact stiffness ``integrator: auto`` must see before choosing. [] otherwise."""
+        c = self.contact
+        if c is None or self.free_body is None:
+            return []
+        q = np.array(self.split(y)[0], dtype=float)
+        g = c.ground
+        mass = float(sum(sp.mass for sp in self.model.specs))
+        target = mass * float(np.linalg.norm(self.model.gravity)) / g.stiffness
+        from ..kernels.contact import PDEPTH
+        n = np.asarray(g.normal, dtype=float) / np.linalg.norm(g.normal)
+        q0 = int(self.model.q_idx[self.free_body])
+        below = q.copy()   # every point's depth: the tree moved 100 m into the ground (no group culled), less 100 m
+        below[q0:q0 + 3] -= 100.0 * n
+        deepest = float(np.max(c.point_outputs(self._km, below, np.zeros(self.nv))[:, PDEPTH])) - 100.0
+        if deepest >= target:
+            return []
+        q[q0:q0 + 3] -= n * (target - deepest)
+        return [np.concatenate([q, np.zeros(self.nv)])]
+
     def contact_power(self, y) -> float:
         """Power (W) of the ground's forces at state y (0 off the ground)."""
         return float(self.contact_fext(y)[1]) if self.contact is not None else 0.0

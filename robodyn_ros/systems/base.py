@@ -320,6 +320,11 @@ class System:
         J = 0 (the method is then Heun's). Also used by the step preflight (:mod:`robodyn_ros.stability`)."""
         return None
 
+    def analysis_states(self, y: np.ndarray) -> list:
+        """States besides y at which ``integrator: auto`` analyses the step (:mod:`robodyn_ros.integrator_choice`):
+        those whose stiffness y does not show yet (a body above a ground it will land on). None by default."""
+        return []
+
     def explicit_time_constant(self, y: np.ndarray) -> float:
         """The part of :meth:`fastest_time_constant` (s) that :meth:`passive_jacobian` does not hold
         (``rosenbrock2`` must resolve it explicitly): all of it by default."""
