@@ -169,7 +169,7 @@ SCENES = _scene_names()
 
 #: scenes with spherical joints: the numpy reference has none, so test_spherical.py checks the kernels on
 #: them against Pinocchio instead
-SPHERICAL = ('huston_human17',)
+SPHERICAL = ('huston_human17', 'huston_human17_fall')
 
 
 def test_the_scenes_left_to_pinocchio_are_those_with_spherical_joints():

@@ -374,11 +374,12 @@ def contact_stage_jacobian(mi, mf, con, touching, Dc, K2, cj, W):
 def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red, touching):
     """The iteration matrix ``A = M + γh D + γ²h² K`` (R5) of :func:`arm_rosenbrock_step` and its Cholesky
     factor, into ``mat = [H (= M, given), D, K, A, L, G (given)]``: D, K from :func:`passive_jacobian`
-    (stops at the stage configuration qs too with use_qs), on a ground (con) the contacts' ``D_c, K_c``
-    (``mat[6], mat[7]``, :func:`contact_bias_mass`; touching: how many points touch, 0 or −1 off the ground), plus the gravity stiffness G = ∂g/∂q of the
-    1-DOF joints (:func:`arm_bias_mass`), which is dropped when A is not positive
-    definite with it (a load above its axis stiff enough to matter at this step). Returns the γ of the
-    step: ``GAMMA`` (1 − 1/√2), or ``GAMMA_STOP`` (1 + 1/√2) when a joint stop is in J, whose law switches
+    (stops at the stage configuration qs too with use_qs), when ``touching`` > 0 points touch a ground the
+    contacts' ``D_c, K_c`` (``mat[6], mat[7]``: :func:`contact_bias_mass`, :func:`contact_stage_jacobian`),
+    plus the gravity stiffness G = ∂g/∂q of the 1-DOF joints (:func:`arm_bias_mass`), which is dropped
+    when A is not positive definite with it (a load above its axis stiff enough to matter at this step).
+    Returns the γ of the step: ``GAMMA`` (1 − 1/√2), or ``GAMMA_STOP`` (1 + 1/√2) when a joint stop is in J
+    or a contact touches (docs/contact.md: the friction's sign flips with the small root), whose law switches
     its damper within a step (:mod:`robodyn_ros.kernels.rosenbrock`); 0.0 when A is not positive definite
     without the gravity part either.
 
@@ -468,7 +469,8 @@ def stiffness_rate(mi, simple, con, q, bq, out):
     (con) of a tree with a free root ``Φ bq`` (:func:`~robodyn_ros.kernels.tree.tangent_velocity_into`):
     the contacts' K_c is ``−∂τ_c/∂q`` for q-increments in velocity coordinates (body-frame linear part),
     while the stage algebra's tangent increments have the free root's position in the world frame
-    (``K_tan = K_c Φ``; in A, ``K_tan T = K_c``, so the iteration matrix keeps K_c). Returns the array to use."""
+    (``K_tan = K_c Φ``; in A, ``K_tan T = K_c``, so the iteration matrix keeps K_c). Returns the array
+    to use."""
     if con is None or simple:
         return bq
     tangent_velocity_into(mi, q, bq, out)
@@ -590,9 +592,10 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
                     kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs):
     """K publication periods of an arm in one call: per period k the scripted command at its
     start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), clamped to the
-    effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``, :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then
-    the outputs at its end: ``Zs[k] = z``, ``Us[k] = u`` (as commanded), ``TAUs[k] = τ_app`` and, with
-    want_f, the joint wrenches ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v − F tanh(v/v_s) + τ_lim``,
+    effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``,
+    :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
+    ``Zs[k] = z``, ``Us[k] = u`` (as commanded), ``TAUs[k] = τ_app`` and, with want_f, the joint
+    wrenches ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v − F tanh(v/v_s) + τ_lim``,
     :func:`arm_forces`, and on a ground the contacts' forces on their own links,
     :func:`.contact.point_body_forces`) -- the numbers the Simulator's per-period path computes with
     the same functions. con: None, or the ground contacts (:func:`arm_rhs`; z then ends with W_c), with

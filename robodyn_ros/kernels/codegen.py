@@ -534,8 +534,8 @@ def specialize(model):
     """The generated module for ``model`` (written and compiled on first use), or None.
 
     Returns None for trees with FREE or SPHERICAL joints. The module has ``aba(q, v, tau, qdd)``,
-    ``integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con)`` with the
-    arguments of :func:`robodyn_ros.kernels.arm.integrate_arm` (mi/mf: the merged packing) and
+    ``integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl,
+    con)`` with the arguments of :func:`robodyn_ros.kernels.arm.integrate_arm` (mi/mf: the merged packing) and
     ``run_arm_periods`` with those of :func:`robodyn_ros.kernels.arm.run_arm_periods`.
     """
     key = _key(model)

@@ -280,9 +280,9 @@ class ArmSystem(System):
         """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``): ``[[0, Q], [−M⁻¹K Φ,
         −M⁻¹D]]`` with D, K from ``CompiledModel.passive_jacobian`` (damping, friction slope, joint-limit
         moments, on a ground the contacts' D_c, K_c, and at a step h the gravity stiffness of the 1-DOF
-        joints; the reference backend: damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent coordinates of a change of q); with
-        mimic joints M⁻¹ is the coupled one, ``G (Gᵀ M G)⁻¹ Gᵀ``. The fused loop assembles the same D and K
-        itself."""
+        joints; the reference backend: damping alone), Q = ∂q̇/∂v and Φ its left inverse (tangent
+        coordinates of a change of q); with mimic joints M⁻¹ is the coupled one, ``G (Gᵀ M G)⁻¹ Gᵀ``. The
+        fused loop assembles the same D and K itself."""
         q, v = self.split(np.asarray(y, dtype=float))
         nq, nv = self.nq, self.nv
         if self._km is not None:
