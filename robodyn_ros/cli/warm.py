@@ -47,9 +47,9 @@ def _scene_runs(scratch):
     def urdf_robot(variant):
         """stanford_arm's arm as a URDF file: as it is, with Coulomb friction and effort limits on
         every joint (the right-hand side of URDF robots with ``<dynamics friction>``), with its last
-        joint following the one before (``<mimic>``: the coupled dynamics), or with stiff joint damping
-        (integrator auto runs it with rosenbrock2, the linearly implicit step)."""
-        path = os.path.join(scratch, f'robot_{variant}.urdf')
+        joint following the one before (``<mimic>``: the coupled dynamics), with stiff joint damping
+        (integrator auto runs it with rosenbrock2, the linearly implicit step), or both."""
+        path = os.path.join(scratch, f'robot_{variant.replace(", ", "_")}.urdf')
         if not os.path.exists(path):
             m = load_scene('stanford_arm').system.model
             moving = [s for s in m.specs if s.joint_type != 'fixed']
@@ -60,13 +60,17 @@ def _scene_runs(scratch):
                 specs = [replace(s, damping=50.0, friction=1e-3) if s.joint_type != 'fixed' else s for s in m.specs]
             elif variant == 'mimic':
                 specs = [replace(s, mimic=(moving[-2].joint, 0.5, 0.0)) if s is moving[-1] else s for s in m.specs]
+            elif variant == 'damped, mimic':   # rosenbrock2's stages in the independent joints (tiago, talos)
+                specs = [replace(s, damping=50.0, friction=1e-3,
+                                 mimic=(moving[-2].joint, 0.5, 0.0) if s is moving[-1] else None)
+                         if s.joint_type != 'fixed' else s for s in m.specs]
             else:
                 specs = m.specs
             with open(path, 'w') as f:
                 f.write(to_urdf(build_model(specs, gravity=m.gravity, name=m.name, root=m.root)))
         return load_scene(path)
     return runs + [(f'stanford_arm as URDF{"" if v == "plain" else ", " + v}', lambda v=v: urdf_robot(v))
-                   for v in ('plain', 'friction', 'mimic', 'damped')]
+                   for v in ('plain', 'friction', 'mimic', 'damped', 'damped, mimic')]
 
 
 def warm_scene(load, backend, scratch) -> None:
