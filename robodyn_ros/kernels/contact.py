@@ -115,18 +115,7 @@ def point_force(gp, cf, c, b, W):
     x0, x1, x2, depth = point_depth(gp, cf, c, b, W)
     if depth <= 0.0:
         return False, x0, x1, x2, 0.0, 0.0, 0.0, depth, 0.0, 0.0
-    # the contact point in body coordinates, s = E0 (x − r0), and its velocity v_O + ω × s (body), then world
-    d0, d1, d2 = x0 - W[b, R0_], x1 - W[b, R0_ + 1], x2 - W[b, R0_ + 2]
-    s0 = W[b, E0_] * d0 + W[b, E0_ + 1] * d1 + W[b, E0_ + 2] * d2
-    s1 = W[b, E0_ + 3] * d0 + W[b, E0_ + 4] * d1 + W[b, E0_ + 5] * d2
-    s2 = W[b, E0_ + 6] * d0 + W[b, E0_ + 7] * d1 + W[b, E0_ + 8] * d2
-    w0, w1, w2 = W[b, V_], W[b, V_ + 1], W[b, V_ + 2]
-    b0 = W[b, V_ + 3] + (w1 * s2 - w2 * s1)
-    b1 = W[b, V_ + 4] + (w2 * s0 - w0 * s2)
-    b2 = W[b, V_ + 5] + (w0 * s1 - w1 * s0)
-    u0 = W[b, E0_] * b0 + W[b, E0_ + 3] * b1 + W[b, E0_ + 6] * b2
-    u1 = W[b, E0_ + 1] * b0 + W[b, E0_ + 4] * b1 + W[b, E0_ + 7] * b2
-    u2 = W[b, E0_ + 2] * b0 + W[b, E0_ + 5] * b1 + W[b, E0_ + 8] * b2
+    u0, u1, u2 = point_velocity(b, W, x0, x1, x2)
     un = n0 * u0 + n1 * u1 + n2 * u2
     fn = gp[GK] * depth * (1.0 + gp[GD] * (-un))              # (C2)
     if fn < 0.0:
@@ -352,9 +341,9 @@ def contact_jacobian_add(con, mi, mf, W, Dm, Km, J, cols):
 
 
 @njit(**_JIT)
-def _slip(gp, cf, c, b, W, x0, x1, x2):
-    """The tangential velocity u_t (world, 3 floats) of point c of body b at its contact point x."""
-    n0, n1, n2 = gp[GN], gp[GN + 1], gp[GN + 2]
+def point_velocity(b, W, x0, x1, x2):
+    """The velocity (world, 3 floats) of the material point of body b at world position x: the point in
+    body coordinates, s = E0 (x − r0), its velocity v_O + ω × s (body), then world axes."""
     d0, d1, d2 = x0 - W[b, R0_], x1 - W[b, R0_ + 1], x2 - W[b, R0_ + 2]
     s0 = W[b, E0_] * d0 + W[b, E0_ + 1] * d1 + W[b, E0_ + 2] * d2
     s1 = W[b, E0_ + 3] * d0 + W[b, E0_ + 4] * d1 + W[b, E0_ + 5] * d2
@@ -366,6 +355,14 @@ def _slip(gp, cf, c, b, W, x0, x1, x2):
     u0 = W[b, E0_] * b0 + W[b, E0_ + 3] * b1 + W[b, E0_ + 6] * b2
     u1 = W[b, E0_ + 1] * b0 + W[b, E0_ + 4] * b1 + W[b, E0_ + 7] * b2
     u2 = W[b, E0_ + 2] * b0 + W[b, E0_ + 5] * b1 + W[b, E0_ + 8] * b2
+    return u0, u1, u2
+
+
+@njit(**_JIT)
+def _slip(gp, cf, c, b, W, x0, x1, x2):
+    """The tangential velocity u_t (world, 3 floats) of point c of body b at its contact point x."""
+    n0, n1, n2 = gp[GN], gp[GN + 1], gp[GN + 2]
+    u0, u1, u2 = point_velocity(b, W, x0, x1, x2)
     un = n0 * u0 + n1 * u1 + n2 * u2
     return u0 - un * n0, u1 - un * n1, u2 - un * n2
 
