@@ -742,6 +742,11 @@ def _origin(model: Model, i: int):
     return np.array([p[2, 1], p[0, 2], p[1, 0]]), E.T
 
 
+def _xa(name) -> str:
+    """A name as the text of an XML attribute (``&``, ``<``, ``>`` and ``"`` escaped)."""
+    return str(name).replace('&', '&amp;').replace('<', '&lt;').replace('>', '&gt;').replace('"', '&quot;')
+
+
 def to_urdf(model: Model) -> str:
     """URDF text of the model; link/joint names and frames equal the simulator's.
 
@@ -769,13 +774,13 @@ def to_urdf(model: Model) -> str:
             kids[int(model.parent[i])].append((origins[i][0], sub[i]))
     drawn = not any(s.visuals for s in model.specs)  # an imported robot shows its own visuals only
     root = LinkSpec(name=model.root, joint='', parent=None)
-    out = [f'<?xml version="1.0"?>', f'<robot name="{model.name}">']
+    out = [f'<?xml version="1.0"?>', f'<robot name="{_xa(model.name)}">']
     root_vis = link_visuals(root, FIXED, kids[-1], root=True) if kids[-1] and drawn else []
-    out += [f'  <link name="{model.root}">', *(f'    {v}' for v in root_vis), '  </link>'] if root_vis \
-        else [f'  <link name="{model.root}"/>']
+    out += [f'  <link name="{_xa(model.root)}">', *(f'    {v}' for v in root_vis), '  </link>'] if root_vis \
+        else [f'  <link name="{_xa(model.root)}"/>']
     for i, s in enumerate(model.specs):
         Ic = np.asarray(s.inertia, dtype=float)
-        out.append(f'  <link name="{s.name}">')
+        out.append(f'  <link name="{_xa(s.name)}">')
         if s.mass > 0.0:
             out.append('    <inertial>')
             out.append(f'      <origin xyz="{f(s.com)}" rpy="0 0 0"/>')
@@ -793,9 +798,9 @@ def to_urdf(model: Model) -> str:
             out += _spherical_urdf(s, parent, f(r), f(R_to_rpy(R)))
             continue
         kind = {FIXED: 'fixed', REVOLUTE: 'revolute', PRISMATIC: 'prismatic', FREE: 'floating'}[jt]
-        out.append(f'  <joint name="{s.joint}" type="{kind}">')
-        out.append(f'    <parent link="{parent}"/>')
-        out.append(f'    <child link="{s.name}"/>')
+        out.append(f'  <joint name="{_xa(s.joint)}" type="{kind}">')
+        out.append(f'    <parent link="{_xa(parent)}"/>')
+        out.append(f'    <child link="{_xa(s.name)}"/>')
         out.append(f'    <origin xyz="{f(r)}" rpy="{f(R_to_rpy(R))}"/>')
         if jt in (REVOLUTE, PRISMATIC):
             out.append(f'    <axis xyz="{f(model.axis[i])}"/>')
@@ -806,7 +811,7 @@ def to_urdf(model: Model) -> str:
             if s.damping or s.friction:
                 out.append(f'    <dynamics damping="{float(s.damping)!r}" friction="{float(s.friction)!r}"/>')
             if s.mimic is not None:
-                out.append(f'    <mimic joint="{s.mimic[0]}" multiplier="{float(s.mimic[1])!r}" '
+                out.append(f'    <mimic joint="{_xa(s.mimic[0])}" multiplier="{float(s.mimic[1])!r}" '
                            f'offset="{float(s.mimic[2])!r}"/>')
         out.append('  </joint>')
     out.append('</robot>')
@@ -824,12 +829,12 @@ def _spherical_urdf(s, parent, xyz, rpy) -> list:
     (:func:`spherical_link_names`). Their angles are the Bryan angles of Huston eq. (20.3.2),
     ``R = Rx(α) Ry(β) Rz(γ)``, which ``joint_states`` publishes (:func:`bryan_angles`)."""
     lx, ly = spherical_link_names(s)
-    out = [f'  <link name="{lx}"/>', f'  <link name="{ly}"/>']
+    out = [f'  <link name="{_xa(lx)}"/>', f'  <link name="{_xa(ly)}"/>']
     chain = ((parent, lx, xyz, rpy, '1 0 0'), (lx, ly, '0 0 0', '0 0 0', '0 1 0'),
              (ly, s.name, '0 0 0', '0 0 0', '0 0 1'))
     for (pa, ch, o_xyz, o_rpy, ax), suf in zip(chain, SPHERICAL_AXES):
-        out += [f'  <joint name="{s.joint}{suf}" type="revolute">', f'    <parent link="{pa}"/>',
-                f'    <child link="{ch}"/>', f'    <origin xyz="{o_xyz}" rpy="{o_rpy}"/>', f'    <axis xyz="{ax}"/>',
+        out += [f'  <joint name="{_xa(s.joint + suf)}" type="revolute">', f'    <parent link="{_xa(pa)}"/>',
+                f'    <child link="{_xa(ch)}"/>', f'    <origin xyz="{o_xyz}" rpy="{o_rpy}"/>', f'    <axis xyz="{ax}"/>',
                 '    <limit lower="-10000.0" upper="10000.0" effort="1e6" velocity="1e6"/>', '  </joint>']
     return out
 

@@ -264,3 +264,25 @@ def test_drawn_shapes_do_not_change_the_dynamics_pinocchio_reads():
     a, b = pin.buildModelFromXML(text), pin.buildModelFromXML(bare)
     q = np.array([0.3, 1.0, 0.8, 0.3, 0.8, 0.2])
     assert np.array_equal(pin.crba(a, a.createData(), q), pin.crba(b, b.createData(), q))
+
+
+def test_names_with_xml_special_characters_are_escaped_and_read_back():
+    """Link and joint names with ``&``, ``<``, ``>`` and ``"`` (legal in a URDF as escaped attribute
+    text): the export escapes them; our reader and Pinocchio's (urdfdom) read the same names back."""
+    import pinocchio as pin
+
+    from robodyn_ros.model import LinkSpec, build_model, to_urdf
+    from robodyn_ros.urdf import read_urdf
+    odd = ['arm & "hand"', 'j<1>', 'tool&>']
+    links = [LinkSpec(name=odd[0], joint=odd[1], parent=None, axis=(0, 1, 0), mass=1.0, com=(0.2, 0, 0),
+                      inertia=np.diag([1e-3, 2e-3, 2e-3]), limits=(-1.0, 1.0)),
+             LinkSpec(name='tip', joint=odd[2], parent=odd[0], origin_xyz=(0.4, 0, 0), axis=(0, 0, 1), mass=0.5,
+                      com=(0.1, 0, 0), inertia=np.diag([1e-3] * 3), mimic=(odd[1], 0.5, 0.0))]
+    text = to_urdf(build_model(links, name='a<b>&"c"'))
+    r = read_urdf(text)
+    assert r.name == 'a<b>&"c"'
+    assert [s.name for s in r.specs if s.joint_type != 'fixed'] == [odd[0], 'tip']
+    assert [s.joint for s in r.specs if s.joint_type != 'fixed'] == [odd[1], odd[2]]
+    assert r.specs[-1].mimic[0] == odd[1]
+    pm = pin.buildModelFromXML(text)
+    assert list(pm.names)[1:] == [odd[1], odd[2]]
