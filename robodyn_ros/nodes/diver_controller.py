@@ -18,9 +18,7 @@ any more), after ``max_periods`` commands, or after ``timeout`` wall seconds. Pa
 """
 from __future__ import annotations
 
-import json
 import sys
-import time
 
 import numpy as np
 
@@ -94,50 +92,19 @@ class DiverController:
 
 def main(args=None) -> int:
     """Entry point of the ``diver_controller`` console script (exit 0 when the run ended normally)."""
-    import rclpy
     from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64MultiArray
 
-    from ..scene import SceneError, load_scene
+    from .controller_loop import run_controller
 
-    rclpy.init(args=args)
-    node = rclpy.create_node('diver_controller')
-    p = {k: node.declare_parameter(k, d).value for k, d in PARAMETERS.items()}
-    pub = node.create_publisher(Float64MultiArray, 'effort_commands', 10)
-    try:
-        ctl = DiverController(load_scene(p['scene']), lambda u: pub.publish(Float64MultiArray(data=u)),
-                              p['max_periods'])
-    except (SceneError, ValueError) as e:
-        print(f'diver_controller: {e}', file=sys.stderr)
-        node.destroy_node()
-        rclpy.try_shutdown()
-        return 2
-    # odom first, joint_states once odom and the command topic are matched: a lockstep sim re-sends
-    # its initial state (all topics) when a joint_states subscriber appears, and both must arrive
-    odom_sub = node.create_subscription(Odometry, 'odom', ctl.on_odom, 10)
-    end = time.monotonic() + float(p['timeout'])
-    sim_left = False
-    try:
-        while time.monotonic() < end and not (odom_sub.get_publisher_count() and pub.get_subscription_count()):
-            rclpy.spin_once(node, timeout_sec=0.05)
-        node.create_subscription(JointState, 'joint_states', ctl.on_joint_states, 10)
-        while not ctl.done and time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.05)
-            if pub.get_subscription_count() == 0:        # the sim has gone (stopped at the entry, or shut down)
-                sim_left = ctl.done = True
-    except KeyboardInterrupt:
-        pass
-    r = {**ctl.report(), 'sim_left': sim_left}
-    print(f'diver_controller: {r["sent"]} commands; last state t={(r["last_ns"] or 0) * 1e-9:.3f} s, base pitch '
-          f'{r["turns"] if r["turns"] is not None else float("nan"):.4f} turns'
-          + ('' if r['done'] else ' (timed out)') + (' (the sim node left)' if sim_left else ''), flush=True)
-    if p['result']:
-        with open(p['result'], 'w') as f:
-            json.dump(r, f)
-    node.destroy_node()
-    rclpy.try_shutdown()
-    return 0 if r['done'] else 1
+    def before(node, ctl):
+        # odom first, joint_states once odom and the command topic are matched: a lockstep sim re-sends
+        # its initial state (all topics) when a joint_states subscriber appears, and both must arrive
+        odom_sub = node.create_subscription(Odometry, 'odom', ctl.on_odom, 10)
+        return lambda: odom_sub.get_publisher_count() > 0
+
+    def describe(r):
+        return f', base pitch {r["turns"] if r["turns"] is not None else float("nan"):.4f} turns'
+    return run_controller('diver_controller', PARAMETERS, DiverController, args, before, describe)
 
 
 if __name__ == '__main__':

@@ -19,9 +19,7 @@ file: commands sent, last stamp).
 """
 from __future__ import annotations
 
-import json
 import sys
-import time
 
 import numpy as np
 
@@ -80,45 +78,8 @@ class PdHoldController:
 
 def main(args=None) -> int:
     """Entry point of the ``pd_hold_controller`` console script (exit 0 when the run ended normally)."""
-    import rclpy
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64MultiArray
-
-    from ..scene import SceneError, load_scene
-
-    rclpy.init(args=args)
-    node = rclpy.create_node('pd_hold_controller')
-    p = {k: node.declare_parameter(k, d).value for k, d in PARAMETERS.items()}
-    pub = node.create_publisher(Float64MultiArray, 'effort_commands', 10)
-    try:
-        ctl = PdHoldController(load_scene(p['scene']), lambda u: pub.publish(Float64MultiArray(data=u)),
-                               p['max_periods'])
-    except (SceneError, ValueError) as e:
-        print(f'pd_hold_controller: {e}', file=sys.stderr)
-        node.destroy_node()
-        rclpy.try_shutdown()
-        return 2
-    end = time.monotonic() + float(p['timeout'])
-    sim_left = False
-    try:
-        while time.monotonic() < end and not pub.get_subscription_count():   # the sim is there
-            rclpy.spin_once(node, timeout_sec=0.05)
-        node.create_subscription(JointState, 'joint_states', ctl.on_joint_states, 10)
-        while not ctl.done and time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.05)
-            if pub.get_subscription_count() == 0:        # the sim has gone (its duration reached, or shut down)
-                sim_left = ctl.done = True
-    except KeyboardInterrupt:
-        pass
-    r = {**ctl.report(), 'sim_left': sim_left}
-    print(f'pd_hold_controller: {r["sent"]} commands; last state t={(r["last_ns"] or 0) * 1e-9:.3f} s'
-          + ('' if r['done'] else ' (timed out)') + (' (the sim node left)' if sim_left else ''), flush=True)
-    if p['result']:
-        with open(p['result'], 'w') as f:
-            json.dump(r, f)
-    node.destroy_node()
-    rclpy.try_shutdown()
-    return 0 if r['done'] else 1
+    from .controller_loop import run_controller
+    return run_controller('pd_hold_controller', PARAMETERS, PdHoldController, args)
 
 
 if __name__ == '__main__':
