@@ -165,10 +165,7 @@ def ground_fext_ws(con, W, fext):
                 continue
             P += pw
             # f_b = E0 F; n_b = s × f_b with s = E0 (x − r0) the point in body coordinates
-            d0, d1, d2 = x0 - W[b, R0_], x1 - W[b, R0_ + 1], x2 - W[b, R0_ + 2]
-            s0 = W[b, E0_] * d0 + W[b, E0_ + 1] * d1 + W[b, E0_ + 2] * d2
-            s1 = W[b, E0_ + 3] * d0 + W[b, E0_ + 4] * d1 + W[b, E0_ + 5] * d2
-            s2 = W[b, E0_ + 6] * d0 + W[b, E0_ + 7] * d1 + W[b, E0_ + 8] * d2
+            s0, s1, s2 = body_point(b, W, x0, x1, x2)
             f0 = W[b, E0_] * F0 + W[b, E0_ + 1] * F1 + W[b, E0_ + 2] * F2
             f1 = W[b, E0_ + 3] * F0 + W[b, E0_ + 4] * F1 + W[b, E0_ + 5] * F2
             f2 = W[b, E0_ + 6] * F0 + W[b, E0_ + 7] * F1 + W[b, E0_ + 8] * F2
@@ -341,13 +338,19 @@ def contact_jacobian_add(con, mi, mf, W, Dm, Km, J, cols):
 
 
 @njit(**_JIT)
+def body_point(b, W, x0, x1, x2):
+    """The world point x in body b's coordinates, s = E0 (x − r0) (3 floats)."""
+    d0, d1, d2 = x0 - W[b, R0_], x1 - W[b, R0_ + 1], x2 - W[b, R0_ + 2]
+    return (W[b, E0_] * d0 + W[b, E0_ + 1] * d1 + W[b, E0_ + 2] * d2,
+            W[b, E0_ + 3] * d0 + W[b, E0_ + 4] * d1 + W[b, E0_ + 5] * d2,
+            W[b, E0_ + 6] * d0 + W[b, E0_ + 7] * d1 + W[b, E0_ + 8] * d2)
+
+
+@njit(**_JIT)
 def point_velocity(b, W, x0, x1, x2):
     """The velocity (world, 3 floats) of the material point of body b at world position x: the point in
     body coordinates, s = E0 (x − r0), its velocity v_O + ω × s (body), then world axes."""
-    d0, d1, d2 = x0 - W[b, R0_], x1 - W[b, R0_ + 1], x2 - W[b, R0_ + 2]
-    s0 = W[b, E0_] * d0 + W[b, E0_ + 1] * d1 + W[b, E0_ + 2] * d2
-    s1 = W[b, E0_ + 3] * d0 + W[b, E0_ + 4] * d1 + W[b, E0_ + 5] * d2
-    s2 = W[b, E0_ + 6] * d0 + W[b, E0_ + 7] * d1 + W[b, E0_ + 8] * d2
+    s0, s1, s2 = body_point(b, W, x0, x1, x2)
     w0, w1, w2 = W[b, V_], W[b, V_ + 1], W[b, V_ + 2]
     b0 = W[b, V_ + 3] + (w1 * s2 - w2 * s1)
     b1 = W[b, V_ + 4] + (w2 * s0 - w0 * s2)
