@@ -122,7 +122,7 @@ def lookup(data, path: str):
 
 
 def assign(data, path: str, value):
-    """Set a dotted path in the nested scene mapping (the path exists: checked by :func:`_lookup`)."""
+    """Set a dotted path in the nested scene mapping (the path exists: checked by :func:`lookup`)."""
     keys = _split(path)
     node = data
     for key in keys[:-1]:

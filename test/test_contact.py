@@ -456,3 +456,21 @@ def test_refusals_of_what_contact_does_not_cover():
     from robodyn_ros.systems.base import backend_scope
     with backend_scope('numpy'), pytest.raises(SceneError, match=r"parts\[1\]: .*compiled kernels only"):
         scene(box_urdf(), {}, [0, 0, 0.2, 0, 0, 0, 1])
+
+
+def test_ground_defaults_are_set_once_and_documented_as_they_are():
+    """A ``ground`` part with no law keys gets :class:`Ground`'s field defaults (the one place they are
+    set), and docs/contact.md's "Defaults:" sentence states those values."""
+    import re
+    from pathlib import Path
+
+    from robodyn_ros.systems.contact import Ground
+    sc = scene(box_urdf(), {}, [0, 0, 0.2, 0, 0, 0, 1])
+    law = sc.system.contact.ground
+    assert law == Ground(normal=law.normal, height=0.0)
+    text = (Path(__file__).resolve().parents[1] / 'docs' / 'contact.md').read_text()
+    line = re.search(r'^Defaults: (.*)$', text, re.MULTILINE).group(1)
+    said = dict(re.findall(r'(stiffness|dissipation|friction|slip speed) ([0-9.e]+)', line))
+    assert {k.replace(' ', '_'): float(v) for k, v in said.items()} == {
+        'stiffness': law.stiffness, 'dissipation': law.dissipation, 'friction': law.friction,
+        'slip_speed': law.slip_speed}, line
