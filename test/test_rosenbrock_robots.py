@@ -20,7 +20,7 @@ from robodyn_ros.simulation import Simulator
 from robodyn_ros.systems.base import backend_scope
 from robodyn_ros.urdf import example_robot_data_dir
 
-pin = pytest.importorskip('pinocchio')   # test extra, like example-robot-data
+import pinocchio as pin  # noqa: E402  (a test dependency: missing, this module fails instead of skipping)
 
 ERD = example_robot_data_dir()
 V_S = 0.05   # the Coulomb regularisation speed docs/urdf.md documents (rad/s or m/s)
