@@ -35,7 +35,11 @@ FIG = r'(?<![\w.])[−-]?([0-9]+(?:\.[0-9]+)?(?:e[-−+]?[0-9]+)?)'
 RATIO = 1000.0
 #: figures beside a bound that breaks the rule in the rooms other helpers are rewriting (docs/integrators.md,
 #: docs/urdf*.md): ``(file, figure, bound)``, to be fixed there; none elsewhere
-PENDING = set()
+PENDING = {
+    # '2.2e-11 rad from the exact solution over 2 s at RK4 1 ms (tested < 1e-9)': the bound is read as the
+    # step's; the figure must stand just before its bound
+    ('urdf.md', 1.0, 1e-9),
+}
 
 
 def _number(text: str) -> float:
