@@ -39,6 +39,8 @@ PENDING = {
     # '2.2e-11 rad from the exact solution over 2 s at RK4 1 ms (tested < 1e-9)': the bound is read as the
     # step's; the figure must stand just before its bound
     ('urdf.md', 1.0, 1e-9),
+    # '... to ≤ 3e-15 (both tested < 1e-10)': a bound 3e4 times its figure
+    ('urdf.md', 3e-15, 1e-10),
 }
 
 
@@ -53,7 +55,8 @@ def printed_bounds(path: Path) -> list:
     * in a table row, a figure followed by its bound in brackets: '3.1e-13 relative (3e-11)',
       '6.7e-14 rad (5e-12)', '1.7e-8 m/s (bound 1e-7)' (figures in e-notation);
     * anywhere, 'FIGURE [unit words] (tested < BOUND)' or '(tested > BOUND)', and
-      '(FIGURE words; tested < BOUND)' (any decimal figure; a sign is dropped)."""
+      '(FIGURE words; tested < BOUND)' (any decimal figure; a sign is dropped), and
+      'FIGURE ... FIGURE (both tested < BOUND)' (the two e-notation figures before it)."""
     out = []
     for i, line in enumerate(path.read_text().splitlines(), 1):
         if line.startswith('|'):
@@ -63,6 +66,9 @@ def printed_bounds(path: Path) -> list:
             out.append((_number(fig), op, _number(bound), path.name, i, line[:70]))
         for fig, op, bound in re.findall(r'\(' + FIG + r'[^();]*; tested ([<>]) ' + FIG + r' ?%?\)', line):
             out.append((_number(fig), op, _number(bound), path.name, i, line[:70]))
+        for m in re.finditer(r'\(both tested ([<>]) ' + FIG + r'\)', line):   # the two figures before it
+            for fig in re.findall(NUM, line[:m.start()])[-2:]:
+                out.append((_number(fig), m.group(1), _number(m.group(2)), path.name, i, line[:70]))
     return out
 
 
@@ -90,13 +96,14 @@ def test_the_checker_reads_each_form():
     import tempfile
     text = ('| a | b | 3.1e-13 relative (3e-11) |\n'
             'error 2.7e-7 rad (tested < 3e-6), off by 8.7e-2 rad (tested > 1e-2)\n'
-            '| 0.30 rad (4.7e-2 at rest; tested > 5e-3) | −1.8e-5 m (tested < 1e-4) | 3.7 % (tested < 10 %) |\n')
+            '| 0.30 rad (4.7e-2 at rest; tested > 5e-3) | −1.8e-5 m (tested < 1e-4) | 3.7 % (tested < 10 %) |\n'
+            'to ≤ 8e-13 relative, and v̇ to ≤ 3e-12 (both tested < 1e-10)\n')
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / 'x.md'
         p.write_text(text)
         got = [x[:3] for x in printed_bounds(p)]
     assert sorted(got) == sorted([(3.1e-13, '<', 3e-11), (2.7e-7, '<', 3e-6), (8.7e-2, '>', 1e-2), (4.7e-2, '>', 5e-3),
-                                  (1.8e-5, '<', 1e-4), (3.7, '<', 10.0)]), got
+                                  (1.8e-5, '<', 1e-4), (3.7, '<', 10.0), (8e-13, '<', 1e-10), (3e-12, '<', 1e-10)]), got
     assert not any(_breaks_the_rule(*x) for x in got)
     assert _breaks_the_rule(2e-5, '<', 1e-5) and _breaks_the_rule(1e-16, '<', 1e-12)
     assert _breaks_the_rule(1e-3, '>', 1e-2) and _breaks_the_rule(1.0, '>', 1e-4)
