@@ -413,7 +413,9 @@ def steps_report(t: dict) -> str:
 def main(args) -> int:
     """Print the comparison and the speed tables, or with --steps the steps table (and write it with --out)."""
     if args.steps:
-        text = steps_report(steps(progress=lambda m: None))
+        text = ('# Ground scenes: integrator and step\n\n`robodyn bench contact --steps` (read in '
+                '[contact.md](contact.md#integrator-and-step-of-the-bundled-scenes)).\n\n'
+                + steps_report(steps(progress=lambda m: None)))
         print(text)
         if args.out:
             with open(args.out, 'w', encoding='utf-8') as f:
