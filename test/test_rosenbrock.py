@@ -18,7 +18,6 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from robodyn_ros import kernels
-from robodyn_ros.integrator_choice import choose_integrator
 from robodyn_ros.model import LinkSpec, build_model
 from robodyn_ros.simulation import Simulator
 from robodyn_ros.stability import analyse_step, rosenbrock2_amplification

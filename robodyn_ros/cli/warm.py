@@ -78,16 +78,15 @@ def warm_scene(load, backend, scratch) -> None:
     import os
 
     from ..recording.run_sink import HEADLESS_BATCH, NODE_CHUNK_SPAN, McapRunSink
-    from ..runs import resolve_settings
+    from ..runs import plan_run, resolve_settings
     from ..simulation import Simulator, run_headless
     from ..systems.base import backend_scope
     with backend_scope(backend):
         scene = load()
-    st = resolve_settings(scene, duration=DURATION)
+    plan, st = plan_run(resolve_settings(scene, duration=DURATION), scene.system, scene.y0)
     st['backend'] = backend
     for batch, chunk_span in ((HEADLESS_BATCH, None), (0, NODE_CHUNK_SPAN)):
-        sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                        atol=st['atol'])
+        sim = Simulator(scene.system, scene.y0, plan=plan)
         sink = McapRunSink(os.path.join(scratch, 'warm.mcap'), scene, {**st, 'mode': 'warm'}, batch=batch,
                            chunk_span=chunk_span, diagnostics_period=0.1)
         try:
