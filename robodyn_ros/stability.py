@@ -76,7 +76,10 @@ FIXED_EXPLICIT = ('euler', 'semi_implicit_euler', 'rk4')
 LINEARLY_IMPLICIT = ('rosenbrock2',)
 #: every fixed-step method this module analyses
 FIXED_STEP = FIXED_EXPLICIT + LINEARLY_IMPLICIT
-#: γ of rosenbrock2 (kernels.rosenbrock.GAMMA, integrators.GAMMA)
+#: γ of rosenbrock2 (kernels.rosenbrock.GAMMA, integrators.GAMMA): the analysis takes this root. The
+#: compiled loops take the other, 1 + 1/√2 (kernels.rosenbrock.GAMMA_STOP), in steps with a joint stop in
+#: J or a ground contact touching; both are L-stable on what J holds, and outside J the method is Heun's
+#: whatever γ is, so the verdicts hold for either
 _GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
 
 
@@ -375,7 +378,7 @@ def _analyse_linearly_implicit(system, name, h, y, u, t, J) -> StepAnalysis:
     if refuse_growth > REFUSE_GROWTH:
         a.verdict = 'refuse'
         a.message = (f'{name} with dt={h:g} s is unstable for this system ({type(system).__name__}): it is implicit '
-                     f'only in the passive forces (damping, friction, joint limits, motor electrics) and {mode}; '
+                     f'only in the passive forces (damping, friction, joint limits, ground contact, motor electrics) and {mode}; '
                      f'a mode grows by {math.exp(refuse_growth):.3g} per step; a stable step on that mode is at most '
                      f'{dt_limit:.3g} s. Use a smaller dt or a stiff error-controlled integrator (radau, bdf, lsoda)')
     elif growth > 0 and doubling < WARN_DOUBLING_TIME:
