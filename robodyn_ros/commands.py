@@ -47,13 +47,14 @@ class CommandPort:
 class CommandPorts:
     """The input ports of a system, each a :class:`CommandPort` at zero.
 
-    inputs: the system's ``inputs`` (name -> :class:`~robodyn_ros.systems.base.InputPort`: size,
-    labels, unit, effort limits); timeout: seconds of simulation time after which an unrefreshed
-    command goes to zero (None = hold forever). ``ports`` maps each name to its CommandPort.
+    system: the System whose ``inputs`` (name -> :class:`~robodyn_ros.systems.base.InputPort`: size,
+    labels, unit, effort limits) these are; timeout: seconds of simulation time after which an
+    unrefreshed command goes to zero (None = hold forever). ``ports`` maps each name to its CommandPort.
     """
 
-    def __init__(self, inputs: dict, timeout: float | None = None):
-        self.inputs = inputs
+    def __init__(self, system, timeout: float | None = None):
+        self.system = system
+        self.inputs = inputs = system.inputs
         self.timeout = timeout
         self.ports = {k: CommandPort(np.zeros(p.size), limit=None if p.limit is None else np.asarray(p.limit, dtype=float))
                       for k, p in inputs.items()}

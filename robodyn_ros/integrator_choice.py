@@ -192,14 +192,15 @@ class StepBudget:
 
 
 def plan_integrator(system, y, integrator=AUTO, dt=DEFAULT_DT, rtol=None, atol=None, step_budget=None,
-                    t: float = 0.0) -> IntegratorPlan:
+                    t: float = 0.0, u=None) -> IntegratorPlan:
     """Decide how ``system`` is integrated from state y at time t (module docstring); the one place that does.
 
     system: the System; y: (ny,) initial state; integrator: registry name or ``'auto'`` (None, '' too);
     dt: the requested fixed step (s); rtol, atol: tolerances (optional; with auto, rtol also bounds the
     fixed step's estimated local error); step_budget: steps per simulated second of an error-controlled
-    method (None: :data:`STEP_BUDGET`; inf: none). Raises ValueError, naming the cause, for an unknown
-    name, a state that cannot be integrated, or a named fixed step the analysis refuses.
+    method (None: :data:`STEP_BUDGET`; inf: none); t: the start time (s); u: the inputs in force at the
+    start (name -> values; None: the analysis' default, zeros). Raises ValueError, naming the cause, for an
+    unknown name, a state that cannot be integrated, or a named fixed step the analysis refuses.
     """
     import numpy as np
 
@@ -214,15 +215,15 @@ def plan_integrator(system, y, integrator=AUTO, dt=DEFAULT_DT, rtol=None, atol=N
     y = np.asarray(y, dtype=float)
     preflight(system, y, t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
     if auto:
-        name, dt, rtol, atol, reason, analysis = _auto(system, y, dt, rtol, atol, t)
+        name, dt, rtol, atol, reason, analysis = _auto(system, y, dt, rtol, atol, t, u)
     else:
-        reason, analysis = '', _check_named(system, name, dt, y, t)
+        reason, analysis = '', _check_named(system, name, dt, y, t, u)
     warns = (analysis.message,) if analysis is not None and analysis.verdict == 'warn' else ()
     return IntegratorPlan(name, dt, rtol, atol, step_budget=budget, auto=auto, reason=reason, analysis=analysis,
                           warnings=warns)
 
 
-def _check_named(system, name: str, dt, y, t: float):
+def _check_named(system, name: str, dt, y, t: float, u=None):
     """The analysis of a fixed step the run named (None for error-controlled methods, or no dt), or
     ValueError when it is unstable: beyond the system's declared fastest time constant
     (:data:`STABILITY_LIMIT`), then on the modes of the linearisation at y
@@ -237,10 +238,10 @@ def _check_named(system, name: str, dt, y, t: float):
                          f'{tau:.3g} s ({type(system).__name__}'
                          f'{getattr(system, "time_constant_words", "") or "; e.g. motor electrics L/R"}), '
                          f'so a stable {name} step is at most {limit * tau:.3g} s. '
-                         f'{step_alternatives(system, dt, y)}')
+                         f'{step_alternatives(system, dt, y, u, t)}')
     if getattr(system, 'ny', 0) == 0:
         return None
-    a = analyse_step(system, name, dt, y, None, t)
+    a = analyse_step(system, name, dt, y, u, t)
     if a.verdict == 'refuse':
         raise ValueError(a.message)
     return a
@@ -250,7 +251,7 @@ def _fastest(a) -> str:
     return f'fastest mode |λ| = {a.lam_max:.3g} 1/s, h·|λ| = {a.dt * a.lam_max:.3g}'
 
 
-def _auto(system, y, dt, rtol, atol, t: float):
+def _auto(system, y, dt, rtol, atol, t: float, u=None):
     """auto's ladder (module docstring, 4): ``(integrator, dt, rtol, atol, reason, analysis)``."""
     import numpy as np
 
@@ -262,10 +263,10 @@ def _auto(system, y, dt, rtol, atol, t: float):
         return 'rk4', h, None, None, 'auto chose rk4: the system has no state to integrate', None
     states = [y] + [np.asarray(s, dtype=float) for s in system.analysis_states(y)] \
         if hasattr(system, 'analysis_states') else [y]
-    Js = [linearisation(system, s, None, t) for s in states]
+    Js = [linearisation(system, s, u, t) for s in states]
 
     def worst(name):   # the analysis at the state where the method fares worst (a refusal first), its words
-        out = [analyse_step(system, name, h, s, None, t, J=J) for s, J in zip(states, Js)]
+        out = [analyse_step(system, name, h, s, u, t, J=J) for s, J in zip(states, Js)]
         k = next((i for i, a in enumerate(out) if a.verdict == 'refuse'), 0)
         return out[k], out, ('' if len(out) == 1 else ' resting on the ground (the state a landing meets)' if k
                              else ' at the initial state and resting on the ground')

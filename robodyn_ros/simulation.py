@@ -91,7 +91,7 @@ class Simulator:
         self.t = self._t0
         self.system.reset_episode()
         self.y = self.system.project(self._y0.copy())
-        self.commands = CommandPorts(self.system.inputs, self._command_timeout)
+        self.commands = CommandPorts(self.system, self._command_timeout)
         self.diag = Diagnostics(energy0=self.system.total_energy(self.y))
         self._work_parts = tuple(getattr(self.system, 'work_components', ()))
         self.diag.work_parts = {k: 0.0 for k in self._work_parts}

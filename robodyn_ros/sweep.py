@@ -162,7 +162,7 @@ class _Figures:
         return 0 if template.extra else len(t_out)
 
     def on_block(self, blk, sim):
-        """The figures of each period of a block (:class:`robodyn_ros.simulation.PeriodBlock`):
+        """The figures of each period of a block (:class:`robodyn_ros.blocks.PeriodBlock`):
         the numbers :meth:`on_output` takes from each, the energy report's from its state and work."""
         ny = sim.system.ny
         for z in blk.z:
