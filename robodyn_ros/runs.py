@@ -75,10 +75,13 @@ def plan_run(st: dict, system, y0, t0: float = 0.0):
 
 def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     """Human-readable summary of a finished run (cpu: process CPU seconds of the run, if known)."""
+    import numpy as np
     e = sim.energy_report()
     d = sim.diag
-    method = st['integrator'] + (f' dt={st["dt"]:g} s' if sim.plan.fixed_step
-                                 else f' rtol={st["rtol"]:g} atol={st["atol"]:g}')
+    ran = sim.integrator.settings()   # what ran: the method and its dt, or its rtol and atol
+    method = ran['integrator'] + (f' dt={ran["dt"]:g} s' if 'dt' in ran else
+                                  f' rtol={ran["rtol"]:g} atol=' + (f'{ran["atol"]:g}' if np.ndim(ran['atol']) == 0
+                                                                    else 'per component'))
     lines = [
         f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
         f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, '

@@ -72,10 +72,7 @@ class Simulator:
             warnings.warn(StepWarning(text), stacklevel=2)
         self.step_budget = plan.step_budget
         self._budget = StepBudget(plan.step_budget)
-        self.settings = {'integrator': plan.integrator, 'dt': plan.dt, 'rtol': plan.rtol, 'atol': plan.atol,
-                         'command_timeout': command_timeout}
-        if plan.auto:
-            self.settings['auto'] = plan.reason
+        self.settings = {**plan.settings(), 'command_timeout': command_timeout}
         self.integrator = plan.build(system)
 
     @property

@@ -137,7 +137,7 @@ def test_gravity_in_J_gives_the_method_its_error_constant_on_a_swinging_pendulum
         q.append(y[0])
         t0 = t
     without = np.abs(np.array(q) - ref).max()
-    assert with_g < 2e-5 and 2.5 * with_g < without < 7e-4, (with_g, without)
+    assert with_g < 2e-5 and 3e-6 < without < 7e-4 and without > 2.5 * with_g, (with_g, without)
 
 
 # ------------------------------------------------------------------------------ order 2
@@ -233,6 +233,18 @@ def test_a_joint_coasting_into_a_stiff_stop_does_not_come_back_faster():
         sim.advance(k * H)
         fastest = max(fastest, abs(sim.y[1]))
     assert fastest <= 1.0 + 1e-9, fastest
+
+
+def test_a_joint_coasting_into_a_stiff_stop_at_a_step_that_resolves_it_leaves_slower():
+    """The stop of the coasting test at 10 µs (ωh = 0.1): the joint comes back, slower than it went in
+    (measured 0.53 rad/s of 1 rad/s; the stop's damper acts while the joint goes in)."""
+    system = hinge(1e-3, limits=(-0.5, 0.5), limit_stiffness=1e5, limit_damping=10.0, limit_return='spring')
+    sim = Simulator(system, [0.45, 1.0], integrator='rosenbrock2', dt=1e-5)
+    back = 0.0
+    for k in range(1, 101):
+        sim.advance(k * H)
+        back = max(back, -sim.y[1])
+    assert 0.05 < back < 1.0, back
 
 
 # ------------------------------------------------------------------------------ energy

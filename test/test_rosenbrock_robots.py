@@ -161,8 +161,12 @@ def auto_table() -> dict:
 AUTO_TABLE = auto_table()
 
 
-def test_the_auto_table_lists_every_bundled_scene():
+def test_the_auto_table_lists_every_bundled_scene_and_the_readme_counts_it():
     assert set(AUTO_TABLE) == {n for n, _ in list_scenes()}
+    readme = ' '.join((ROOT / 'README.md').read_text().split())
+    m = re.search(r'it picks rk4 for (\d+) of the bundled scenes and rosenbrock2 for the (\d+) robots', readme)
+    picks = [row[0] for row in AUTO_TABLE.values()]
+    assert m and (int(m.group(1)), int(m.group(2))) == (picks.count('rk4'), picks.count('rosenbrock2')), m
 
 
 @pytest.mark.parametrize('name', sorted(AUTO_TABLE))
