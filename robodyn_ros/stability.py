@@ -261,7 +261,8 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
     if J is None:
         J = linearisation(system, y, u, t)
     if not np.all(np.isfinite(J)):
-        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite')
+        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite: '
+                         f'{_not_finite_cause(system, y, J)}')
     if name in LINEARLY_IMPLICIT:
         return _analyse_linearly_implicit(system, name, h, y, u, t, J)
     lam = np.linalg.eigvals(J) if J.size else np.zeros(0, dtype=complex)
@@ -472,6 +473,17 @@ def preflight(system, y, t: float = 0.0) -> None:
     if cause:
         raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
                          f'state: {cause}')
+
+
+def _not_finite_cause(system, y, J) -> str:
+    """Why a linearisation J (ny, ny) is not finite: the joint the mass matrix cannot accelerate
+    (:func:`_singular_joint`), else the state components whose rate derivatives are not finite."""
+    cause = _singular_joint(system, y)
+    if cause:
+        return cause
+    bad = np.flatnonzero(~np.all(np.isfinite(J), axis=0))[:4]
+    return ('the derivative of dy/dt is not finite with respect to ' +
+            ', '.join(_state_words(system, int(k)) for k in bad) if bad.size else 'non-finite entries')
 
 
 def _state_words(system, k: int) -> str:

@@ -80,6 +80,7 @@ parents, a loop, several roots, an unknown joint type, a moving link whose subtr
 """
 from __future__ import annotations
 
+import contextvars
 import math
 import os
 import re
@@ -90,13 +91,19 @@ from pathlib import Path
 
 import numpy as np
 
+from .mass_properties import DENSITY, combine, shape_properties
+from .meshes import example_robot_data_dir
 from .model import COULOMB_VELOCITY, Collision, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
 from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis, rpy_to_R
 
 __all__ = ['UrdfError', 'UrdfWarning', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
 
-_MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic'}
-_JOINT_TYPES = ('revolute', 'continuous', 'prismatic', 'fixed', 'floating', 'planar')
+_MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic', 'spherical': 'spherical'}
+_JOINT_TYPES = ('revolute', 'continuous', 'prismatic', 'fixed', 'floating', 'planar', 'spherical')
+#: a number with one trailing dot (``-1.57.``): C's strtod reads the number and stops at the dot
+_TRAILING_DOT = re.compile(r'[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\.')
+#: the numbers read so in the document being read: ``[(where, '<tag attr="text">')]`` (one note for all)
+_TRAILING_READ: contextvars.ContextVar = contextvars.ContextVar('urdf_trailing_dot')
 #: the URDF format's elements (children of robot, link, joint, inertial); others are noted and ignored
 _KNOWN = {'robot': {'link', 'joint', 'material', 'transmission', 'gazebo'},
           'link': {'inertial', 'visual', 'collision'},
@@ -143,17 +150,6 @@ class UrdfRobot:
     velocity_limits: dict = field(default_factory=dict)
     text: str = ''
     notes: list = field(default_factory=list)
-
-
-def example_robot_data_dir() -> Path | None:
-    """Directory of the URDFs shipped by the ``example-robot-data`` wheel (test extras), or None."""
-    try:
-        from importlib.metadata import PackageNotFoundError, distribution
-        d = distribution('example-robot-data')
-    except (ImportError, PackageNotFoundError):
-        return None
-    p = Path(d.locate_file('cmeel.prefix/share/example-robot-data/robots'))
-    return p if p.is_dir() else None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -242,14 +238,38 @@ def _floats(el, attr, n, where, default=None):
         return np.array(default, dtype=float)
     parts = s.split()
     try:
-        x = np.array([float(p) for p in parts], dtype=float)
+        x = np.array([_number(p) for p in parts], dtype=float)
     except ValueError:
         raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected {n} number{"s" if n > 1 else ""}') from None
+    if any(_strtod_only(p) for p in parts):
+        read = _TRAILING_READ.get(None)
+        if read is not None:
+            read.append((where, f'<{el.tag} {attr}="{s[:40]}">'))
     if len(x) != n:
         raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected {n} numbers, got {len(x)}')
     if not np.all(np.isfinite(x)):
         raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected finite numbers')
     return x
+
+
+def _number(text: str) -> float:
+    """One number of an attribute: Python's float, or a number with one trailing dot (``-1.57.``) read
+    as C's ``strtod`` reads it (the dot ignored; :func:`_read` says so in one note)."""
+    try:
+        return float(text)
+    except ValueError:
+        if _TRAILING_DOT.fullmatch(text):
+            return float(text[:-1])
+        raise
+
+
+def _strtod_only(text: str) -> bool:
+    """Whether ``text`` is a number only for strtod (a trailing dot), not for Python's float."""
+    try:
+        float(text)
+        return False
+    except ValueError:
+        return True
 
 
 def _float(el, attr, where, default=None):
@@ -279,12 +299,14 @@ def _origin(el, where) -> np.ndarray:
 @dataclass
 class _Link:
     """A parsed ``<link>``: mass (kg), com (3,) and inertia (3, 3) about the com in link axes
-    (None: no ``<inertial>``), and its ``<visual>`` elements as XML text."""
+    (None: no ``<inertial>``), its ``<visual>`` elements as XML text, its ``<collision>`` shapes and
+    its ``<visual>`` shapes (:class:`robodyn_ros.model.Collision`; the latter only to infer a mass)."""
 
     name: str
     inertial: tuple | None
     visuals: tuple
     collisions: tuple = ()
+    visual_shapes: tuple = ()
 
 
 @dataclass
@@ -357,12 +379,13 @@ _SHAPES = {'sphere': ('radius',), 'box': ('size',), 'cylinder': ('radius', 'leng
            'mesh': ()}
 
 
-def _collisions(elem, base_dir, where, notes) -> tuple:
+def _collisions(elem, base_dir, where, notes, tag: str = 'collision') -> tuple:
     """The ``<collision>`` shapes of a link (:class:`robodyn_ros.model.Collision`); one that cannot be
-    read is left out with a note (collision shapes enter no dynamics: only a ground part uses them)."""
+    read is left out with a note (collision shapes enter a ground part's contact, and the mass of a link
+    without ``<inertial>``). tag: 'visual' reads the ``<visual>`` shapes the same way."""
     out = []
-    for k, c in enumerate(elem.findall('collision')):
-        what = f'{where} <collision> number {k + 1}'
+    for k, c in enumerate(elem.findall(tag)):
+        what = f'{where} <{tag}> number {k + 1}'
         geom = c.find('geometry')
         shapes = [g for g in (geom if geom is not None else []) if isinstance(g.tag, str)]
         if len(shapes) != 1 or shapes[0].tag not in _SHAPES:
@@ -444,7 +467,8 @@ def _parse_robot(root, base_dir, notes, default_name):
         if in_el is not None:
             note_unknown(in_el, 'inertial', '<inertial>/')
         links[name] = _Link(name, _inertial(in_el, where) if in_el is not None else None,
-                            _visuals(e, base_dir, materials, name), _collisions(e, base_dir, where, notes))
+                            _visuals(e, base_dir, materials, name), _collisions(e, base_dir, where, notes),
+                            _collisions(e, base_dir, where, [], 'visual') if in_el is None else ())
     joints = []
     for k, e in enumerate(root.findall('joint')):
         name = e.get('name')
@@ -468,31 +492,53 @@ def _parse_robot(root, base_dir, notes, default_name):
 # ------------------------------------------------------------------------------------------------
 # the robot: parsed links and joints -> checked LinkSpecs
 # ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Options:
+    """What :func:`read_urdf` was asked beyond the file: density (kg/m³) of the solids inferred for
+    moving links without ``<inertial>`` (0: none inferred); armature: 'auto', a number for every
+    moving joint, or ``{joint: value}``."""
+
+    density: float = DENSITY
+    armature: object = 'auto'
+
+
 def read_urdf(source, floating: bool = False, locked: dict | None = None, file: str | None = None,
-              base_dir=None) -> UrdfRobot:
+              base_dir=None, density: float = DENSITY, armature='auto') -> UrdfRobot:
     """Read a URDF and check that it can be simulated.
 
     source: a file path, the file's bytes, or the URDF text; floating: give the root link a FREE
     (6-DOF) joint; locked: joint name -> position (rad or m) of joints to freeze as FIXED (e.g.
     gripper fingers, or ``<mimic>`` joints); file: the name messages give the source (default:
     the path, or none for text); base_dir: where relative mesh paths start for bytes or text (a
-    path's own directory otherwise). Returns a :class:`UrdfRobot`; raises :class:`UrdfError` (one
-    line); issues a :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
+    path's own directory otherwise); density: kg/m³ of the solids a moving link without
+    ``<inertial>`` is inferred to be (its collision, else visual, shapes; 0: none inferred, the link
+    is massless); armature: ``'auto'`` (the smallest :data:`robodyn_ros.armature.LADDER` value on the
+    joints of a mass matrix singular at q = 0, with a note; none where M is regular), a number >= 0
+    (every moving joint; 0: none) or ``{joint: value}``. Returns a :class:`UrdfRobot`; raises
+    :class:`UrdfError` (one line); issues a :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
     """
     data, own_dir, label = _load(source, file)
     base_dir = own_dir if base_dir is None else Path(base_dir)
-    notes = []
+    notes, trailing = [], []
+    token = _TRAILING_READ.set(trailing)
     try:
-        robot = _read(data, base_dir, label, floating, dict(locked or {}), notes)
+        robot = _read(data, base_dir, label, floating, dict(locked or {}), notes, _Options(float(density), armature))
     except UrdfError as e:
         raise UrdfError(e.where, e.reason, label) from None
+    finally:
+        _TRAILING_READ.reset(token)
+    if trailing:
+        seen = list(dict.fromkeys(f'{w} {t}' for w, t in trailing))
+        notes.insert(0, f'{len(seen)} number{"s" if len(seen) > 1 else ""} with a trailing dot read as C\'s strtod '
+                        f'reads {"them" if len(seen) > 1 else "it"} (the dot ignored): ' + ', '.join(seen[:6]) +
+                     (f' and {len(seen) - 6} more' if len(seen) > 6 else ''))
     for n in notes:
         warnings.warn(UrdfWarning(f'{label}: {n}' if label else n), stacklevel=2)
     robot.notes = [f'{label}: {n}' if label else n for n in notes]
     return robot
 
 
-def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
+def _read(data, base_dir, label, floating, locked, notes, opts: _Options) -> UrdfRobot:
     """:func:`read_urdf` without the file name in its errors and notes."""
     xml_root = _parse_document(data, notes)
     default_name = Path(label).stem if label else 'robot'
@@ -538,7 +584,8 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
             (links[root].inertial is None or links[root].inertial[0] == 0.0):
         floating, root = True, children[root][0]
         free_joint = parent_of.pop(root).name
-    specs, no_inertial, no_effort = [], {n for n, lk in links.items() if lk.inertial is None}, []
+    _infer_inertials(links, _inferable(links, parent_of, root, floating), base_dir, opts.density, notes)
+    specs, no_inertial, no_effort, no_velocity = [], {n for n, lk in links.items() if lk.inertial is None}, [], []
     for lname in _depth_first(root, children):
         lk = links[lname]
         if lname == root:
@@ -555,8 +602,16 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
                                    'write it as two prismatic joints and one revolute joint')
         if j.type not in _JOINT_TYPES:
             raise UrdfError(where, f'unknown joint type {j.type!r}; supported: revolute, continuous, prismatic, '
-                                   'fixed, floating (root only)')
-        s = _spec(lk, j, 'fixed' if j.type == 'fixed' else _MOVING[j.type], j.name, no_effort)
+                                   'fixed, spherical, floating (root only)')
+        if j.type == 'spherical':
+            unused = [w for w, given in (('<limit effort>', j.effort), ('<limit velocity>', j.velocity),
+                                         ('<limit lower>', j.lower), ('<limit upper>', j.upper),
+                                         ('<dynamics friction>', j.friction or None), ('<mimic>', j.mimic))
+                      if given is not None]
+            if unused:
+                notes.append(f'{where}: a spherical joint (3 DOF, no axis): {", ".join(unused)} ignored; its '
+                             '<dynamics damping> acts on each of its three rates')
+        s = _spec(lk, j, 'fixed' if j.type == 'fixed' else _MOVING[j.type], j.name, no_effort, no_velocity)
         if j.name in locked and j.type != 'fixed':
             s = _lock(s, j.name, locked[j.name])
         elif j.mimic is not None and j.type != 'fixed':
@@ -572,6 +627,9 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
     if no_effort:
         notes.append(f'<limit effort="0"> read as "no effort limit given" (the ROS convention) on '
                      f'{len(no_effort)} joint{"s" if len(no_effort) > 1 else ""}: {", ".join(no_effort)}')
+    if no_velocity:
+        notes.append(f'<limit velocity="0"> (or below) read as "no velocity limit given", as effort="0" is, on '
+                     f'{len(no_velocity)} joint{"s" if len(no_velocity) > 1 else ""}: {", ".join(no_velocity)}')
     for s in specs:  # before lumping: a negative mass is refused wherever it is
         if s.mass < 0.0:
             raise UrdfError(f'link {s.name!r} (joint {s.joint!r})', f'mass must be >= 0, got {s.mass!r}')
@@ -584,9 +642,116 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
         raise UrdfError(where, reason) if reason else UrdfError(f'robot {name!r}', str(e)) from None
     bare = _massless(specs, no_inertial, resolve_mimics(specs))
     if bare:
-        return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare)
+        return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare, opts)
+    specs = _with_armature(specs, opts.armature, floating, root, name, notes)
     vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
     return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
+
+
+def _inferable(links: dict, parent_of: dict, root: str, floating: bool) -> list:
+    """The links whose mass :func:`_infer_inertials` infers: those of a moving rigid body (a link on a
+    moving joint, or the floating root, with the links welded to it by fixed joints) none of whose links
+    has an ``<inertial>`` (a body whose mass the file puts on a welded link, as ANYmal's ``base_inertia``
+    for its ``base``, keeps the file's mass)."""
+    def head(n):
+        while n in parent_of and parent_of[n].type == 'fixed':
+            n = parent_of[n].parent
+        return n
+    group = {}
+    for n in links:
+        group.setdefault(head(n), []).append(n)
+    out = []
+    for h, members in group.items():
+        moving = (h == root and floating) or (h in parent_of and parent_of[h].type in _MOVING)
+        if moving and all(links[n].inertial is None for n in members):
+            out += members
+    return out
+
+
+def _infer_inertials(links: dict, moving: list, base_dir, density: float, notes) -> None:
+    """Give each link of ``moving`` (:func:`_inferable`; links: name -> :class:`_Link`, modified in place)
+    the mass properties of its ``<collision>`` shapes (else its ``<visual>`` shapes) as solids of
+    ``density`` kg/m³ (:mod:`robodyn_ros.mass_properties`), as MuJoCo's ``inertiafromgeom`` does; one
+    note names them. A link with no shape stays massless (:func:`_massless` then judges its joint);
+    a mesh that cannot be read is refused, naming the link (its mass would be a guess)."""
+    if not density > 0.0:
+        return
+    done = []
+    for n in moving:
+        lk = links[n]
+        if lk.inertial is not None:
+            continue
+        shapes, source = (lk.collisions, 'collision') if lk.collisions else (lk.visual_shapes, 'visual')
+        if not shapes:
+            continue
+        parts = []
+        for c in shapes:
+            verts = None
+            if c.kind == 'mesh':
+                from .meshes import MeshError, mesh_vertices, resolve_uri
+                try:
+                    verts = mesh_vertices(resolve_uri(c.mesh, base_dir)) * np.asarray(c.scale, dtype=float)
+                except MeshError as e:
+                    raise UrdfError(f'link {n!r}', f'has no <inertial>, and its <{source}> mesh cannot be read to '
+                                                   f'infer one ({e}); give the link an <inertial>') from None
+            try:
+                m, com, Ic = shape_properties(c.kind, c.size, density, verts)
+            except ValueError as e:
+                raise UrdfError(f'link {n!r}', f'has no <inertial>, and its <{source}> {c.kind} gives no volume to '
+                                               f'infer one from ({e}); give the link an <inertial>') from None
+            parts.append((m, com, Ic, np.asarray(c.origin)[:3, :3], np.asarray(c.origin)[:3, 3]))
+        m, com, Ic = combine(parts)
+        lk.inertial = (m, com, Ic)
+        done.append(f'{n} {_g(m)} kg ({len(parts)} {source} shape{"s" if len(parts) > 1 else ""})')
+    if done:
+        notes.append(f'{len(done)} moving link{"s" if len(done) > 1 else ""} without <inertial>: mass and inertia '
+                     f'inferred from {"their" if len(done) > 1 else "its"} geometry as solids of density '
+                     f'{_g(density)} kg/m³ (as MuJoCo\'s inertiafromgeom; meshes by their convex hull): '
+                     + ', '.join(done) + '; give the links an <inertial> for their real values')
+
+
+def _with_armature(specs, armature, floating: bool, root: str, name: str, notes) -> list:
+    """The specs with joint armature (:mod:`robodyn_ros.armature`): ``'auto'`` adds the smallest
+    :data:`~robodyn_ros.armature.LADDER` value to the joints of a mass matrix singular at q = 0, with a
+    note (none where M is regular, or where no value is enough: the preflight then refuses the robot,
+    naming the joints); a number goes on every moving joint, a mapping on the joints it names."""
+    from . import armature as arm
+    takes = [s.joint for s in specs if s.joint_type in ('revolute', 'prismatic', 'spherical')]
+    if isinstance(armature, str) and armature == 'auto':
+        if not takes:
+            return specs
+        model = build_model(specs, root='__urdf_world__' if floating else root, name=name)
+        found = arm.regularising_armature(model)
+        if found is None or found[0] is None:
+            return specs
+        a, joints, (w0, w1) = found
+        js = f'joint{"s" if len(joints) > 1 else ""} {", ".join(joints)}'
+        notes.append(f'the mass matrix is singular at q = 0 (eigenvalues {w0:.3g} .. {w1:.3g}: a motion of {js} '
+                     f'meets no inertia there): armature {a:g} kg·m² (kg for a prismatic joint) '
+                     f'added to {"them" if len(joints) > 1 else "it"}, the smallest of {", ".join(f"{x:g}" for x in arm.LADDER)} '
+                     f'that makes M regular (rotor inertia, as real joints have; none in the URDF); give the part '
+                     f'armature: to choose it (0: none)')
+        given = {j: a for j in joints}
+    elif isinstance(armature, dict):
+        given = {}
+        for j, a in armature.items():
+            if j not in takes:
+                raise UrdfError(f'armature joint {j!r}', f'not a moving (revolute, prismatic or spherical) joint; '
+                                                          f'those are {takes}')
+            given[j] = a
+    else:
+        given = {j: armature for j in takes}
+    out = []
+    for s in specs:
+        a = given.get(s.joint, 0.0)
+        try:
+            a = float(a)
+        except (TypeError, ValueError):
+            raise UrdfError(f'armature joint {s.joint!r}', f'expected a number >= 0, got {a!r}') from None
+        if not (math.isfinite(a) and a >= 0.0):
+            raise UrdfError(f'armature joint {s.joint!r}', f'expected a finite number >= 0, got {a!r}')
+        out.append(replace(s, armature=a) if a else s)
+    return out
 
 
 def _physical(s: LinkSpec) -> bool:
@@ -670,9 +835,10 @@ def _depth_first(root, children):
     return out
 
 
-def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
+def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort, no_velocity=None) -> LinkSpec:
     """LinkSpec of link ``lk`` hanging from joint ``j`` (None for the root); joints whose
-    ``<limit effort="0">`` is read as no limit are appended to no_effort."""
+    ``<limit effort="0">`` (``velocity="0"``) is read as no limit are appended to no_effort
+    (no_velocity). A spherical joint keeps its damping only (:func:`_read` notes the rest)."""
     mass, com, Ic = lk.inertial if lk.inertial is not None else (0.0, np.zeros(3), np.zeros((3, 3)))
     kw = dict(name=lk.name, joint=jname, parent=None, joint_type=jtype, mass=mass, com=tuple(com), inertia=Ic,
               visuals=lk.visuals, collisions=lk.collisions)
@@ -683,6 +849,10 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
               origin_rpy=tuple(R_to_rpy(j.T[:3, :3])))
     if jtype == 'fixed':
         return LinkSpec(**kw)
+    if jtype == 'spherical':
+        if j.damping < 0.0:
+            raise UrdfError(jw, f'<dynamics damping> must be >= 0, got {j.damping!r}')
+        return LinkSpec(**kw, damping=j.damping)
     kw.update(axis=tuple(float(x) for x in j.axis), damping=j.damping, friction=j.friction)
     for k in ('damping', 'friction'):
         if kw[k] < 0.0:
@@ -694,8 +864,10 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
             no_effort.append(j.name)
         else:
             kw['effort_limit'] = j.effort
-    if j.velocity is not None and j.velocity > 0.0:  # reported only; <= 0 (written by some exporters) = none
+    if j.velocity is not None and j.velocity > 0.0:  # reported only
         kw['velocity_limit'] = j.velocity
+    elif j.velocity is not None and no_velocity is not None:   # <= 0 (written by some exporters): none given
+        no_velocity.append(j.name)
     if j.type != 'continuous' and (j.lower is not None or j.upper is not None):
         lo, hi = j.lower or 0.0, j.upper or 0.0
         if lo < hi:  # URDF: lower == upper means "no limits given" for some exporters
@@ -735,6 +907,10 @@ def _lock(s: LinkSpec, name: str, q) -> LinkSpec:
     if s.limits is not None and not s.limits[0] <= q <= s.limits[1]:
         raise UrdfError(where, f'position {q!r} is outside its limits {list(s.limits)}')
     R0 = np.asarray(s.origin_R, dtype=float)
+    if s.joint_type == 'spherical':   # locked at its identity orientation only (a position is one number)
+        if q != 0.0:
+            raise UrdfError(where, f'a spherical joint locks at its zero (identity) orientation only, got {q!r}')
+        return replace(s, joint_type='fixed', damping=0.0)
     a = np.asarray(s.axis, dtype=float)
     na = np.linalg.norm(a)
     if not na > 1e-9:
@@ -776,14 +952,14 @@ def _massless(specs, no_inertial, mimics) -> list:
             (' (nor have those of the joints that mimic it)' if s.joint in followers else '') + \
             '; its joint would have no inertia to accelerate'
         if s.name in no_inertial:
-            out.append((s, where, f'missing <inertial> on a moving link{rest} (give it an <inertial> or make the '
-                                  'joint fixed)'))
+            out.append((s, where, f'missing <inertial> on a moving link, and no <collision> or <visual> geometry to '
+                                  f'infer one from{rest} (give it an <inertial> or make the joint fixed)'))
         else:
             out.append((s, where, f'zero-mass moving link{rest} (give it a mass or make the joint fixed)'))
     return out
 
 
-def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) -> UrdfRobot:
+def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare, opts) -> UrdfRobot:
     """The robot read again with the massless moving joints of ``bare`` (:func:`_massless`) locked as
     fixed joints at 0 (or the limit nearest 0), and the joints that mimic them with them, with one
     note naming them (vendor URDFs carry such joints: a hand's massless finger links, a sensor on a
@@ -800,7 +976,7 @@ def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) 
         raise UrdfError(where, reason)
     fresh = []
     try:
-        robot = _read(data, base_dir, label, floating, {**locked, **at}, fresh)
+        robot = _read(data, base_dir, label, floating, {**locked, **at}, fresh, opts)
     except UrdfError:
         raise UrdfError(where, reason) from None
     names = ', '.join(f'{j} at {q:.6g}' for j, q in at.items())
