@@ -98,7 +98,8 @@ def warm_scene(load, backend, scratch) -> None:
 
 
 def main(args) -> int:
-    """Warm every scene; print one line per scene and a total; 1 when the kernels are unavailable."""
+    """Warm every scene; print one line per scene and a total; 1 when the kernels are unavailable, 2
+    when a scene cannot be loaded or run (one line each on stderr, the others warmed all the same)."""
     import tempfile
     import time
     import warnings
@@ -111,17 +112,29 @@ def main(args) -> int:
         print(f'robodyn warm: nothing to compile (backend {backend}'
               f'{"" if kernels.AVAILABLE else "; " + kernels.UNAVAILABLE_REASON})', file=sys.stderr)
         return 1
+    from ..scene import SceneError
+    from ..simulation import SimulationError
     t0 = time.perf_counter()
-    n0 = 0
+    n0, failed = 0, []
     with tempfile.TemporaryDirectory(prefix='robodyn-warm-') as scratch, warnings.catch_warnings():
         warnings.simplefilter('ignore')
         for label, load in _scene_runs(scratch):
             t = time.perf_counter()
-            warm_scene(load, backend, scratch)
+            try:
+                warm_scene(load, backend, scratch)
+            except (SceneError, SimulationError, ValueError, OSError) as e:   # a scene that cannot run: say so, go on
+                failed.append(label)
+                print(f'robodyn warm: {label}: not warmed: {" ".join(str(e).split())}', file=sys.stderr, flush=True)
+                continue
             n = len(compiled_here())
             if not args.quiet:
                 print(f'{label:32s} {time.perf_counter() - t:6.1f} s, {n - n0} kernel signatures compiled', flush=True)
             n0 = n
+    if failed:
+        print(f'robodyn warm: {len(failed)} scene{"s" if len(failed) > 1 else ""} could not be warmed '
+              f'({", ".join(failed)}); {n0} kernel signatures compiled for the others in '
+              f'{time.perf_counter() - t0:.1f} s', file=sys.stderr)
+        return 2
     print(f'robodyn warm: {n0} kernel signatures compiled in {time.perf_counter() - t0:.1f} s '
           f'({backend} backend; cache {kernels.CACHE_DIR})')
     return 0
