@@ -73,6 +73,9 @@ def regularising_armature(model: Model, q=None):
     that move in M's near-null space, mimic joints through their sources) and the eigenvalue range
     of the matrix before; ``(None, joints, ...)`` when no value of the ladder is enough.
     """
+    from . import kernels
+    if model.has_spherical and not kernels.AVAILABLE:
+        return None   # only the compiled kernels compute spherical joints; without them the backend refuses the model
     q = model.neutral() if q is None else np.asarray(q, dtype=float)
     M = mass_matrix(model, q)
     if M.size == 0:
