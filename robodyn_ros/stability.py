@@ -434,7 +434,7 @@ def _singular_joint(system, y) -> str:
     if M.size == 0:   # nothing moves (a fixed-base robot of fixed joints): nothing to be singular
         return ''
     if not np.all(np.isfinite(M)):
-        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)'
+        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)' + _not_finite_where(model, M)
     d = np.diag(M)
     scale = max(float(np.max(np.abs(d))), 1e-300)
     names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
@@ -473,6 +473,19 @@ def preflight(system, y, t: float = 0.0) -> None:
     if cause:
         raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
                          f'state: {cause}')
+
+
+def _not_finite_where(model, M) -> str:
+    """Words naming where a non-finite mass matrix comes from: the links whose spatial inertia (mass,
+    m·c, inertia about the origin) or joint placement is not finite, else the joints of its non-finite
+    diagonal entries."""
+    links = [f'{model.link_names[i]} (its {"spatial inertia" if not np.all(np.isfinite(model.I[i])) else "joint origin"})'
+             for i in range(model.nb) if not (np.all(np.isfinite(model.I[i])) and np.all(np.isfinite(model.Xtree[i])))]
+    if links:
+        return ': link ' + ', '.join(links[:4])
+    names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
+    bad = list(dict.fromkeys(names[k] for k in np.flatnonzero(~np.isfinite(np.diag(M)))))
+    return f': at joint{"s" if len(bad) > 1 else ""} {", ".join(bad[:4])}' if bad else ''
 
 
 def _not_finite_cause(system, y, J) -> str:

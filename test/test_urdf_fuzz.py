@@ -225,8 +225,9 @@ def test_a_leaf_without_inertia_about_its_axis_gets_armature_or_is_refused_on_ev
 
 
 def test_a_huge_length_is_refused_by_the_preflight_in_words(tmp_path):
-    """An origin of 1e308 m (finite, but its square overflows): the mass matrix is not finite.
-    The preflight's eigen-analysis used to raise numpy's 'Eigenvalues did not converge'."""
+    """An origin of 1e308 m (finite, but its square overflows): the mass matrix is not finite, and the
+    message names the joints whose entries are not. The preflight's eigen-analysis used to raise numpy's
+    'Eigenvalues did not converge'."""
     f = tmp_path / 'huge.urdf'
     f.write_text((ERD / FILES[1]).read_text().replace('<origin rpy="0.0 0.0 0.0" xyz="0.0 -0.1197 0.425"/>',
                                                       '<origin rpy="0.0 0.0 0.0" xyz="0.0 -1e308 0.425"/>', 1))
@@ -236,3 +237,4 @@ def test_a_huge_length_is_refused_by_the_preflight_in_words(tmp_path):
         with pytest.raises(ValueError, match='the mass matrix is not finite') as e:
             Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)
     assert type(e.value) is ValueError
+    assert str(e.value).endswith(': at joints shoulder_pan_joint, shoulder_lift_joint'), e.value   # named
