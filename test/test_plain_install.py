@@ -94,7 +94,7 @@ def test_warm_ends_a_broken_scene_in_one_line_and_warms_the_others(monkeypatch, 
     runs = [('stanford_arm', lambda: load_scene('stanford_arm')),
             ('broken', lambda: parse_scene('name: x\nparts: []\n', file='broken.yaml'))]
     monkeypatch.setattr(warm, '_scene_runs', lambda scratch: runs)
-    assert main(['warm', '--quiet']) == 2
+    assert main(['warm', '--quiet', '--jobs', '1']) == 2
     err = capsys.readouterr().err.splitlines()
     assert err[0] == 'robodyn warm: broken: not warmed: broken.yaml: parts: a scene needs at least one part', err
     assert len(err) == 2 and err[1].startswith('robodyn warm: 1 scene could not be warmed (broken);'), err
