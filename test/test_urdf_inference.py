@@ -40,16 +40,15 @@ def _l_shape_stl(path):
     """A closed, non-convex L-shaped prism (0.2 x 0.1 with a 0.1 x 0.05 notch, 0.04 thick) as binary STL."""
     xy = [(0, 0), (0.2, 0), (0.2, 0.05), (0.1, 0.05), (0.1, 0.1), (0, 0.1)]
     tris = []
-    for z0, z1, flip in ((0.0, 0.04, False),):
-        bottom = [(x, y, z0) for x, y in xy]
-        top = [(x, y, z1) for x, y in xy]
-        for k in range(1, 5):          # fan (the L is star-shaped from vertex 0... enough for vertices)
-            tris.append((bottom[0], bottom[k + 1], bottom[k]))
-            tris.append((top[0], top[k], top[k + 1]))
-        for k in range(6):
-            a, b = k, (k + 1) % 6
-            tris.append((bottom[a], bottom[b], top[b]))
-            tris.append((bottom[a], top[b], top[a]))
+    bottom = [(x, y, 0.0) for x, y in xy]
+    top = [(x, y, 0.04) for x, y in xy]
+    for k in range(1, 5):          # the caps as fans from vertex 0 (only the vertices enter the hull)
+        tris.append((bottom[0], bottom[k + 1], bottom[k]))
+        tris.append((top[0], top[k], top[k + 1]))
+    for k in range(6):             # the sides
+        a, b = k, (k + 1) % 6
+        tris.append((bottom[a], bottom[b], top[b]))
+        tris.append((bottom[a], top[b], top[a]))
     data = b'\0' * 80 + struct.pack('<I', len(tris))
     for t in tris:
         data += struct.pack('<3f', 0, 0, 0) + b''.join(struct.pack('<3f', *v) for v in t) + b'\0\0'
@@ -69,10 +68,9 @@ SHAPES = {
 
 
 def _quat(rpy):
-    R = rpy_to_R(np.asarray(rpy, dtype=float))
+    """MuJoCo's quaternion (w, x, y, z) of URDF roll-pitch-yaw angles."""
     q = np.zeros(4)
-    import mujoco as mj
-    mj.mju_mat2Quat(q, R.reshape(-1))
+    mujoco.mju_mat2Quat(q, rpy_to_R(np.asarray(rpy, dtype=float)).reshape(-1))
     return q
 
 
