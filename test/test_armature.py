@@ -26,7 +26,8 @@ from robodyn_ros.systems.base import backend_scope
 from robodyn_ros.urdf import UrdfWarning, example_robot_data_dir, read_urdf
 
 ERD = example_robot_data_dir()
-TOL = 1e-10
+#: worst relative difference allowed against Pinocchio (measured 5.8e-15: docs/urdf.md)
+TOL = 1e-12
 
 
 def rel(a, b):
@@ -57,7 +58,8 @@ def random_state(m, rng):
 def test_armature_in_the_kernels_and_the_reference_agrees_with_pinocchio():
     """On 10 seeded trees (1-DOF, spherical and free-root ones) with armature on every joint, at 3 states
     each: M (CRBA), τ (RNEA), q̈ (ABA; generic and generated kernels, numpy reference), the kinetic energy
-    ``½ vᵀ M v`` and the joint wrenches, against Pinocchio with the same ``model.armature``."""
+    ``½ vᵀ M v`` and the joint wrenches, against Pinocchio with the same ``model.armature`` (worst 5.8e-15,
+    the generic ABA's)."""
     rng = np.random.default_rng(3030)
     errs = {k: [] for k in ('M', 'rnea', 'aba', 'aba_gen', 'ref', 'ke', 'wrench')}
     shift = []
@@ -122,7 +124,7 @@ def _mujoco_pendulum():
 
 def test_armature_agrees_with_mujoco_joint_armature():
     """MuJoCo's joint armature on the same URDF: ``M`` (mj_fullM) and the free acceleration (mj_forward)
-    at seeded states, to 1e-10 relative; without the armature they differ by it."""
+    at seeded states, 4.4e-16 relative (bound 1e-13); without the armature they differ by it."""
     mj, m = _mujoco_pendulum()
     d = mujoco.MjData(mj)
     km = kernels.CompiledModel(m)
@@ -139,8 +141,12 @@ def test_armature_agrees_with_mujoco_joint_armature():
         without.append(rel(kernels.CompiledModel(build_model([replace(s, armature=0.0) for s in m.specs],
                                                              root=m.root)).crba(q), Mm))
     print('vs MuJoCo armature:', max(errs))
-    assert len(errs) == 5 and max(errs) < 1e-10, errs
+    assert len(errs) == 5 and max(errs) < 1e-13, errs
     assert min(without) > 0.01   # the comparison sees the armature
+
+
+#: relative energy drift allowed over the 1 s swing (docs/urdf.md quotes the measured one)
+DRIFT = 1e-12
 
 
 def test_energy_is_conserved_with_armature_and_counts_the_rotors():
@@ -158,8 +164,9 @@ def test_energy_is_conserved_with_armature_and_counts_the_rotors():
     y = sim.y
     E1 = sys_.total_energy(y)
     rotors = 0.5 * float(m.armature @ (y[2:] ** 2))
-    print(f'energy {E0:.9g} -> {E1:.9g} J, rotors {rotors:.3g} J')
-    assert abs(E1 - E0) < 1e-9 * abs(E0) and rotors > 0.01 * abs(E0)
+    drift = abs(E1 - E0) / abs(E0)
+    print(f'energy {E0:.9g} -> {E1:.9g} J (relative drift {drift:.1e}), rotors {rotors:.3g} J')
+    assert drift < DRIFT and rotors > 0.01 * abs(E0)
 
 
 ICUB = 'icub_description/robots/icub.urdf'

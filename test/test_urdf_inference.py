@@ -110,7 +110,7 @@ def test_moving_links_without_inertial_get_the_mass_properties_mujoco_infers_fro
     assert len(inferred) == 1 and 'density 1000 kg/m³' in inferred[0] and all(k in inferred[0] for k in SHAPES), notes
     mj = mujoco.MjModel.from_xml_string(mjcf)
     by = {s.name: s for s in r.specs}
-    checked = 0
+    checked, worst = 0, 0.0
     for name in SHAPES:
         b = mj.body(name).id
         R = np.zeros(9)
@@ -119,11 +119,12 @@ def test_moving_links_without_inertial_get_the_mass_properties_mujoco_infers_fro
         I_mj = R @ np.diag(mj.body_inertia[b]) @ R.T
         s = by[name]
         scale = max(np.abs(I_mj).max(), 1e-12)
-        assert abs(s.mass - mj.body_mass[b]) < 1e-9 * mj.body_mass[b], (name, s.mass, mj.body_mass[b])
-        np.testing.assert_allclose(s.com, mj.body_ipos[b], atol=1e-9, err_msg=name)
-        assert np.abs(np.asarray(s.inertia) - I_mj).max() < 1e-9 * scale, (name, s.inertia, I_mj)
+        err = max(abs(s.mass - mj.body_mass[b]) / mj.body_mass[b], np.abs(np.asarray(s.com) - mj.body_ipos[b]).max(),
+                  np.abs(np.asarray(s.inertia) - I_mj).max() / scale)
+        worst = max(worst, err)
         checked += 1
-    assert checked == 5
+    print(f'inferred mass properties vs MuJoCo: worst relative difference {worst:.1e}')
+    assert checked == 5 and worst < 1e-12, worst   # measured 8.7e-15 (docs/urdf.md)
     # and the arm simulates: energy conserved by the inferred bodies (no damping)
     with backend_scope('numba'), warnings.catch_warnings():
         warnings.simplefilter('ignore', UrdfWarning)
