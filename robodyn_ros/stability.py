@@ -265,7 +265,8 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
     if J is None:
         J = linearisation(system, y, u, t)
     if not np.all(np.isfinite(J)):
-        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite')
+        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite: '
+                         f'{_not_finite_cause(system, y, J)}')
     if name in LINEARLY_IMPLICIT:
         return _analyse_linearly_implicit(system, name, h, y, u, t, J)
     lam = np.linalg.eigvals(J) if J.size else np.zeros(0, dtype=complex)
@@ -420,7 +421,7 @@ def _singular_joint(system, y) -> str:
     if M.size == 0:   # nothing moves (a fixed-base robot of fixed joints): nothing to be singular
         return ''
     if not np.all(np.isfinite(M)):
-        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)'
+        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)' + _not_finite_where(model, M)
     d = np.diag(M)
     scale = max(float(np.max(np.abs(d))), 1e-300)
     names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
@@ -459,6 +460,30 @@ def preflight(system, y, t: float = 0.0) -> None:
     if cause:
         raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
                          f'state: {cause}')
+
+
+def _not_finite_where(model, M) -> str:
+    """Words naming where a non-finite mass matrix comes from: the links whose spatial inertia (mass,
+    m·c, inertia about the origin) or joint placement is not finite, else the joints of its non-finite
+    diagonal entries."""
+    links = [f'{model.link_names[i]} (its {"spatial inertia" if not np.all(np.isfinite(model.I[i])) else "joint origin"})'
+             for i in range(model.nb) if not (np.all(np.isfinite(model.I[i])) and np.all(np.isfinite(model.Xtree[i])))]
+    if links:
+        return ': link ' + ', '.join(links[:4])
+    names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
+    bad = list(dict.fromkeys(names[k] for k in np.flatnonzero(~np.isfinite(np.diag(M)))))
+    return f': at joint{"s" if len(bad) > 1 else ""} {", ".join(bad[:4])}' if bad else ''
+
+
+def _not_finite_cause(system, y, J) -> str:
+    """Why a linearisation J (ny, ny) is not finite: the joint the mass matrix cannot accelerate
+    (:func:`_singular_joint`), else the state components whose rate derivatives are not finite."""
+    cause = _singular_joint(system, y)
+    if cause:
+        return cause
+    bad = np.flatnonzero(~np.all(np.isfinite(J), axis=0))[:4]
+    return ('the derivative of dy/dt is not finite with respect to ' +
+            ', '.join(_state_words(system, int(k)) for k in bad) if bad.size else 'non-finite entries')
 
 
 def _state_words(system, k: int) -> str:

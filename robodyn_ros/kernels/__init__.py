@@ -111,7 +111,15 @@ def merge_fixed(model: Model) -> dict:
     return {'parent': np.array(parent, dtype=np.int64), 'jtype': model.jtype[keep], 'axis': model.axis[keep],
             'Xtree': np.array(Xtree).reshape(-1, 6, 6), 'I': np.array([I[i] for i in keep]).reshape(-1, 6, 6),
             'q_idx': model.q_idx[keep], 'v_idx': model.v_idx[keep], 'gravity': model.gravity,
+            'armature': body_armature(model)[keep],
             'host': np.array([new[host[i]] for i in range(nb)], dtype=np.int64), 'Xh': np.array(Xh).reshape(-1, 6, 6)}
+
+
+def body_armature(model: Model) -> np.ndarray:
+    """Each body's joint armature (nb,) (``Model.armature`` is per velocity coordinate; a joint's
+    coordinates share one value; 0 for FIXED and FREE joints)."""
+    arm = np.asarray(model.armature, dtype=float)
+    return np.array([arm[model.v_idx[i]] if model.nv_j[i] else 0.0 for i in range(model.nb)], dtype=float)
 
 
 def pack_model(model: Model, merge: bool = False):
@@ -119,13 +127,16 @@ def pack_model(model: Model, merge: bool = False):
 
     Column layout in :mod:`robodyn_ros.kernels.tree`: per body parent, joint type, q and v
     index, +z-axis flag; axis, Xtree as (E, r), mass, m·com, rotational inertia about the body
-    origin; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
+    origin, joint armature; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
     (:func:`merge_fixed`).
     """
     from ..model import PRISMATIC as _PRISMATIC
     from ..model import REVOLUTE as _REVOLUTE
-    a = merge_fixed(model) if merge else {k: getattr(model, k) for k in
-                                          ('parent', 'jtype', 'axis', 'Xtree', 'I', 'q_idx', 'v_idx', 'gravity')}
+    if merge:
+        a = merge_fixed(model)
+    else:
+        a = {k: getattr(model, k) for k in ('parent', 'jtype', 'axis', 'Xtree', 'I', 'q_idx', 'v_idx', 'gravity')}
+        a['armature'] = body_armature(model)
     nb = len(a['parent'])
     mi = np.zeros((nb, 5), dtype=np.int64)
     mi[:, 0] = a['parent']
@@ -134,7 +145,7 @@ def pack_model(model: Model, merge: bool = False):
     mi[:, 3] = a['v_idx']
     mi[:, 4] = [int(a['jtype'][i] in (_REVOLUTE, _PRISMATIC) and tuple(a['axis'][i]) == (0.0, 0.0, 1.0))
                 for i in range(nb)]
-    mf = np.zeros((nb + 1, 28))
+    mf = np.zeros((nb + 1, 29))
     for i in range(nb):
         X = a['Xtree'][i]
         E = X[:3, :3]
@@ -147,6 +158,7 @@ def pack_model(model: Model, merge: bool = False):
         mf[i, 15] = I[5, 5]
         mf[i, 16:19] = (hx[2, 1], hx[0, 2], hx[1, 0])
         mf[i, 19:28] = I[:3, :3].reshape(-1)
+        mf[i, 28] = a['armature'][i]
     mf[nb, 0:3] = a['gravity']
     return np.ascontiguousarray(mi), np.ascontiguousarray(mf)
 
@@ -172,7 +184,7 @@ class CompiledModel:
         self.mi_r, self.mf_r = pack_model(model, merge=True)
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
-        from ..urdf import COULOMB_VELOCITY
+        from ..model import COULOMB_VELOCITY
         self.friction = np.ascontiguousarray(model.friction, dtype=float).reshape(self.nv)
         self.v_s = float(COULOMB_VELOCITY)   # regularisation speed of the Coulomb friction (kernels.passive)
         from ..model import limit_table
@@ -343,7 +355,7 @@ class CompiledSystem:
         if self.km is not None:
             self.tree = (self.km.mi, self.km.mf, self.km.mi_r, self.km.mf_r)
         else:
-            mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 28))
+            mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 29))
             self.tree = (mi, mf, mi, mf)
         self.stat = np.zeros(4)
         self._evaluate, self._project, self._integrate = fixed_step.ENTRY_POINTS[self.kind]

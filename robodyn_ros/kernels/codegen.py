@@ -345,7 +345,8 @@ def _gravity_stiffness(Z, a, E, S, IC, vidx) -> dict:
 
 def crba_source(model) -> str | None:
     """Source of ``crba(q, H)``: the joint-space inertia matrix M(q) (nv, nv) by the composite-rigid-body
-    algorithm (book Table 6.2), specialised to ``model``; every entry written; None for FREE/SPHERICAL trees."""
+    algorithm (book Table 6.2) with the joints' armature on its diagonal, specialised to ``model``; every
+    entry written; None for FREE/SPHERICAL trees."""
     a = _merged_or_none(model)
     if a is None:
         return None
@@ -369,7 +370,7 @@ def crba_source(model) -> str | None:
         if int(a['jtype'][i]) == FIXED:
             continue
         F = [Z.sp([(1.0, IC[i][x][y], S[i][y]) for y in range(6)]) for x in range(6)]
-        H[vidx[i], vidx[i]] = Z.sp([(1.0, S[i][x], F[x]) for x in range(6)])
+        H[vidx[i], vidx[i]] = Z.sp([(1.0, S[i][x], F[x]) for x in range(6)], float(a['armature'][i]))
         j = i
         while int(a['parent'][j]) >= 0:
             F = _xforce_T(Z, E[j], r[j], F)
@@ -387,7 +388,8 @@ def crba_source(model) -> str | None:
 
 
 def aba_source(model) -> str | None:
-    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE or SPHERICAL
+    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model`` (a joint's armature added to its
+    ``d``, as in :func:`robodyn_ros.kernels.tree.aba_ws`), or None (FREE or SPHERICAL
     joints, or a joint whose articulated inertia ``d = Sᵀ IA S`` is the constant 0: its mass matrix is
     singular everywhere, which the generic kernels' caller reports)."""
     a = _merged_or_none(model)
@@ -418,7 +420,7 @@ def aba_source(model) -> str | None:
         else:
             vi = int(a['v_idx'][i])
             U[i] = [Z.sp([(1.0, IA[i][x][y], S[i][y]) for y in range(6)]) for x in range(6)]
-            d[i] = Z.sp([(1.0, S[i][x], U[i][x]) for x in range(6)])
+            d[i] = Z.sp([(1.0, S[i][x], U[i][x]) for x in range(6)], float(a['armature'][i]))   # + the armature
             if isinstance(d[i], float) and d[i] == 0.0:
                 return None  # no inertia about this axis in any configuration: the generic kernels (and the
                 #              simulator's preflight, which names the joint) take the model
