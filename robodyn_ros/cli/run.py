@@ -1,6 +1,7 @@
 """``robodyn run``: a headless run of a scene with its scripted commands, recorded to MCAP."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -179,6 +180,9 @@ def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
     live = LiveRun(server, steering, command_values, rate_factor=rate_factor, paused=args.start_paused)
     print(f'live         {server.url}  (Foxglove: Open connection > Foxglove WebSocket)'
           + ('; paused: call pause with data false to start' if args.start_paused else ''), flush=True)
+    layout_path = _live_layout(scene)
+    if layout_path:
+        print(f'layout       {layout_path}  (Foxglove: Layouts > Import from file)', flush=True)
     tap = LiveTap(server)
     recorders = []
 
@@ -234,3 +238,22 @@ def _second_interrupt(steering, signum):
     if steering.stop_requested:
         raise KeyboardInterrupt
     steering.request_stop()
+
+
+def _live_layout(scene) -> str | None:
+    """Write the scene's live layout (:mod:`robodyn_ros.layout`) to the temporary directory; its path
+    (the same for the same scene, replaced atomically), or None when it cannot be written."""
+    import tempfile
+
+    from ..layout import layout_text, scene_info
+    d = os.path.join(tempfile.gettempdir(), 'robodyn_layouts')
+    path = os.path.join(d, f'{scene.name}.live.json')
+    try:
+        os.makedirs(d, exist_ok=True)
+        tmp = f'{path}.{os.getpid()}'
+        with open(tmp, 'w') as f:
+            f.write(layout_text(scene_info(scene), live=True))
+        os.replace(tmp, path)
+    except OSError:
+        return None
+    return path
