@@ -36,7 +36,8 @@ class Client:
     """
 
     def __init__(self, url: str, subprotocol: str = V1, timeout: float = 30.0):
-        self.ws = connect(url, subprotocols=[subprotocol], max_size=None, open_timeout=timeout)
+        self._connection = connect(url, subprotocols=[subprotocol], max_size=None, open_timeout=timeout)
+        self.ws = self._connection.__enter__()
         self.subprotocol = self.ws.subprotocol
         self.info = None
         self.channels, self.services, self.statuses = {}, {}, []
@@ -169,10 +170,7 @@ class Client:
         return self.assets[req]
 
     def close(self):
-        try:
-            self.ws.close()
-        except Exception:   # already closed by the server
-            pass
+        self._connection.__exit__(None, None, None)
 
 
 # -- CDR of the two std_srvs services (the request and response layouts of std_srvs' .srv files) --

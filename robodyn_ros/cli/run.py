@@ -229,7 +229,8 @@ def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
     print(summary(scene, sim, st, wall, record, recorders, cpu=cpu))
     print(f'live         {server.clients_seen} client{"s" if server.clients_seen != 1 else ""} served'
           + (f'; stopped by Ctrl-C at t={sim.t:.3f} s' if stopped else '')
-          + (f'; {live.refused} client commands refused' if live.refused else ''))
+          + (f'; {live.refused} client commands refused' if live.refused else '')
+          + (f'; {server.dropped} messages dropped for slow clients' if server.dropped else ''))
     return status
 
 

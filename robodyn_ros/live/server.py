@@ -193,13 +193,14 @@ class LiveServer:
         self._subs = {}            # server channel id -> [(client, subscription id)]
         self._last = {}            # server channel id -> (t, data): what a new subscriber gets
         self._advertised = []      # advertisements sent so far (a new client gets them all)
-        self._time = -1            # last Time frame (ns)
+        self._time = -1            # time of the last Time frame (ns)
         self._debt = 0.0
         self._next_client = 1
         self._thread = None
         self._ready = threading.Event()
         self._failed = None
         self.clients_seen = 0
+        self._dropped_gone = 0     # dropped for clients that left
 
     # -- life cycle (main thread) ------------------------------------------------------------
     def start(self):
@@ -229,6 +230,11 @@ class LiveServer:
     def client_count(self) -> int:
         """Clients connected now."""
         return len(self._clients)
+
+    @property
+    def dropped(self) -> int:
+        """Messages dropped so far: from full client queues (slow or vanished clients) and the outbox."""
+        return self._dropped_gone + sum(c.dropped for c in list(self._clients)) + self.dropped_outbox
 
     # -- feeding (any thread) ----------------------------------------------------------------
     def channel(self, topic: str, type_name: str, latched: bool = False) -> int:
@@ -352,7 +358,8 @@ class LiveServer:
             await self._pace(time.perf_counter() - t0)
 
     def _tick(self, t_ns: int):
-        """A Time frame to every client before the first message of a later time."""
+        """A Time frame to every client before the first message of another time (a later one; an
+        earlier one after a reset, which Foxglove takes as a seek)."""
         self._time = t_ns
         frame = _TIME.pack(OP_TIME, t_ns)
         for c in self._clients:
@@ -360,7 +367,7 @@ class LiveServer:
             c.event.set()
 
     def _dispatch(self, sid, t_ns, data):
-        if t_ns > self._time:
+        if t_ns != self._time:
             self._tick(t_ns)
         self._last[sid] = (t_ns, data)
         for c, subid in self._subs.get(sid, ()):
@@ -376,7 +383,7 @@ class LiveServer:
         subs, last = self._subs, self._last
         for a, b, sid, t in zip((np.asarray(offsets) + 31).tolist(), ends.tolist(), np.asarray(sids).tolist(),
                                 np.asarray(log_times).tolist()):
-            if t > self._time:
+            if t != self._time:
                 self._tick(t)
             data = bytes(buf[a:b])
             last[sid] = (t, data)
@@ -464,6 +471,7 @@ class LiveServer:
         finally:
             sender.cancel()
             self._clients.remove(c)
+            self._dropped_gone += c.dropped
             for sid in c.sub_for:
                 self._subs[sid] = [(x, s) for x, s in self._subs.get(sid, ()) if x is not c]
 
