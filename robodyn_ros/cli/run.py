@@ -177,6 +177,7 @@ def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
     steering = Steering(commands, command_values)
     server = LiveServer(sock, f'robodyn_ros: {scene.name}', steering, services=SERVICES,
                         parameters={RATE_FACTOR: rate_factor}).start()
+    steering.advertise(server)
     live = LiveRun(server, steering, command_values, rate_factor=rate_factor, paused=args.start_paused)
     print(f'live         {server.url}  (Foxglove: Open connection > Foxglove WebSocket)'
           + ('; paused: call pause with data false to start' if args.start_paused else ''), flush=True)

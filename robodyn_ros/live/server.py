@@ -441,6 +441,8 @@ class LiveServer:
         info = {'op': 'serverInfo', 'name': self.name, 'capabilities': list(CAPABILITIES),
                 'supportedEncodings': ['cdr'], 'metadata': {'ROS_DISTRO': 'jazzy'}, 'sessionId': self.session}
         self._control(c, json.dumps(info))
+        if self._time >= 0:   # the simulation's time now (what the messages it gets on subscribing are stamped)
+            self._control(c, _TIME.pack(OP_TIME, self._time))
         if self._advertised:
             self._control(c, json.dumps({'op': 'advertise', 'channels': list(self._advertised)}))
         if self.services:

@@ -83,6 +83,12 @@ class Steering:
         self.event = threading.Event()   # set while requests wait (robodyn run waits on it)
         self.stop_requested = False
 
+    def advertise(self, server):
+        """Advertise the command topics now (a viewer subscribes to them, and learns their types, before
+        the first command is recorded); their channels are the ones the recorder's records then use."""
+        for topic, (_, type_name) in self.commands.items():
+            server.channel(topic, type_name)
+
     def __call__(self, request):
         """Queue a request (server thread)."""
         self._q.put(request)

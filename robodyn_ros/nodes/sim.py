@@ -599,6 +599,7 @@ def make_node_class():
             server = LiveServer(self._live_sock, f'robodyn_ros {NODE_NAME}: {self.scene.name}', steering,
                                 services=service_set(self.get_fully_qualified_name() + '/'),
                                 parameters={RATE_FACTOR: self.cfg.rate_factor}).start()
+            steering.advertise(server)
             self.live = SimpleNamespace(server=server, steering=steering, tap=LiveTap(server), guard=gc)
 
         def _take_live(self):
