@@ -553,7 +553,11 @@ def make_node_class():
             from ..recording.markers import TOPIC, TYPE, Markers
             self.markers = Markers.of(self.scene.system)
             if self.markers is not None:
-                self.pub[TOPIC] = self.create_publisher(_import_msg(TYPE), TOPIC, 10)
+                try:
+                    self.pub[TOPIC] = self.create_publisher(_import_msg(TYPE), TOPIC, 10)
+                except ImportError:   # as /tf without tf2_msgs: recorded (and live), not published
+                    self.get_logger().info('visualization_msgs is not installed: markers are not published '
+                                           '(recordings still carry them)')
 
         def _publish_markers(self, out, t_ns):
             """The period's MarkerArray (the recorder's bytes) to its subscribers and the recording."""
