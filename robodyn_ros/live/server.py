@@ -54,10 +54,11 @@ OP_MESSAGE_DATA, OP_TIME, OP_SERVICE_RESPONSE, OP_FETCH_ASSET_RESPONSE = 1, 2, 3
 OP_CLIENT_MESSAGE, OP_SERVICE_REQUEST = 1, 2
 #: data frames a client's queue holds before its oldest are dropped (a few seconds of a robot at 100 Hz)
 QUEUE_FRAMES = 4096
-#: records the simulation may hand over before the server's thread takes them (oldest dropped beyond)
-OUTBOX = 1 << 16
+#: records (or batches of periods) the simulation may hand over before the server's thread takes them; the
+#: oldest are dropped beyond (a run as fast as possible makes far more than a viewer draws; memory stays bounded)
+OUTBOX = 256
 #: largest share of the CPU the server's thread takes while it has work (it sleeps the rest)
-CPU_SHARE = 0.2
+CPU_SHARE = 0.1
 #: seconds of owed sleep after which the server's thread sleeps (see CPU_SHARE)
 PACE_SLICE = 0.002
 #: wall seconds a closing server waits for its clients to take what is queued for them
