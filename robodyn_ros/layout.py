@@ -144,7 +144,8 @@ def recording_info(path) -> LayoutInfo:
     return LayoutInfo(name=md.get('scene_name') or str(path), joints=list(js['name']),
                       wrenches=[k[len('/constraint_wrenches/'):] for k in rel.values()
                                 if k.startswith('/constraint_wrenches/')],
-                      contacts=[k[len('/contact_wrenches/'):] for k in rel.values() if k.startswith('/contact_wrenches/')],
+                      contacts=[k[len('/contact_wrenches/'):] for k in rel.values()
+                                if k.startswith('/contact_wrenches/')],
                       markers='/markers' in rel.values(), follow=odom['child_frame_id'] if odom else None,
                       frames=frames, centre=centre, extent=extent, commands=commands, prefix=prefix)
 

@@ -144,7 +144,8 @@ def test_a_client_commands_the_robot_through_the_ports_checks(runs, tmp_path):
             read_raw_messages(rec, topics=['/effort_commands'])]
     # the scene's scripted command at t = 0, then the client's, which holds: the script no longer writes it
     assert [t for t, _ in cmds] == [0, 0] and list(cmds[1][1]) == effort
-    js = [cdr.decode('sensor_msgs/msg/JointState', d) for _, _, _, d in read_raw_messages(rec, topics=['/joint_states'])]
+    js = [cdr.decode('sensor_msgs/msg/JointState', d)
+          for _, _, _, d in read_raw_messages(rec, topics=['/joint_states'])]
     assert len(js) == 6
     for m in js[1:]:
         assert list(m['effort']) == effort   # the applied effort of every period after t = 0

@@ -532,7 +532,8 @@ class LiveServer:
         elif op == 'fetchAsset':
             asyncio.get_running_loop().create_task(self._fetch(c, str(msg['uri']), int(msg['requestId'])))
         else:
-            self._control(c, json.dumps({'op': 'status', 'level': 1, 'message': f'robodyn_ros: op {op!r} not supported'}))
+            self._control(c, json.dumps({'op': 'status', 'level': 1,
+                                         'message': f'robodyn_ros: op {op!r} not supported'}))
 
     def _parameter_reply(self, c, name, request_id):
         def reply(value, error=None):   # any thread

@@ -30,7 +30,8 @@ __all__ = ['Steering', 'RefusedCommand', 'SERVICES', 'RATE_FACTOR', 'trigger_res
 RATE_FACTOR = 'rate_factor'
 TRIGGER = 'std_srvs/srv/Trigger'
 SET_BOOL = 'std_srvs/srv/SetBool'
-_RESPONSE_TEXT = 'bool success   # indicate successful run of triggered service\nstring message # informational, e.g. for error messages'
+_RESPONSE_TEXT = ('bool success   # indicate successful run of triggered service\n'
+                  'string message # informational, e.g. for error messages')
 
 
 class RefusedCommand(CommandError):
@@ -135,5 +136,6 @@ class Steering:
         try:
             msg = cdr.decode(type_name, req.payload)
         except (ValueError, IndexError, KeyError, struct.error, UnicodeDecodeError) as e:
-            raise RefusedCommand(port, f'{port}: {req.topic}: not a CDR {type_name} ({type(e).__name__}: {e})') from None
+            raise RefusedCommand(port, f'{port}: {req.topic}: not a CDR {type_name} '
+                                       f'({type(e).__name__}: {e})') from None
         return port, msg

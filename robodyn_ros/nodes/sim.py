@@ -625,8 +625,9 @@ def make_node_class():
                         live.server.status(req.client, 2, f'robodyn_ros: command rejected: {e}')
                         continue
                     if got is None:
+                        takes = ', '.join(live.steering.commands) or 'none'
                         live.server.status(req.client, 1, f'robodyn_ros: {req.topic} is not a command topic of this '
-                                                          f'node (it takes {", ".join(live.steering.commands) or "none"})')
+                                                          f'node (it takes {takes})')
                         continue
                     before = self.sim.rejected_commands
                     self._on_command(*got)

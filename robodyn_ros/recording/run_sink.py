@@ -398,7 +398,8 @@ class McapRunSink:
             self._write_data(topic, type_name, data, t_ns)
         self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(*divmod(t_ns, 1_000_000_000)), t_ns)
         if self.markers is not None:
-            self._write_data(MARKERS_TOPIC, MARKERS_TYPE, self.markers.message(t_ns, MarkerInputs.of_outputs(out)), t_ns)
+            data = self.markers.message(t_ns, MarkerInputs.of_outputs(out))
+            self._write_data(MARKERS_TOPIC, MARKERS_TYPE, data, t_ns)
         if self._diag_due(t):
             self._write('diagnostics', M.TOPIC_TYPES['diagnostics'],
                         M.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,
@@ -471,8 +472,8 @@ class McapRunSink:
             self._filled = True
             i += m
             if i == K and self._diag_due(blk.t_out[-1]):
-                self._after.setdefault(self._held - 1, []).append(
-                    ('diagnostics', M.TOPIC_TYPES['diagnostics'], _diagnostics_bytes(int(t_out[-1]), sim, level, message)))
+                data = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
+                self._after.setdefault(self._held - 1, []).append(('diagnostics', M.TOPIC_TYPES['diagnostics'], data))
                 self._next_diag += self.diagnostics_period
             if self._batch_done(int(t_out[i - 1])):
                 self._write_held()
