@@ -25,7 +25,7 @@ import pytest
 
 from robodyn_ros import kernels
 
-pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='numba not installed')
+assert kernels.AVAILABLE, kernels.UNAVAILABLE_REASON   # numba is a hard dependency: fail, never skip
 
 ROOT = Path(__file__).resolve().parents[1]
 #: what a run without recording, plots, sweeps or adaptive integrators must not import
@@ -141,8 +141,7 @@ def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_pat
     from robodyn_ros.scene import load_scene
     from robodyn_ros.urdf import example_robot_data_dir
     d = example_robot_data_dir()
-    if d is None:
-        pytest.skip('example-robot-data not installed')
+    assert d is not None, 'example-robot-data (a test dependency) is not installed'
     first = tmp_path / 'stanford_arm.urdf'
     first.write_text(load_scene('stanford_arm').system.urdf())
     env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
@@ -180,13 +179,34 @@ def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
         runs += [['run', name, '--duration', '0.3'],
                  ['run', name, '--duration', '0.3', '--record', str(tmp_path / 'r.mcap'), '--overwrite']]
     d = example_robot_data_dir()
-    if d is not None:   # a quadruped, an arm with friction (z1), a humanoid, an arm with a mimic finger
-        runs += [['run', str(next(d.rglob(f))), '--duration', '0.05']
-                 for f in ('go2.urdf', 'z1.urdf', 'human.urdf', 'panda.urdf')]
+    assert d is not None, 'example-robot-data (a test dependency) is not installed'
+    # a quadruped, an arm with friction (z1), a humanoid, an arm with a mimic finger
+    runs += [['run', str(next(d.rglob(f))), '--duration', '0.05'] for f in ('go2.urdf', 'z1.urdf', 'human.urdf', 'panda.urdf')]
     out = io.StringIO()
+    failed = []
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
         for argv in runs:
-            main(argv)
+            if main(argv) != 0:
+                failed.append(argv)
+    assert not failed, (failed, out.getvalue()[-3000:])
     after = {n: set(d.overloads) for n, d in dispatchers().items()}
     new = {n: sorted(map(str, s - warmed.get(n, set()))) for n, s in after.items() if s - warmed.get(n, set())}
     assert new == {}, new
+
+
+@pytest.mark.processes
+def test_warm_in_worker_processes_leaves_nothing_for_the_loading_pass():
+    """``robodyn warm --jobs 2 SCENE SCENE``: two spawned workers run the scenes into the one cache, then
+    the loading pass in the parent runs them again and compiles nothing they left out (whether the
+    cache was empty or full before); an unknown scene is refused in one line, exit 2."""
+    env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
+    r = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'warm', '--jobs', '2', 'betancur_dh_animation',
+                        'huston_p19_2_3'], capture_output=True, text=True, env=env, cwd=ROOT, timeout=1800)
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = r.stdout.strip().splitlines()
+    assert sorted(ln.split()[0] for ln in lines if ln.endswith('(worker)')) == ['betancur_dh_animation',
+                                                                                 'huston_p19_2_3'], lines
+    assert '(2 processes: ' in lines[-1] and ', 0 after them;' in lines[-1], lines[-1]
+    r = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'warm', 'no_such_scene'], capture_output=True,
+                       text=True, env=env, cwd=ROOT, timeout=600)
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "unknown scene 'no_such_scene'" in r.stderr, r.stderr

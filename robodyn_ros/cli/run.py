@@ -5,7 +5,8 @@ import os
 import sys
 import time
 
-from ..runs import DIAGNOSTICS_PERIOD, resolve_auto, resolve_settings, summary
+from ..integrator_choice import DEFAULT_DT, STEP_BUDGET
+from ..runs import DEFAULT_RATE, DIAGNOSTICS_PERIOD, plan_run, resolve_settings, summary
 
 #: one line for ``robodyn --help``
 HELP = 'simulate a scene headless with its scripted commands'
@@ -22,13 +23,16 @@ def add_parser(sub):
     p.add_argument('--integrator', default=None,
                    help='auto (default unless the scene names one: rk4, else rosenbrock2 for stiff passive forces, '
                         'else radau), euler, semi_implicit_euler, rk4, rosenbrock2, rk45, dop853, radau, ...')
-    p.add_argument('--dt', type=float, default=None, help='fixed step (s) for fixed-step integrators')
+    p.add_argument('--dt', type=float, default=None,
+                   help=f'fixed step (s) for fixed-step integrators (default: the scene\'s, else {DEFAULT_DT:g})')
     p.add_argument('--rtol', type=float, default=None, help='relative tolerance (adaptive integrators)')
     p.add_argument('--atol', type=float, default=None, help='absolute tolerance (adaptive integrators)')
-    p.add_argument('--rate', type=float, default=None, help='publication/recording rate in Hz (default 100)')
+    p.add_argument('--rate', type=float, default=None,
+                   help=f'publication/recording rate in Hz (default: the scene\'s, else {DEFAULT_RATE:g})')
     p.add_argument('--step-budget', type=float, default=None, metavar='N',
                    help='error-controlled integrators: stop (exit 1, naming the stiff mode) past N accepted steps '
-                        'per simulated second (default: the scene\'s simulation.step_budget, else 1e6; inf: none)')
+                        f'per simulated second (default: the scene\'s simulation.step_budget, else {STEP_BUDGET:g}; '
+                        'inf: none)')
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
     p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
     p.add_argument('--no-embed-meshes', action='store_true',
@@ -42,7 +46,7 @@ def add_parser(sub):
                         '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
                         '(Huston eq. 20.2.1; a scene file gives position_limits on its kind: urdf part)')
     p.add_argument('--diagnostics-period', type=float, default=DIAGNOSTICS_PERIOD,
-                   help='simulated seconds between recorded diagnostics messages (default 0.1)')
+                   help=f'simulated seconds between recorded diagnostics messages (default {DIAGNOSTICS_PERIOD:g})')
     live = p.add_argument_group('live', 'watch and steer the run in Foxglove (a Foxglove WebSocket server)')
     live.add_argument('--live', action='store_true',
                       help='serve the run on a Foxglove WebSocket, paced to real time x --rate-factor; clients may '
@@ -132,9 +136,8 @@ def _run(args, sock, rate_factor) -> int:
                           args.step_budget)
     st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
-        st = resolve_auto(st, scene.system, scene.y0)   # integrator auto: the method it picks, and why
-        sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                        atol=st['atol'], step_budget=st.get('step_budget'))
+        plan, st = plan_run(st, scene.system, scene.y0)   # which integrator, which step, and why: decided once
+        sim = Simulator(scene.system, scene.y0, plan=plan)
     except ValueError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
