@@ -25,7 +25,7 @@ from robodyn_ros.layout import MAX_LINES, layout, layout_text, recording_info, s
 from robodyn_ros.recording import cdr
 from robodyn_ros.recording.reader import read_messages
 from robodyn_ros.recording.run_sink import McapRunSink
-from robodyn_ros.runs import resolve_auto, resolve_settings
+from robodyn_ros.runs import plan_run, resolve_settings
 from robodyn_ros.scene import list_scenes, load_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
@@ -60,9 +60,8 @@ PUBLISH_PANEL_KEYS = {'topicName', 'datatype', 'buttonText', 'buttonTooltip', 'b
 
 def _record(path, scene, duration=0.06):
     """A short recording of ``scene`` as robodyn run makes it (diagnostics every period)."""
-    st = resolve_auto(resolve_settings(scene, duration=duration), scene.system, scene.y0)
-    sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                    atol=st['atol'])
+    plan, st = plan_run(resolve_settings(scene, duration=duration), scene.system, scene.y0)
+    sim = Simulator(scene.system, scene.y0, plan=plan)
     sink = McapRunSink(path, scene, {**st, 'mode': 'headless'}, diagnostics_period=0.01, batch=8)
     try:
         run_headless(sim, duration, st['rate'], scene.script, [sink])

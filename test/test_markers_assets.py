@@ -20,7 +20,7 @@ import pytest
 
 from robodyn_ros.assets import asset_file, embed_meshes
 from robodyn_ros.recording.run_sink import McapRunSink
-from robodyn_ros.runs import resolve_auto, resolve_settings
+from robodyn_ros.runs import plan_run, resolve_settings
 from robodyn_ros.scene import load_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
@@ -31,8 +31,8 @@ def _record(path, name, duration):
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         scene = load_scene(name)
-    st = resolve_auto(resolve_settings(scene, duration=duration), scene.system, scene.y0)
-    sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'], atol=st['atol'])
+    plan, st = plan_run(resolve_settings(scene, duration=duration), scene.system, scene.y0)
+    sim = Simulator(scene.system, scene.y0, plan=plan)
     sink = McapRunSink(path, scene, {**st, 'mode': 'headless'}, batch=64)
     try:
         run_headless(sim, duration, st['rate'], scene.script, [sink])
