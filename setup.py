@@ -40,9 +40,10 @@ setup(
     # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels;
     # dask + distributed run `robodyn sweep` (and the precision ladder) on a local or remote cluster,
     # pyarrow writes its Parquet table; URDF files are read with the standard library (robodyn_ros.urdf);
-    # yourdfpy is a test oracle only
+    # yourdfpy is a test oracle only; websockets serves runs live to Foxglove (robodyn_ros.live: imported
+    # only with robodyn run --live or the node's foxglove_port)
     install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba',
-                      'dask', 'distributed', 'pyarrow'],
+                      'dask', 'distributed', 'pyarrow', 'websockets'],
     extras_require={
         'plot': ['matplotlib'],
         'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data',

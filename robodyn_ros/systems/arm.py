@@ -506,8 +506,17 @@ class ArmSystem(System):
                              (q, v, tau, fext), self._wrench_index)
         out = self._outputs(q, v, tau_cmd, w)
         out.contacts = {link: (c.frame, wr) for link, wr in zip(c.links, c.wrenches(P))}
+        out.contact_points = c.touching(P)
         out.extra.update(c.diagnostics(P))
         return out
+
+    def contact_points(self, y) -> np.ndarray | None:
+        """``SystemOutputs.contact_points`` at state y (the touching points and their forces), None
+        off the ground; for the block path, which builds no outputs per period."""
+        if self.contact is None:
+            return None
+        q, v = self.split(y)
+        return self.contact.touching(self.contact.point_outputs(self._km, q, v))
 
     def _wrenches_fext(self, q, v, tau, fext):
         return self._km.joint_wrenches(q, v, tau, fext)[1]

@@ -251,7 +251,8 @@ class SystemOutputs:
     energy: mapping of named energies (J; may be a :class:`LazyValues`, computed when read);
     extra: other diagnostics values; contacts: link -> (world frame, (6,) [moment; force]) of the
     ground on that link, world axes, about its centre of pressure (``contact_wrenches/<link>``,
-    :mod:`robodyn_ros.systems.contact`), empty off the ground.
+    :mod:`robodyn_ros.systems.contact`), empty off the ground; contact_points: (n, 6) ``[x; F]`` of the
+    points touching the ground (world frame; m, N), None off the ground (drawn as markers).
     """
 
     joint_names: list
@@ -264,6 +265,7 @@ class SystemOutputs:
     odom_child: str = 'base_link'   # child_frame_id of odom (the free root's link for a floating tree)
     extra: dict = field(default_factory=dict)
     contacts: dict = field(default_factory=dict)
+    contact_points: np.ndarray | None = None
 
 
 class System:
