@@ -88,6 +88,16 @@ MIN_RTOL = 100.0 * _EPS
 GRID_ROUNDOFF_ULPS = 16.0
 
 
+def step_end(t: float, h: float) -> float:
+    """The time of a stage at the end of the step from t of length h: the double just below ``t + h``
+    (``(t + h) − |t + h| ε``), so that inputs that jump at the step's end (a trajectory's knot on the step
+    grid: a cubic's acceleration) enter the step from the left, as they act over it; the next step's first
+    stage, at its start, takes them from the right. The compiled loops (``kernels.arm.arm_steps``) write the
+    same arithmetic."""
+    te = t + h
+    return te - abs(te) * _EPS
+
+
 class IntegrationError(RuntimeError):
     """Raised when an integration cannot produce a finite state at the requested time.
 
@@ -483,7 +493,7 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
     """Classical fourth-order Runge-Kutta (Hairer-Norsett-Wanner I, Table II.1.2).
 
     ``k1 = f(t, y)``, ``k2 = f(t + h/2, y + h/2 k1)``, ``k3 = f(t + h/2, y + h/2 k2)``,
-    ``k4 = f(t + h, y + h k3)``, ``y += h/6 (k1 + 2 k2 + 2 k3 + k4)``.
+    ``k4 = f(t + h, y + h k3)``, ``y += h/6 (k1 + 2 k2 + 2 k3 + k4)`` (k4's time from the left: :func:`step_end`).
 
     Args:
         spec: registry entry.
@@ -515,7 +525,7 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
         np.add(acc, k, out=acc)
         np.multiply(k, h, out=Y)
         Y += y
-        k = f(t + h, Y)
+        k = f(step_end(t, h), Y)
         np.add(acc, k, out=acc)
         acc *= h / 6.0
         y += acc
@@ -532,9 +542,13 @@ class Rosenbrock2(FixedStepIntegrator):
     Order 2 for any J (a W-method), L-stable on the part of f that J holds exactly; J = 0 gives
     Heun's method. The method, its stability function and its cost on a mechanical system are in
     :mod:`robodyn_ros.kernels.rosenbrock`; the systems' compiled loops run it there. Here it is the
-    generic form, one LU factorisation of ``I − γhJ`` per step (none when ``jac`` is None). f is
-    held autonomous within a step (the Simulator holds its commands constant over a call), so no
-    ∂f/∂t term is needed.
+    generic form, one LU factorisation of ``I − γhJ`` per step (none when ``jac`` is None). Where f
+    moves with time stiffly (a stiff servo on a moving setpoint), ``dfdt`` gives the time term of the
+    method's non-autonomous form (Verwer et al. 1999, eq. 2.4)::
+
+        (I − γhJ) k1 = f(t, y) + γh f_t,     (I − γhJ) k2 = f(t + h, y + h k1) − 2 k1 − γh f_t
+
+    (any f_t keeps order 2, as any J does; the exact one keeps a stiff mode on its moving equilibrium).
 
     Args:
         spec: registry entry.
@@ -543,11 +557,13 @@ class Rosenbrock2(FixedStepIntegrator):
             (passive) part of ∂f/∂y; None: J = 0.
         gamma: γ, default :data:`GAMMA` (1 − 1/√2); the other L-stable root 1 + 1/√2 is the one the
             compiled loops take in steps with a joint stop in J (``kernels.rosenbrock.GAMMA_STOP``).
+        dfdt: optional ``dfdt(t, y) -> f_t (n,)``, evaluated once per step at its start; None: 0.
     """
 
-    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None):
+    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None, dfdt=None):
         super().__init__(spec, dt)
         self.jac = jac
+        self.dfdt = dfdt
         self.gamma = GAMMA if gamma is None else float(gamma)
 
     def _allocate(self, n):
@@ -562,13 +578,18 @@ class Rosenbrock2(FixedStepIntegrator):
         if self.jac is not None:
             J = np.asarray(self.jac(t, y), dtype=np.float64)
             lu = lu_factor(self._eye - (self.gamma * h) * J, check_finite=False)
+        ft = None if self.dfdt is None else (self.gamma * h) * np.asarray(self.dfdt(t, y), dtype=np.float64)
         k1 = self._k1
         k1[:] = f(t, y)
+        if ft is not None:
+            k1 += ft
         if lu is not None:
             k1[:] = lu_solve(lu, k1, check_finite=False)
         np.multiply(k1, h, out=self._Y)
         self._Y += y
-        k2 = np.asarray(f(t + h, self._Y), dtype=np.float64) - 2.0 * k1
+        k2 = np.asarray(f(step_end(t, h), self._Y), dtype=np.float64) - 2.0 * k1
+        if ft is not None:
+            k2 -= ft
         if lu is not None:
             k2 = lu_solve(lu, k2, check_finite=False)
         y += h * (1.5 * k1 + 0.5 * k2)
@@ -785,7 +806,7 @@ INTEGRATORS: dict[str, IntegratorSpec] = {s.name: s for s in (
                    projection='step', multistep=False,
                    summary='linearly implicit Rosenbrock-W, order 2, L-stable on the stiff passive forces '
                            '(damping, friction, joint limits, motor electrics), explicit in the rest',
-                   options=('jac', 'gamma'), factory=_fixed(Rosenbrock2)),
+                   options=('jac', 'gamma', 'dfdt'), factory=_fixed(Rosenbrock2)),
     IntegratorSpec(name='rk45', kind='adaptive', order=5, symplectic=False, implicit=False,
                    projection='step', multistep=False,
                    summary='Dormand-Prince 5(4) explicit Runge-Kutta (scipy RK45)',

@@ -59,7 +59,9 @@ def resolve_auto(st: dict, system, y0, t0: float = 0.0) -> dict:
     from .integrator_choice import choose_integrator, is_auto
     if not is_auto(st.get('integrator')):
         return st
-    c = choose_integrator(system, y0, st.get('dt') or 1e-3, st.get('rtol'), st.get('atol'), t0)
+    from .stability import start_inputs
+    c = choose_integrator(system, y0, st.get('dt') or 1e-3, st.get('rtol'), st.get('atol'), t0,
+                          u=start_inputs(system, y0, t0))   # the inputs in force at the start
     return {**st, 'integrator': c.integrator, 'dt': c.dt if c.dt is not None else st.get('dt'),
             'rtol': c.rtol, 'atol': c.atol, 'auto': c.reason}
 

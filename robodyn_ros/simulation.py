@@ -109,11 +109,11 @@ def build_integrator(system: System, name: str, dt=None, rtol=None, atol=None):
 STABILITY_LIMIT = {'euler': 2.0, 'semi_implicit_euler': 2.0, 'rk4': 2.785}
 
 
-def check_step(system: System, integrator: str, dt, y):
+def check_step(system: System, integrator: str, dt, y, u=None):
     """Refuse a fixed explicit step that the system's fastest time constant makes unstable.
 
     system: supplies ``fastest_time_constant(y)`` (s); integrator: registry name; dt: its step
-    (s); y: the state it starts from. Error-controlled integrators always pass (they adapt or are
+    (s); y: the state it starts from; u: the inputs (default zeros). Error-controlled integrators always pass (they adapt or are
     stable); rosenbrock2 is checked on what it leaves explicit (``stability.analyse_step``). Policy: refuse, do not sub-step silently — raises ValueError
     naming the time constant, the largest stable step and the alternatives. Beyond the declared
     time constant, :func:`robodyn_ros.stability.check_fixed_step` checks the modes of the
@@ -131,8 +131,8 @@ def check_step(system: System, integrator: str, dt, y):
                          f'{tau:.3g} s ({type(system).__name__}'
                          f'{getattr(system, "time_constant_words", "") or "; e.g. motor electrics L/R"}), '
                          f'so a stable {name} step is at most {limit * tau:.3g} s. '
-                         f'{step_alternatives(system, dt, y)}')
-    check_fixed_step(system, name, dt, y)
+                         f'{step_alternatives(system, dt, y, u)}')
+    check_fixed_step(system, name, dt, y, u)
 
 
 #: default step budget of the error-controlled integrators: accepted steps per simulated second.
@@ -183,13 +183,14 @@ class Simulator:
         self.reset()
         preflight(system, self.y, self.t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
         self.choice = None
+        u0 = self.held_inputs()   # the inputs in force at the start (a servo's hold of the initial posture)
         if is_auto(integrator):
-            self.choice = choose_integrator(system, self.y, dt, rtol, atol, self.t)
+            self.choice = choose_integrator(system, self.y, dt, rtol, atol, self.t, u=u0)
             integrator, dt, rtol, atol = self.choice.integrator, self.choice.dt, self.choice.rtol, self.choice.atol
             if self.choice.analysis is not None and self.choice.analysis.verdict == 'warn':
                 warnings.warn(StepWarning(self.choice.analysis.message), stacklevel=2)
         else:
-            check_step(system, integrator, dt, self.y)
+            check_step(system, integrator, dt, self.y, u0)
         self.settings = {'integrator': integrator, 'dt': dt, 'rtol': rtol, 'atol': atol,
                          'command_timeout': command_timeout}
         if self.choice is not None:
@@ -204,8 +205,11 @@ class Simulator:
         self.t = self._t0
         self.system.reset_episode()
         self.y = self.system.project(self._y0.copy())
-        self.ports = {k: CommandPort(np.zeros(p.size), limit=None if p.limit is None else np.asarray(p.limit, dtype=float))
-                      for k, p in self.system.inputs.items()}
+        self.ports = {}
+        for k, p in self.system.inputs.items():
+            value, applied = self.system.initial_input(k, self.y, self.t)   # zeros but for a servo's setpoints
+            self.ports[k] = CommandPort(value, applied=applied,
+                                        limit=None if p.limit is None else np.asarray(p.limit, dtype=float))
         self.diag = Diagnostics(energy0=self.system.total_energy(self.y))
         self._work_parts = tuple(getattr(self.system, 'work_components', ()))
         self.diag.work_parts = {k: 0.0 for k in self._work_parts}
@@ -223,6 +227,19 @@ class Simulator:
         if port not in self.ports:
             raise CommandError(f'unknown input {port!r}; this system takes {sorted(self.ports)}')
         spec = self.system.inputs[port]
+        now = self.t if t is None else float(t)
+        if spec.kind == 'message':   # a structured command (a trajectory) onto what its target port applies
+            target = self.ports[spec.target]
+            try:
+                applied = self.system.accept_input(port, values, now, target.applied)
+            except ValueError as e:
+                self.ports[port].rejected += 1
+                raise CommandError(f'{port}: {e}') from None
+            p = self.ports[port]
+            p.value = p.applied = values
+            p.stamp = target.stamp = now
+            target.applied = applied
+            return
         try:
             arr = np.asarray(values, dtype=float).reshape(-1)
         except (TypeError, ValueError):
@@ -239,6 +256,11 @@ class Simulator:
             raise CommandError(f'{port}: non-finite value for {bad}; expected {spec.size} finite values '
                                f'({", ".join(spec.labels)}) in {spec.unit}')
         p = self.ports[port]
+        if spec.kind == 'setpoint':   # what the system makes of it (a servo's setpoint program), held
+            p.applied = self.system.accept_input(port, arr, now, p.applied)
+            p.value = arr
+            p.stamp = now
+            return
         p.value = arr
         p.applied = arr
         if spec.limit is not None:  # actuator effort limits: clamp, and count the clamped components
@@ -255,7 +277,8 @@ class Simulator:
         u = {}
         for k, p in self.ports.items():
             stale = (self.command_timeout is not None and p.stamp is not None
-                     and self.t - p.stamp > self.command_timeout + 1e-12)
+                     and self.t - p.stamp > self.command_timeout + 1e-12
+                     and self.system.inputs[k].kind == 'vector')   # setpoints and trajectories hold
             if stale and not p.timed_out:
                 p.timed_out = True
             u[k] = np.zeros_like(p.value) if p.timed_out else p.applied
@@ -315,6 +338,7 @@ class Simulator:
 
         if integ.name == 'rosenbrock2':   # its W-matrix: the system's passive Jacobian, inputs held over the call
             integ.jac = self._passive_jacobian(u, ny, z0.shape[0])
+            integ.dfdt = self._time_derivative(u, ny, z0.shape[0])
         limit = None
         if integ.spec.kind == 'adaptive' and math.isfinite(self.step_budget):
             limit = max(1, int(self._step_tokens + self.step_budget * (t1 - self.t)))
@@ -337,6 +361,19 @@ class Simulator:
             out[:ny, :ny] = sys_.passive_jacobian(t, z[:ny], u, h)
             return out
         return jac
+
+    def _time_derivative(self, u, ny, n):
+        """``dfdt(t, z)`` (n,) for rosenbrock2's time term: the system's ``time_derivative`` in the y block
+        (a servo on a moving setpoint), zeros elsewhere; None when the system has none."""
+        sys_ = self.system
+        if sys_.time_derivative(self.t, self.y, u) is None:
+            return None
+
+        def dfdt(t, z):
+            out = np.zeros(n)
+            out[:ny] = sys_.time_derivative(t, z[:ny], u)
+            return out
+        return dfdt
 
     def advance(self, t1: float):
         """Advance to simulation time ``t1`` (s) holding the current inputs; returns the state.
