@@ -182,3 +182,24 @@ def test_bad_sensors_are_refused_naming_the_key(sensors, where):
     with pytest.raises(SceneError) as e:
         _panda_scene(sensors)
     assert where in str(e.value), str(e.value)
+
+
+def test_the_recorders_fast_encoders_write_what_the_generic_encoder_writes():
+    """The servo's JointState messages and the force-torque WrenchStamped are recorded by the fast encoders of
+    joint_states and constraint wrenches: the same bytes as cdr.encode of their dicts (the IMU: cdr.encode)."""
+    from robodyn_ros.recording import cdr
+    from robodyn_ros.recording.run_sink import output_records
+    sc = _panda_scene('[{kind: force_torque, joint: panda_joint8, frame: panda_hand_tcp, name: wrist}, '
+                      '{kind: imu, link: panda_hand}]', extra='    command_interfaces: position\n')
+    q, v, _ = _state(np.random.default_rng(1))
+    sim = Simulator(sc.system, np.concatenate([q, v]), integrator='rk4', dt=1e-3)
+    out = sim.outputs()
+    msgs = {t: (ty, m) for t, ty, m in out.messages}
+    assert set(msgs) == {'joint_trajectory_desired', 'joint_trajectory_error', 'imu/panda_hand', 'ft/wrist'}
+    sim.advance(0.25)   # a stamp with seconds and nanoseconds
+    out = sim.outputs()
+    msgs = {t: (ty, m) for t, ty, m in out.messages}
+    assert msgs['ft/wrist'][1]['header']['stamp'] == {'sec': 0, 'nanosec': 250_000_000}
+    recs = {t: data for t, _, data in output_records(250_000_000, out, False)}
+    for topic, (ty, m) in msgs.items():
+        assert recs[topic] == cdr.encode(ty, m), topic

@@ -91,11 +91,12 @@ def _energy(system, y, kp, q_star):
 
 
 def test_stiff_servo_holds_at_1ms_with_rosenbrock2_and_its_energy_never_rises():
-    """kp = 1e6 N·m/rad on a 50 g, 0.1 m rod under gravity about a horizontal axis (J = 1.8e-4 kg·m²: ω = 7.5e4
-    rad/s, h ω = 75 at 1 ms): rk4 is refused, integrator auto picks rosenbrock2, which holds the setpoint against gravity
+    """kp = 1e6 N·m/rad on a 50 g, 0.1 m rod under gravity about a horizontal axis (J = 1.35e-4 kg·m²: ω = 8.6e4
+    rad/s, h ω = 86 at 1 ms): rk4 is refused, integrator auto picks rosenbrock2, which holds the setpoint against gravity
     (error kp⁻¹ m g l/2 = 2.5e-8 rad) and whose energy (kinetic + gravity + the servo's spring) never rises."""
     kp, kd, q_star = 1e6, 2.0, 0.3
     kw = dict(axis=(0.0, 1.0, 0.0), mass=0.05, length=0.1, ic=1e-5)
+    assert 80 < 1e-3 * math.sqrt(kp / (0.05 * 0.05 ** 2 + 1e-5)) < 92   # h ω of the docs' figure (86)
     with pytest.raises(ValueError, match='rk4 with dt=0.001 s is unstable'):
         Simulator(_servo_rod(kp, kd, **kw), np.zeros(2), integrator='rk4', dt=1e-3)
     s = _servo_rod(kp, kd, **kw)
@@ -129,9 +130,11 @@ def test_saturation_clamps_the_torque_to_the_effort_limit():
     assert sim.outputs(wrenches=False).effort[0] == 0.5
 
 
-def test_fused_loop_equals_the_reference_path():
-    """The compiled loop (servo inside every stage) and the Python reference path (``rhs`` at each stage's
-    time, rosenbrock2 with the time term) agree on a two-link arm tracking a trajectory under gravity."""
+@pytest.mark.parametrize('backend', ['numba', 'generated'])
+def test_fused_loop_equals_the_reference_path(backend):
+    """The compiled loop (servo inside every stage; the generated backend's own right-hand side too) and the
+    Python reference path (``rhs`` at each stage's time, rosenbrock2 with the time term) agree on a two-link arm
+    tracking a trajectory under gravity, knots on the step grid included."""
     from robodyn_ros.setpoints import trajectory_message
     specs = [LinkSpec(name='l1', joint='j1', parent='base_link', joint_type='revolute', axis=(0, 1, 0), mass=1.0,
                       com=(0.5, 0, 0), inertia=np.diag([0.01] * 3)),
@@ -143,10 +146,11 @@ def test_fused_loop_equals_the_reference_path():
     for integ, (kp, kd) in (('rk4', (1e3, 20.0)), ('rosenbrock2', (1e6, 1e3))):
         out = []
         for reference in (False, True):
-            s = ArmSystem(m)
+            s = ArmSystem(m, backend=backend)
             s.use_servo(JointServo(m, ['j1', 'j2'], [], [kp] * 2, [kd] * 2, feedforward=True))
             if reference:
                 s.fused_advance = lambda *a, **k: None   # the Simulator's Python path
+            assert (s._km.gen is not None) == (backend == 'generated')
             sim = Simulator(s, np.zeros(4), integrator=integ, dt=1e-3)
             sim.set_command('trajectory', msg)
             for k in range(50):
@@ -177,6 +181,14 @@ def test_default_gains_are_stable_at_the_scenes_step_and_auto_sees_them():
     A[7:, 7:] = -np.linalg.solve(M, np.diag(sv.kd))
     assert 1e-3 * np.abs(np.linalg.eigvals(A)).max() <= 1.0 + 1e-9
     assert nv == sc.system.nv
+
+    def fastest(inertia, w):   # h |λ| of gains kp = inertia ω², kd = 2 inertia ω
+        A[7:, :7] = -np.linalg.solve(M, np.diag(inertia * w * w))
+        A[7:, 7:] = -np.linalg.solve(M, np.diag(2.0 * inertia * w))
+        return 1e-3 * np.abs(np.linalg.eigvals(A)).max()
+    w10 = 2 * math.pi * DEFAULT_FREQUENCY_HZ
+    # the docs' figures: gains from the diagonal M_jj would be unstable for rk4 at 1 ms (3.3); from I_j, 0.21
+    assert 3.0 < fastest(np.diag(M), w10) < 3.6 and 0.19 < fastest(inertia, w10) < 0.23
     stiff = parse_scene(text.format(servo='    servo: {kp: 1.0e6, kd: 1.0e3}\n'), file='x.yaml')
     with pytest.raises(ValueError, match='unstable'):
         Simulator(stiff.system, stiff.y0, integrator='rk4', dt=1e-3)

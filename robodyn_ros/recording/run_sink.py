@@ -63,9 +63,19 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
         topic = M.contact_topic(link)
         if want is None or want(topic):
             recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
+    js_type = M.TOPIC_TYPES['joint_states']
     for topic, type_name, msg in out.messages:   # sensors, a servo's desired and error states
         if want is None or want(topic):
-            recs.append((topic, type_name, cdr.encode(type_name, msg)))
+            data = None
+            if type_name == js_type:   # the fast encoders (the same bytes as cdr.encode)
+                data = cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names(msg['header']['frame_id'],
+                                                                              tuple(msg['name'])),
+                                             msg['position'], msg['velocity'], msg['effort'])
+            elif type_name == M.WRENCH_TYPE:
+                n, f = msg['wrench']['torque'], msg['wrench']['force']
+                data = cdr.wrench_stamped_bytes(sec, nsec, msg['header']['frame_id'],
+                                                (n['x'], n['y'], n['z'], f['x'], f['y'], f['z']))
+            recs.append((topic, type_name, cdr.encode(type_name, msg) if data is None else data))
     if tf is not None and (want is None or want('/tf')):
         trs = tf.transforms(out.joint_names, out.position, out.odom)
         if trs:
