@@ -88,14 +88,19 @@ MIN_RTOL = 100.0 * _EPS
 GRID_ROUNDOFF_ULPS = 16.0
 
 
+def step_start(t: float) -> float:
+    """The time of a stage at the start of a step from t: ``GRID_ROUNDOFF_ULPS`` ulps after t, so that an input
+    that jumps at t (a trajectory's knot on the step grid: a cubic's acceleration) is read as it acts over the
+    step, from the right, even when round-off puts the grid point a few ulps before the knot."""
+    return t + GRID_ROUNDOFF_ULPS * _EPS * abs(t)
+
+
 def step_end(t: float, h: float) -> float:
-    """The time of a stage at the end of the step from t of length h: the double just below ``t + h``
-    (``(t + h) − |t + h| ε``), so that inputs that jump at the step's end (a trajectory's knot on the step
-    grid: a cubic's acceleration) enter the step from the left, as they act over it; the next step's first
-    stage, at its start, takes them from the right. The compiled loops (``kernels.arm.arm_steps``) write the
-    same arithmetic."""
+    """The time of a stage at the end of the step from t of length h: ``GRID_ROUNDOFF_ULPS`` ulps before
+    ``t + h``, so that an input jumping there enters the step from the left (as it acts over it). The compiled
+    loops read the same sides with their stages at the grid times themselves (``kernels.servo``, ``OPT_SIDE``)."""
     te = t + h
-    return te - abs(te) * _EPS
+    return te - GRID_ROUNDOFF_ULPS * _EPS * abs(te)
 
 
 class IntegrationError(RuntimeError):
@@ -428,7 +433,7 @@ class ExplicitEuler(FixedStepIntegrator):
 
     def _step(self, f, t, y, h):
         # f's result is copied into _dy before y changes, so f may return (a view of) y.
-        np.multiply(f(t, y), h, out=self._dy)
+        np.multiply(f(step_start(t), y), h, out=self._dy)
         y += self._dy
         return 1
 
@@ -480,7 +485,7 @@ class SemiImplicitEuler(FixedStepIntegrator):
         nq = self.nq
         q = y[:nq]
         v = y[nq:]
-        ydot = f(t, y)
+        ydot = f(step_start(t), y)
         np.multiply(ydot[nq:], h, out=self._dv)  # copy first: ydot may alias y
         v += self._dv
         qd = v if self.qdot is None else self.qdot(q, v)
@@ -493,7 +498,8 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
     """Classical fourth-order Runge-Kutta (Hairer-Norsett-Wanner I, Table II.1.2).
 
     ``k1 = f(t, y)``, ``k2 = f(t + h/2, y + h/2 k1)``, ``k3 = f(t + h/2, y + h/2 k2)``,
-    ``k4 = f(t + h, y + h k3)``, ``y += h/6 (k1 + 2 k2 + 2 k3 + k4)`` (k4's time from the left: :func:`step_end`).
+    ``k4 = f(t + h, y + h k3)``, ``y += h/6 (k1 + 2 k2 + 2 k3 + k4)`` (k1 and k4 read time-dependent inputs on
+    the step's side of the grid: :func:`step_start`, :func:`step_end`).
 
     Args:
         spec: registry entry.
@@ -511,7 +517,7 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
         Y = self._Y
         acc = self._acc
         half = 0.5 * h
-        k = f(t, y)
+        k = f(step_start(t), y)
         acc[:] = k
         np.multiply(k, half, out=Y)
         Y += y
@@ -575,12 +581,13 @@ class Rosenbrock2(FixedStepIntegrator):
     def _step(self, f, t, y, h):
         from scipy.linalg import lu_factor, lu_solve
         lu = None
+        ts = step_start(t)   # stage 1 and its J, f_t: inputs on the step's side of the grid (see step_start)
         if self.jac is not None:
-            J = np.asarray(self.jac(t, y), dtype=np.float64)
+            J = np.asarray(self.jac(ts, y), dtype=np.float64)
             lu = lu_factor(self._eye - (self.gamma * h) * J, check_finite=False)
-        ft = None if self.dfdt is None else (self.gamma * h) * np.asarray(self.dfdt(t, y), dtype=np.float64)
+        ft = None if self.dfdt is None else (self.gamma * h) * np.asarray(self.dfdt(ts, y), dtype=np.float64)
         k1 = self._k1
-        k1[:] = f(t, y)
+        k1[:] = f(ts, y)
         if ft is not None:
             k1 += ft
         if lu is not None:

@@ -21,7 +21,7 @@ from .linalg import chol_solve, cholesky
 from .passive import add_coulomb_friction, friction_jacobian_add
 from .profiles import CMD_GRAVITY_SINE, CMD_NONE, CMD_PD_HOLD, command_eval
 from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_rhs, stage_velocity
-from .servo import SW_SAT, servo_forces_add, servo_jacobian_add, servo_state, servo_time_rate
+from .servo import SW_SAT, servo_forces_add, servo_jacobian_add, servo_side, servo_state, servo_time_rate
 from ..model import SPHERICAL
 from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
@@ -105,19 +105,6 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
         dz[nq + nv] = P
 
 
-#: machine epsilon of float64 (:func:`step_end`)
-_EPS = 2.220446049250313e-16
-
-
-@njit(**_JIT)
-def step_end(t, h):
-    """The time of a stage at a step's end: the double just below ``t + h``, so that inputs jumping there (a
-    trajectory knot on the step grid) enter the step from the left (``integrators.step_end``, the same
-    arithmetic for the reference path)."""
-    te = t + h
-    return te - abs(te) * _EPS
-
-
 @njit(**_JIT)
 def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con, t0, srv):
     """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
@@ -167,9 +154,11 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
     for k in range(n_steps):
         h = dt if k < n_full else h_last
         t = t0 + k * dt   # the reference integrator's step times (integrators.FixedStepIntegrator._advance)
+        servo_side(srv, 1.0)   # a servo's setpoints: a knot on the step grid is read from this step's side
         if method == M_RK4:
             half = 0.5 * h
             arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
+            servo_side(srv, 0.0)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
@@ -183,8 +172,8 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx,
-                    step_end(t, h), srv)
+            servo_side(srv, -1.0)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + h, srv)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
@@ -218,6 +207,7 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
             arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
             for a in range(n):
                 z[a] += K[a] * h
+        servo_side(srv, 0.0)
         normalize_into(mi, z[:nq])
         if cpl is not None:
             couple_into(cpl[0], z[:nq], z[nq:nq + nv])
@@ -554,6 +544,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:n - 1], dz, tauv)
     sat, Ft, rr = vec[10], vec[11], vec[12]
     if srv is not None:   # the servo at (t, zₙ): its torques, its saturation flags and time rate for J and the stages
+        servo_side(srv, 1.0)
         P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
         ns = srv[0].shape[0]
         for a in range(ns):
@@ -604,8 +595,9 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
             Y[nq + a] = v[a] + h * kv1[a]
         for a in range(nq + nv, n):
             Y[a] = z[a] + h * k1[a]
-        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx,
-                step_end(t, h), srv)
+        servo_side(srv, -1.0)   # stage 2 at the step's end
+        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx, t + h, srv)
+        servo_side(srv, 0.0)
         if con is None or attempt == 2:
             break
         ty = contact_stage_jacobian(mi, mf, con, touching, mat[6], mat[8], cj, W)

@@ -241,10 +241,10 @@ class ArmSystem(System):
             self._km.couple(y[:self.nq], y[self.nq:self.nq + self.nv])
         return y
 
-    def generalized_forces(self, y, u, t=0.0):
+    def generalized_forces(self, y, u, t=0.0, servo_torque=None):
         """Applied plus passive generalised forces ``B u - D v - F tanh(v / v_s) + τ_lim(q, v)`` (nv,);
         F: Coulomb joint friction, τ_lim: joint-limit moments; plus the joint servo's torques at time t (s)
-        (:mod:`robodyn_ros.kernels.servo`)."""
+        (:mod:`robodyn_ros.kernels.servo`; servo_torque (ns,): those torques when already computed)."""
         q, v = self.split(y)
         tau = self._tau_cmd(u) + dyn.passive_forces(self.model, v)
         if self._has_friction:
@@ -253,8 +253,9 @@ class ArmSystem(System):
         if self._lim.shape[0]:
             tau += self._km.limit_forces(q, v)
         if self.servo is not None:
-            out, _ = self._km.servo_state(self._srv(u), t, q, v)
-            tau[self.servo.v_index] += out[:, 4]
+            if servo_torque is None:
+                servo_torque = self._km.servo_state(self._srv(u), t, q, v)[0][:, 4]
+            tau[self.servo.v_index] += servo_torque
         return tau
 
     @property
@@ -573,34 +574,40 @@ class ArmSystem(System):
         and error states, with sensors their readings (``SystemOutputs.messages``)."""
         if self.servo is None and self.sensors is None:
             return self._state_outputs(t, y, u, wrenches)
-        out = self._state_outputs(t, y, u, wrenches)
+        st = None   # the servo at (t, y): desired values and torques (kernels.servo.servo_state), once
+        if self.servo is not None:
+            q, v = self.split(y)
+            st = self._km.servo_state(self._srv(u), t, q, v)[0]
+        out = self._state_outputs(t, y, u, wrenches, st)
         from .servo import control_messages
-        out.messages.extend(control_messages(self, t, y, u))
+        out.messages.extend(control_messages(self, t, y, u, st))
         return out
 
-    def _state_outputs(self, t, y, u, wrenches):
-        """:meth:`outputs` without the servo's and sensors' messages."""
+    def _state_outputs(self, t, y, u, wrenches, st=None):
+        """:meth:`outputs` without the servo's and sensors' messages (st: the servo's state at (t, y), if known)."""
         q, v = self.split(y)
         tau_cmd = self._tau_cmd(u)
+        ts = None
         if self.servo is not None:   # the servo's joints publish the torque it applies now
-            tau_cmd[self.servo.v_index] = self._km.servo_state(self._srv(u), t, q, v)[0][:, 4]
+            ts = (self._km.servo_state(self._srv(u), t, q, v)[0] if st is None else st)[:, 4].copy()
+            tau_cmd[self.servo.v_index] = ts
         w = {}
         if self._coupled:  # a mimic joint's effort: what the coupling transmits to it (λ, kernels.coupled)
-            _, f, lam = self._km.coupled_wrenches(q, v, self.generalized_forces(y, u, t))
+            _, f, lam = self._km.coupled_wrenches(q, v, self.generalized_forces(y, u, t, ts))
             tau_cmd[self._mimic_v] = lam[self._mimic_v]
             if wrenches:
                 w = {self.model.joint_names[i]: (self.model.link_names[i], f[i].copy()) for i in range(self.model.nb)}
             return self._outputs(q.copy(), v.copy(), tau_cmd, w)
         if self.contact is not None:
-            return self._contact_outputs(q.copy(), v.copy(), tau_cmd, self.generalized_forces(y, u, t), wrenches)
+            return self._contact_outputs(q.copy(), v.copy(), tau_cmd, self.generalized_forces(y, u, t, ts), wrenches)
         if wrenches:
             if self._km is not None:   # computed when read, or for many publications at once by a recorder
                 q1, v1 = q.copy(), v.copy()
                 return self._outputs(q1, v1, tau_cmd, LazyWrenches(
                     self._wrench_names, self._wrench_frames, self._wrenches_one, self._wrenches_many,
-                    (q1, v1, self.generalized_forces(y, u, t)), self._wrench_index))
+                    (q1, v1, self.generalized_forces(y, u, t, ts)), self._wrench_index))
             else:
-                _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u, t))
+                _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u, t, ts))
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
         return self._outputs(q.copy(), v.copy(), tau_cmd, w)

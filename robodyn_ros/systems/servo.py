@@ -88,7 +88,8 @@ class JointServo:
         self.sf[:, ks.SF_KP] = kp
         self.sf[:, ks.SF_KD] = kd
         self.feedforward = bool(feedforward)
-        self.opt = np.array([1.0 if feedforward else 0.0])
+        fixed = sorted(int(v) for v in self.si[:, 0]) == list(range(model.nv))   # every joint a servo joint
+        self.opt = np.array([1.0 if feedforward else 0.0, 0.0, 1.0 if fixed else 0.0, np.nan, -1.0])   # ks.OPT_*
         self.sw = np.zeros((ks.NSW, max(model.nq, model.nv, 1)))
         self.v_index = self.si[:, 0].copy()
         self._packed = (None, None, None)
@@ -122,6 +123,7 @@ class JointServo:
             raise ValueError(f'setpoint program for {C.shape[1]} joints, the servo has {len(self.position)} '
                              'position-commanded joints')
         packed = (self.si, self.sf, T, C, vset.copy(), self.sw, self.opt)
+        self.opt[3] = np.nan   # ks.OPT_CT: the feed-forward cached in sw is of another program
         self._packed = (program, vset.copy(), packed)
         return packed
 
@@ -130,12 +132,13 @@ class JointServo:
 DESIRED_TOPIC, ERROR_TOPIC = 'joint_trajectory_desired', 'joint_trajectory_error'
 
 
-def control_messages(system, t, y, u) -> list:
+def control_messages(system, t, y, u, st=None) -> list:
     """The messages of an arm's servo and sensors at time t (s), state y and inputs u:
     ``joint_trajectory_desired`` (position q*, velocity q̇*, effort the feed-forward torque) and
     ``joint_trajectory_error`` (position q* − q, velocity q̇* − q̇, effort the torque the servo applies)
     over the servo's joints (position-commanded first; a velocity joint's position error is 0), then the
-    sensors' readings (:mod:`robodyn_ros.systems.sensors`) at the joint accelerations of the dynamics."""
+    sensors' readings (:mod:`robodyn_ros.systems.sensors`) at the joint accelerations of the dynamics. st: the
+    servo's state at (t, y) (``CompiledModel.servo_state``), when already computed."""
     from .. import messages as M
     out = []
     q, v = system.split(np.asarray(y, dtype=float))
@@ -143,7 +146,8 @@ def control_messages(system, t, y, u) -> list:
     t_ns = M.to_ns(t)
     if system.servo is not None:
         s = system.servo
-        st, _ = km.servo_state(system._srv(u), t, q, v)
+        if st is None:
+            st = km.servo_state(system._srv(u), t, q, v)[0]
         js = M.TOPIC_TYPES['joint_states']
         out.append((DESIRED_TOPIC, js, M.joint_state(t_ns, s.names, st[:, 0], st[:, 1], st[:, 3])))
         out.append((ERROR_TOPIC, js, M.joint_state(t_ns, s.names, st[:, 0] - q[s.si[:, 1]], st[:, 1] - v[s.v_index],
