@@ -16,20 +16,22 @@ $(STAMP): constraints.txt setup.py package.xml
 
 venv: $(STAMP)
 
-# compile once the kernels every bundled scene and URDF robot uses (about a minute on a fresh
-# install; cached on disk), so that first runs start without compiling; again when a kernel changes
+# compile once the kernels every bundled scene and URDF robot uses (cached on disk), in one worker
+# process per processor, so that first runs start without compiling; again when a kernel changes.
+# `make test` runs it first: the suite's processes then load the kernels instead of each compiling them
 $(WARM): $(STAMP) $(wildcard robodyn_ros/kernels/*.py)
 	$(VENV)/bin/robodyn warm --quiet
 	@touch $(WARM)
 
 # the sim node on stanford_arm with its scripted commands, 10 s of simulation as fast as possible,
 # recorded (replacing the recording of the previous `make run`); it prints the run summary on exit
-# (same format as `robodyn run`)
-run: $(WARM)
+# (same format as `robodyn run`). On an empty kernel cache the node compiles only what this run uses
+# (`robodyn warm`, which `make test` runs, compiles the other scenes' kernels)
+run: $(STAMP)
 	$(VENV)/bin/sim --ros-args -p scene:=stanford_arm -p scripted_commands:=true -p mode:=max \
 	  -p duration:=10.0 -p record:=runs/stanford_arm.mcap -p overwrite:=true
 
-test: $(STAMP)
+test: $(WARM)
 	$(PY) -m pytest -q
 
 bench: $(STAMP)

@@ -562,7 +562,8 @@ class Rosenbrock2(FixedStepIntegrator):
         jac: optional ``jac(t, y) -> J (n, n)``, evaluated once per step at its start: the stiff
             (passive) part of ∂f/∂y; None: J = 0.
         gamma: γ, default :data:`GAMMA` (1 − 1/√2); the other L-stable root 1 + 1/√2 is the one the
-            compiled loops take in steps with a joint stop in J (``kernels.rosenbrock.GAMMA_STOP``).
+            compiled loops take in steps with a joint stop in J or a ground contact touching
+            (``kernels.rosenbrock.GAMMA_STOP``; ``kernels.arm.arm_implicit_matrix``).
         dfdt: optional ``dfdt(t, y) -> f_t (n,)``, evaluated once per step at its start; None: 0.
     """
 
@@ -812,7 +813,8 @@ INTEGRATORS: dict[str, IntegratorSpec] = {s.name: s for s in (
     IntegratorSpec(name='rosenbrock2', kind='fixed', order=2, symplectic=False, implicit=True,
                    projection='step', multistep=False,
                    summary='linearly implicit Rosenbrock-W, order 2, L-stable on the stiff passive forces '
-                           '(damping, friction, joint limits, motor electrics), explicit in the rest',
+                           '(damping, friction, joint limits, ground contact, motor electrics, joint servos), explicit '
+                           'in the rest',
                    options=('jac', 'gamma', 'dfdt'), factory=_fixed(Rosenbrock2)),
     IntegratorSpec(name='rk45', kind='adaptive', order=5, symplectic=False, implicit=False,
                    projection='step', multistep=False,

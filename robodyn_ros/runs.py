@@ -1,25 +1,28 @@
 """What every run needs, wherever it starts (``robodyn run``, the sim node, ``robodyn sweep``):
-its integrator settings and its human-readable summary.
+its settings, its integrator plan, and its human-readable summary.
 
 Settings resolve the same way for all three: the value given for the run (command-line option,
 node parameter, sweep parameter) over the scene's ``simulation`` defaults over the package
 defaults, so a node run and a headless run of the same scene integrate alike. The package's default
-integrator is ``auto`` (:mod:`robodyn_ros.integrator_choice`): :func:`resolve_auto` replaces it by the
-method it picks at the run's initial state, and records why under ``auto`` (the summary prints it and
-the recording's metadata keeps it; a run that names its integrator has no ``auto`` key, so its
-recording keeps its bytes).
+integrator is ``auto``. :func:`plan_run` asks :func:`robodyn_ros.integrator_choice.plan_integrator`,
+once, how the run integrates (the Simulator is then handed that plan) and writes the method auto
+picked, and why, into the settings (under ``auto``: the summary prints it and the recording's
+metadata keeps it; a run that names its integrator has no ``auto`` key, so its recording keeps its
+bytes).
 """
 from __future__ import annotations
 
 import math
 import os
 
-#: the integrator name that asks for the choice (:data:`robodyn_ros.integrator_choice.AUTO`; here so that
-#: ``robodyn --help`` imports no numpy)
-AUTO = 'auto'
+from .integrator_choice import AUTO, AUTO_ATOL, AUTO_RTOL, DEFAULT_DT
 
 #: simulated seconds between diagnostics messages in a recording (robodyn run, robodyn sweep)
 DIAGNOSTICS_PERIOD = 0.1
+#: publication (and scripted-command) rate (Hz) when the run and its scene give none
+DEFAULT_RATE = 100.0
+#: simulated seconds of a run when the run and its scene give none
+DEFAULT_DURATION = 10.0
 
 
 def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=None,
@@ -29,49 +32,56 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
     scene: a loaded :class:`robodyn_ros.scene.Scene` (its ``settings``); integrator, dt (s),
     rtol, atol, rate (publication rate, Hz), duration (simulated s), step_budget (steps per
     simulated second of an error-controlled integrator, inf = none): None takes the scene's
-    value, else the package default (auto, 1e-3 s, 100 Hz, 10 s; rtol 1e-8 and atol 1e-10 for an
-    adaptive integrator; the Simulator's ``STEP_BUDGET``). Returns a dict with the first six keys
-    (integrator may be ``'auto'``: see :func:`resolve_auto`), and ``step_budget`` when the run or
-    the scene gives one (recordings of other runs keep their settings' bytes).
+    value, else the package default (``AUTO``, ``DEFAULT_DT``, ``DEFAULT_RATE``, ``DEFAULT_DURATION``;
+    ``AUTO_RTOL`` and ``AUTO_ATOL`` for an adaptive integrator; ``integrator_choice.STEP_BUDGET``).
+    Returns a dict with the first six keys (integrator may be ``'auto'``: see :func:`plan_run`), and
+    ``step_budget`` when the run or the scene gives one (recordings of other runs keep their
+    settings' bytes).
     """
     s = dict(scene.settings)
     out = {'integrator': (integrator or s.get('integrator', AUTO)).lower(),
-           'dt': dt if dt is not None else s.get('dt', 1e-3),
+           'dt': dt if dt is not None else s.get('dt', DEFAULT_DT),
            'rtol': rtol if rtol is not None else s.get('rtol'),
            'atol': atol if atol is not None else s.get('atol'),
-           'rate': rate if rate is not None else s.get('publish_rate', 100.0),
-           'duration': duration if duration is not None else s.get('duration', 10.0)}
+           'rate': rate if rate is not None else s.get('publish_rate', DEFAULT_RATE),
+           'duration': duration if duration is not None else s.get('duration', DEFAULT_DURATION)}
     budget = step_budget if step_budget is not None else s.get('step_budget')
     if budget is not None:
         out['step_budget'] = budget
     from .integrators import INTEGRATORS
     spec = INTEGRATORS.get(out['integrator'])
     if spec is not None and spec.kind == 'adaptive':
-        out['rtol'] = out['rtol'] if out['rtol'] is not None else 1e-8
-        out['atol'] = out['atol'] if out['atol'] is not None else 1e-10
+        out['rtol'] = out['rtol'] if out['rtol'] is not None else AUTO_RTOL
+        out['atol'] = out['atol'] if out['atol'] is not None else AUTO_ATOL
     return out
 
 
-def resolve_auto(st: dict, system, y0, t0: float = 0.0) -> dict:
-    """``st`` (from :func:`resolve_settings`) with an ``'auto'`` integrator replaced by the choice of
-    :func:`robodyn_ros.integrator_choice.choose_integrator` at state y0 (its dt, or rtol/atol for radau)
-    and the reason under ``'auto'``; ``st`` itself when it names an integrator. A new dict."""
-    from .integrator_choice import choose_integrator, is_auto
-    if not is_auto(st.get('integrator')):
-        return st
-    from .stability import start_inputs
-    c = choose_integrator(system, y0, st.get('dt') or 1e-3, st.get('rtol'), st.get('atol'), t0,
-                          u=start_inputs(system, y0, t0))   # the inputs in force at the start
-    return {**st, 'integrator': c.integrator, 'dt': c.dt if c.dt is not None else st.get('dt'),
-            'rtol': c.rtol, 'atol': c.atol, 'auto': c.reason}
+def plan_run(st: dict, system, y0, t0: float = 0.0):
+    """How a run with settings ``st`` (from :func:`resolve_settings`) integrates from state y0 at t0:
+    ``(plan, st)``, the :class:`~robodyn_ros.integrator_choice.IntegratorPlan` made once by
+    :func:`~robodyn_ros.integrator_choice.plan_integrator` (hand it to the Simulator: ``Simulator(...,
+    plan=plan)``), and the settings with the plan written in: an ``'auto'`` integrator replaced by the
+    method it chose (its dt, or rtol/atol for radau) and the reason under ``'auto'``, a new dict; ``st``
+    itself when it names its integrator. Raises ValueError naming the cause (plan_integrator)."""
+    from .integrator_choice import plan_integrator
+    dt = st.get('dt')
+    plan = plan_integrator(system, y0, st.get('integrator'), DEFAULT_DT if dt is None else dt, st.get('rtol'),
+                           st.get('atol'), st.get('step_budget'), t0)
+    if not plan.auto:
+        return plan, st
+    return plan, {**st, 'integrator': plan.integrator, 'dt': plan.dt if plan.dt is not None else dt,
+                  'rtol': plan.rtol, 'atol': plan.atol, 'auto': plan.reason}
 
 
 def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     """Human-readable summary of a finished run (cpu: process CPU seconds of the run, if known)."""
+    import numpy as np
     e = sim.energy_report()
     d = sim.diag
-    method = st['integrator'] + (f' dt={st["dt"]:g} s' if st.get('dt') and not st.get('rtol')
-                                 else f' rtol={st["rtol"]:g} atol={st["atol"]:g}')
+    ran = sim.integrator.settings()   # what ran: the method and its dt, or its rtol and atol
+    method = ran['integrator'] + (f' dt={ran["dt"]:g} s' if 'dt' in ran else
+                                  f' rtol={ran["rtol"]:g} atol=' + (f'{ran["atol"]:g}' if np.ndim(ran['atol']) == 0
+                                                                    else 'per component'))
     lines = [
         f'scene        {scene.name} ({scene.system.__class__.__name__}, {scene.system.ny} states)',
         f'integrator   {method}; {d.steps} steps, {d.rhs_evals} rhs evaluations, '

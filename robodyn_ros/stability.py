@@ -1,11 +1,13 @@
-"""Run-time stability: a fixed step checked before the run starts, and failures that name their cause.
+"""Run-time stability analysis: a fixed step analysed before the run starts, and failures that name their cause.
 
 GUIDE §3: at every extreme the simulator stays within its stated error, adapts, or stops with a
-message naming the cause, and never publishes a non-finite value. This module holds the two
-checks the :class:`~robodyn_ros.simulation.Simulator` makes for that, so that they live in one
-place (``simulation.check_step`` and ``Simulator.advance`` call them). It sits low in the house
-(it imports only ``model`` and ``dynamics``); the scenarios that push the simulator to its
-extremes and write the README table are a benchmark, :mod:`robodyn_ros.bench.extremes`:
+message naming the cause, and never publishes a non-finite value. This module is the analysis behind
+that: the linearisation, its modes, the methods' stability functions, the preflight of the initial
+state and the diagnosis of a failure. It decides nothing: :mod:`robodyn_ros.integrator_choice` (which
+integrator, which step, and why) calls it once per run, and ``Simulator.advance`` calls
+:func:`diagnose` and :func:`stiff_mode` when a run fails. It sits low in the house (it imports only
+``model`` and ``dynamics``); the scenarios that push the simulator to its extremes and write the
+README table are a benchmark, :mod:`robodyn_ros.bench.extremes`:
 
 **Step stability (before a fixed-step run).** A fixed explicit step ``h`` is stable on a mode
 ``ẏ = λ y`` when the method's amplification ``|R(hλ)| <= 1`` (Hairer–Wanner II, §IV.2). The
@@ -53,13 +55,12 @@ linearisation, plus the largest command), so the ``SimulationError`` names the l
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 __all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'StepWarning', 'StepAnalysis',
-           'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step', 'check_fixed_step',
+           'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step',
            'preflight', 'diagnose', 'stable_step_limit', 'rosenbrock2_amplification', 'rosenbrock2_step_matrix',
            'passive_jacobian', 'step_alternatives', 'stiff_mode', 'start_inputs']
 
@@ -75,7 +76,10 @@ FIXED_EXPLICIT = ('euler', 'semi_implicit_euler', 'rk4')
 LINEARLY_IMPLICIT = ('rosenbrock2',)
 #: every fixed-step method this module analyses
 FIXED_STEP = FIXED_EXPLICIT + LINEARLY_IMPLICIT
-#: γ of rosenbrock2 (kernels.rosenbrock.GAMMA, integrators.GAMMA)
+#: γ of rosenbrock2 (kernels.rosenbrock.GAMMA, integrators.GAMMA): the analysis takes this root. The
+#: compiled loops take the other, 1 + 1/√2 (kernels.rosenbrock.GAMMA_STOP), in steps with a joint stop in
+#: J or a ground contact touching; both are L-stable on what J holds, and outside J the method is Heun's
+#: whatever γ is, so the verdicts hold for either
 _GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
 
 
@@ -378,7 +382,7 @@ def _analyse_linearly_implicit(system, name, h, y, u, t, J) -> StepAnalysis:
     if refuse_growth > REFUSE_GROWTH:
         a.verdict = 'refuse'
         a.message = (f'{name} with dt={h:g} s is unstable for this system ({type(system).__name__}): it is implicit '
-                     f'only in the passive forces (damping, friction, joint limits, motor electrics) and {mode}; '
+                     f'only in the passive forces (damping, friction, joint limits, ground contact, motor electrics) and {mode}; '
                      f'a mode grows by {math.exp(refuse_growth):.3g} per step; a stable step on that mode is at most '
                      f'{dt_limit:.3g} s. Use a smaller dt or a stiff error-controlled integrator (radau, bdf, lsoda)')
     elif growth > 0 and doubling < WARN_DOUBLING_TIME:
@@ -399,23 +403,6 @@ def _mode_source(lam: complex, sys_tau: float, spin: float, sys_words: str = '')
     if math.isfinite(sys_tau) and sys_tau > 0 and abs(abs(lam) * sys_tau - 1.0) < 0.05:
         return sys_words or '; the system\'s declared fastest time constant, e.g. motor electrics L/R or Baumgarte gains'
     return ''
-
-
-def check_fixed_step(system, integrator: str, dt, y, u=None, t: float = 0.0) -> StepAnalysis | None:
-    """Refuse (ValueError) or warn (:class:`StepWarning`) for an unstable fixed explicit step.
-
-    Returns the analysis, or None for methods this check does not apply to (error-controlled,
-    implicit) or when dt is None.
-    """
-    name = str(integrator).lower()
-    if name not in FIXED_STEP or dt is None or getattr(system, 'ny', 0) == 0:
-        return None
-    a = analyse_step(system, name, dt, y, u, t)
-    if a.verdict == 'refuse':
-        raise ValueError(a.message)
-    if a.verdict == 'warn':
-        warnings.warn(StepWarning(a.message), stacklevel=3)
-    return a
 
 
 #: smallest eigenvalue of the mass matrix, relative to its largest, below which the preflight calls

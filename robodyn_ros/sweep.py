@@ -105,12 +105,27 @@ PAUSE_ENV = 'ROBODYN_SWEEP_PAUSE'
 # ---------------------------------------------------------------------------------------------
 # runs
 # ---------------------------------------------------------------------------------------------
-def run_settings(scene, overrides: dict, duration: float) -> dict:
-    """Integrator settings of one run: ``overrides`` over the scene's, resolved as ``robodyn run`` does
-    (``auto`` replaced by the method it picks at the scene's initial state)."""
-    from .runs import resolve_auto, resolve_settings
-    st = resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
-    return resolve_auto(st, scene.system, scene.y0)
+def requested_settings(scene, overrides: dict, duration: float) -> dict:
+    """The settings one run asks for: ``overrides`` over the scene's (:func:`robodyn_ros.runs.resolve_settings`;
+    the integrator may be ``auto``)."""
+    from .runs import resolve_settings
+    return resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
+
+
+def run_settings(scene, overrides: dict, duration: float):
+    """How one run integrates: ``(plan, st)``, its integrator plan and its settings, resolved as ``robodyn run``
+    does (:func:`robodyn_ros.runs.plan_run`: ``auto`` replaced by the method it picks at the scene's initial
+    state). Raises ValueError when the run cannot be planned."""
+    from .runs import plan_run
+    return plan_run(requested_settings(scene, overrides, duration), scene.system, scene.y0)
+
+
+def _settings_columns(st) -> dict:
+    """The row's integrator columns from settings ``st`` (dt for a fixed-step method, else rtol/atol)."""
+    from .integrators import INTEGRATORS
+    fixed = INTEGRATORS[st['integrator']].kind == 'fixed'
+    return dict(integrator=st['integrator'], dt=st['dt'] if fixed else None, rtol=None if fixed else st['rtol'],
+                atol=None if fixed else st['atol'], duration=st['duration'])
 
 
 class _Figures:
@@ -147,7 +162,7 @@ class _Figures:
         return 0 if template.extra else len(t_out)
 
     def on_block(self, blk, sim):
-        """The figures of each period of a block (:class:`robodyn_ros.simulation.PeriodBlock`):
+        """The figures of each period of a block (:class:`robodyn_ros.blocks.PeriodBlock`):
         the numbers :meth:`on_output` takes from each, the energy report's from its state and work."""
         ny = sim.system.ny
         for z in blk.z:
@@ -176,8 +191,9 @@ class _Figures:
         pass
 
 
-def _simulate(scene, st, sinks=()):
-    """Run ``scene`` with settings ``st``: ``(sim, status, message)``; never raises for the run's own failures."""
+def _simulate(scene, st, plan, sinks=()):
+    """Run ``scene`` with settings ``st`` and integrator plan ``plan`` (:func:`run_settings`): ``(sim, status,
+    message)``; never raises for the run's own failures (the plan's warnings go into the message)."""
     import warnings
 
     from .simulation import SimulationError, Simulator, run_headless
@@ -186,8 +202,7 @@ def _simulate(scene, st, sinks=()):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         try:
-            sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                            atol=st['atol'], step_budget=st.get('step_budget'))
+            sim = Simulator(scene.system, scene.y0, plan=plan)
         except ValueError as e:
             return None, 'refused', str(e)
         try:
@@ -213,14 +228,17 @@ def clear_reference_cache():
 def _reference_state(task, scene, st_run):
     """Final state of the reference run of this task's parameters, or ``(None, reason)``."""
     ref = dict(task['reference'])
-    st = run_settings(scene, ref, task['duration'])
+    try:
+        plan, st = run_settings(scene, ref, task['duration'])
+    except ValueError as e:
+        return None, f'reference run refused: {e}'
     if all(st.get(k) == st_run.get(k) for k in SETTINGS):
         return None, 'same'
     key = hashlib.sha256(json.dumps([task['scene_text'], {k: v for k, v in task['params'].items()
                                                            if k not in SETTINGS}, st, task['backend'],
                                      files_digest(task.get('files') or {})], sort_keys=True).encode()).hexdigest()
     if key not in _REFERENCES:
-        sim, status, msg = _simulate(scene, st)
+        sim, status, msg = _simulate(scene, st, plan)
         _REFERENCES[key] = (sim.y.copy(), '') if status == 'ok' else (None, f'reference run {status}: {msg}')
         if len(_REFERENCES) > 64:
             _REFERENCES.pop(next(iter(_REFERENCES)))
@@ -279,22 +297,23 @@ def execute_run(task: dict) -> dict:
     row.update(y_final=None, cpu_time=math.nan, wall_time=math.nan, worker='')
     mcap = None
     w0 = time.perf_counter()
+    from .integrators import INTEGRATORS
+    from .runs import plan_run
     from .scene import SceneError
+    st = requested = None
     try:
         scene = build_scene(task['scene_text'], task['scene_file'], task['params'], task['backend'],
                             task.get('files') or {})
-        st = run_settings(scene, task['params'], task['duration'])
+        requested = requested_settings(scene, task['params'], task['duration'])
+        plan, st = plan_run(requested, scene.system, scene.y0)
     except SceneError as e:
         row.update(status='invalid', message=str(e))
-        st = None
-    except ValueError as e:   # integrator auto could not analyse the initial state
+    except ValueError as e:   # the run cannot be planned: auto cannot analyse its state, a named step is refused
         row.update(status='refused', message=str(e))
-        st = None
+        if requested is not None and requested['integrator'] in INTEGRATORS:   # (auto is not)
+            row.update(_settings_columns(requested))   # the method and step that were refused
     if st is not None:
-        from .integrators import INTEGRATORS
-        fixed = INTEGRATORS[st['integrator']].kind == 'fixed'
-        row.update(integrator=st['integrator'], dt=st['dt'] if fixed else None, rtol=None if fixed else st['rtol'],
-                   atol=None if fixed else st['atol'], duration=st['duration'])
+        row.update(_settings_columns(st))
         fig = _Figures(wrenches='max_joint_wrench' in task['figures'])
         sinks = [fig]
         tmp = None
@@ -308,7 +327,7 @@ def execute_run(task: dict) -> dict:
                                      batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes
         try:
             c0 = time.process_time()
-            sim, status, msg = _simulate(scene, st, sinks)
+            sim, status, msg = _simulate(scene, st, plan, sinks)
             cpu = time.process_time() - c0
         finally:
             for s in sinks[1:]:

@@ -142,11 +142,12 @@ def _number_or_list(file, path, v, what='a number or a list of numbers'):
 
 
 def _check_setting(file, path, key, value):
-    """A value for a run setting: a known integrator name or a positive number."""
+    """A value for a run setting: a known integrator name (or auto) or a positive number."""
     if key == 'integrator':
+        from .integrator_choice import AUTO
         from .integrators import INTEGRATORS
-        if not isinstance(value, str) or value not in INTEGRATORS:
-            _fail(file, path, f'unknown integrator {value!r}; known: {", ".join(INTEGRATORS)}')
+        if not isinstance(value, str) or (value not in INTEGRATORS and value != AUTO):
+            _fail(file, path, f'unknown integrator {value!r}; known: {AUTO}, {", ".join(INTEGRATORS)}')
     elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not math.isfinite(value):
         _fail(file, path, f'expected a positive number of {"seconds" if key == "dt" else "relative units"}, '
                           f'got {value!r}')

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from robodyn_ros import dynamics as dyn
-from robodyn_ros import simulation as S
+from robodyn_ros import blocks as B
 from robodyn_ros.bench import speed
 from robodyn_ros.kernels import profiles as kprofiles
 from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink
@@ -63,12 +63,12 @@ class _Count:
 
     def __init__(self, monkeypatch):
         self.periods = 0
-        orig = S._BlockRunner._commit
+        orig = B.BlockRunner._commit
 
         def commit(runner, a, b, *rest):
             self.periods += b - a
             return orig(runner, a, b, *rest)
-        monkeypatch.setattr(S._BlockRunner, '_commit', commit)
+        monkeypatch.setattr(B.BlockRunner, '_commit', commit)
 
 
 def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None, record=True, rate=100.0,
@@ -101,7 +101,7 @@ def _both(tmp_path, monkeypatch, scene, duration, **kw):
     count = _Count(monkeypatch)
     fast = _run(tmp_path, scene, 'block', duration, **kw)
     blocked = count.periods
-    monkeypatch.setattr(S._BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
     slow = _run(tmp_path, scene, 'period', duration, **kw)
     return fast, slow, blocked
 
@@ -251,7 +251,7 @@ def test_the_planner_declines_what_it_cannot_run_in_blocks():
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
-    plan = S._BlockRunner.plan
+    plan = B.BlockRunner.plan
     assert plan(sim, scene.script, [], None, False) is not None
 
     def python_only(t, y):
@@ -276,9 +276,9 @@ def test_the_planner_asks_the_system_once_and_declines_for_spherical_joints(monk
         warnings.simplefilter('ignore')
         sim = Simulator(scene.system, scene.y0, integrator='rk4', dt=1e-3)
     assert scene.script.programs['effort'] is not None
-    assert S._BlockRunner.plan(sim, scene.script, [], None, False) is None
+    assert B.BlockRunner.plan(sim, scene.script, [], None, False) is None
     tries = []
-    monkeypatch.setattr(S._BlockRunner, 'run', lambda self, *a: tries.append(a) or a[0])
+    monkeypatch.setattr(B.BlockRunner, 'run', lambda self, *a: tries.append(a) or a[0])
     assert run_headless(sim, 0.05, 100.0, scene.script, []) == 5 and tries == []
 
 
@@ -378,7 +378,7 @@ def test_a_command_timeout_acts_as_on_the_per_period_path(tmp_path, monkeypatch)
         sink.close()
         return (tmp_path / f'{tag}.mcap').read_bytes(), sim
     fast, sim_f = run('block')
-    monkeypatch.setattr(S._BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
     slow, sim_s = run('period')
     assert sim_s.ports['effort'].timed_out and sim_f.ports['effort'].timed_out
     assert fast == slow

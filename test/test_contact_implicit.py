@@ -191,7 +191,7 @@ def test_auto_sees_the_ground_a_body_will_land_on(monkeypatch):
     inaccurate (8.7e-2 rad, docs/contact.md)."""
     import warnings
 
-    from robodyn_ros.integrator_choice import choose_integrator
+    from robodyn_ros.integrator_choice import plan_integrator
     from robodyn_ros.scene import load_scene
     from robodyn_ros.systems.arm import ArmSystem
     with warnings.catch_warnings():
@@ -203,10 +203,10 @@ def test_auto_sees_the_ground_a_body_will_land_on(monkeypatch):
     P = s.contact.point_outputs(s._km, rest[:s.nq], rest[s.nq:])
     mass = float(sum(sp.mass for sp in s.model.specs))
     assert abs(P[:, PDEPTH].max() - mass * G / s.contact.ground.stiffness) < 1e-12
-    c = choose_integrator(s, sc.y0, 1e-3)
+    c = plan_integrator(s, sc.y0, dt=1e-3)
     assert c.integrator == 'rosenbrock2' and 'resting on the ground' in c.reason, c.reason
     monkeypatch.setattr(ArmSystem, 'analysis_states', lambda self, y: [])
-    assert choose_integrator(s, sc.y0, 1e-3).integrator == 'rk4'
+    assert plan_integrator(s, sc.y0, dt=1e-3).integrator == 'rk4'
 
 
 def test_broken_ground_refused_by_robodyn_run_with_exit_2(tmp_path):

@@ -15,6 +15,7 @@ import pytest
 from robodyn_ros import stability as st
 from robodyn_ros.bench import extremes as ex
 from robodyn_ros import kernels
+from robodyn_ros.integrator_choice import plan_integrator
 from robodyn_ros.integrators import make_integrator
 from robodyn_ros.simulation import SimulationError, Simulator, run_headless
 from robodyn_ros.systems.base import System, SystemOutputs
@@ -81,7 +82,7 @@ def test_stability_limit_on_a_decay_matches_the_integrator(integrator, limit):
     assert b.verdict == 'refuse' and _grows(s, integrator, beyond)
     assert b.dt_limit == pytest.approx(limit / 1000.0, rel=1e-3)
     with pytest.raises(ValueError, match=rf'{integrator} with dt=.* is unstable.*\|λ\| = 1e\+03 1/s'):
-        st.check_fixed_step(s, integrator, beyond, y0)
+        plan_integrator(s, y0, integrator, beyond)   # the run's plan refuses it
 
 
 def test_oscillator_limits_per_method():
@@ -99,8 +100,9 @@ def test_oscillator_limits_per_method():
     w = st.analyse_step(s, 'euler', 1e-4, y0)
     assert w.verdict == 'warn' and w.doubling_time == pytest.approx(1e-4 * math.log(2) / (0.5 * 1e-4), rel=0.01)
     assert st.analyse_step(s, 'euler', 2e-3, y0).verdict == 'refuse'
-    with pytest.warns(st.StepWarning, match='doubles it every'):
-        st.check_fixed_step(s, 'euler', 1e-4, y0)
+    assert 'doubles it every' in plan_integrator(s, y0, 'euler', 1e-4).warnings[0]   # the plan carries the warning
+    with pytest.warns(st.StepWarning, match='doubles it every'):                    # and the Simulator gives it
+        Simulator(s, y0, integrator='euler', dt=1e-4)
 
 
 def test_saddle_counts_as_the_oscillation_it_becomes():
@@ -112,7 +114,8 @@ def test_saddle_counts_as_the_oscillation_it_becomes():
 
 def test_adaptive_integrators_are_not_checked_and_report_rejections():
     s = _decay(1e5)
-    assert st.check_fixed_step(s, 'dop853', None, np.ones(2)) is None
+    plan = plan_integrator(s, np.ones(2), 'dop853', None)
+    assert plan.analysis is None and plan.warnings == ()
     sim = Simulator(s, np.ones(2), integrator='rk45', rtol=1e-6, atol=1e-9)
     sim.advance(1e-3)
     assert isinstance(sim.diagnostics_values()['rejected_steps'], int)

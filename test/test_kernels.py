@@ -343,6 +343,30 @@ def test_cache_dir_is_writable_and_used():
     assert out.stdout.strip() == '/tmp/robodyn-test-numba-cache'
 
 
+def test_kernel_cache_files_are_read_and_written_under_the_directory_lock(monkeypatch):
+    """Every kernel's numba cache file takes the cache directory's lock (exclusive to save, shared to
+    load), so that processes compiling at once (``robodyn warm --jobs``, a suite's children) never
+    give two signatures one data file."""
+    from robodyn_ros.kernels import cache, tree
+    disp = cache.dispatchers()
+    assert len(disp) > 50, len(disp)
+    files = [d._cache._cache_file for d in disp.values()]
+    assert all(type(f).__name__ == '_LockedCacheFile' for f in files), {type(f).__name__ for f in files}
+    assert {f._cache_path for f in files} <= cache._OURS
+    taken = []
+    real = cache._dir_lock
+
+    def spy(path, exclusive):
+        taken.append((path, exclusive))
+        return real(path, exclusive)
+
+    monkeypatch.setattr(cache, '_dir_lock', spy)
+    f = tree.joint_nv._cache._cache_file
+    key = ('no such signature', 'no such machine')
+    assert f.load(key) is None
+    assert taken == [(f._cache_path, False)]
+
+
 def test_bench_cli_smoke(tmp_path):
     """``robodyn bench speed`` runs and writes its table (figures are not checked)."""
     from robodyn_ros.cli import build_parser

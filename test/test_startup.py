@@ -190,3 +190,21 @@ def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
     after = {n: set(d.overloads) for n, d in dispatchers().items()}
     new = {n: sorted(map(str, s - warmed.get(n, set()))) for n, s in after.items() if s - warmed.get(n, set())}
     assert new == {}, new
+
+
+@pytest.mark.processes
+def test_warm_in_worker_processes_leaves_nothing_for_the_loading_pass():
+    """``robodyn warm --jobs 2 SCENE SCENE``: two spawned workers run the scenes into the one cache, then
+    the loading pass in the parent runs them again and compiles nothing they left out (whether the
+    cache was empty or full before); an unknown scene is refused in one line, exit 2."""
+    env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
+    r = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'warm', '--jobs', '2', 'betancur_dh_animation',
+                        'huston_p19_2_3'], capture_output=True, text=True, env=env, cwd=ROOT, timeout=1800)
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = r.stdout.strip().splitlines()
+    assert sorted(ln.split()[0] for ln in lines if ln.endswith('(worker)')) == ['betancur_dh_animation',
+                                                                                 'huston_p19_2_3'], lines
+    assert '(2 processes: ' in lines[-1] and ', 0 after them;' in lines[-1], lines[-1]
+    r = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'warm', 'no_such_scene'], capture_output=True,
+                       text=True, env=env, cwd=ROOT, timeout=600)
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and "unknown scene 'no_such_scene'" in r.stderr, r.stderr

@@ -17,7 +17,7 @@ import sys
 import numpy as np
 import pytest
 
-from robodyn_ros import simulation as SIM
+from robodyn_ros import integrator_choice as IC
 from robodyn_ros.scene import SceneError, parse_scene
 from robodyn_ros.simulation import SimulationError, Simulator, run_headless
 
@@ -63,9 +63,9 @@ def test_stiff_scene_under_an_explicit_pair_stops_naming_the_integrator_the_step
                   rf'\(budget ([0-9.e+-]+) steps per simulated second\)', err)
     assert m, err
     steps, t, b = int(m.group(1)), float(m.group(2)), float(m.group(3))
-    assert b == (budget or SIM.STEP_BUDGET)
+    assert b == (budget or IC.STEP_BUDGET)
     period_end = math.ceil(t / 0.01) * 0.01             # a call's budget covers its whole 10 ms period
-    assert steps <= b * (period_end + SIM.STEP_BURST) + 1   # the budget holds
+    assert steps <= b * (period_end + IC.STEP_BURST) + 1   # the budget holds
     assert t < 0.1                                      # of the 10 s asked: stopped early
     lam = float(re.search(r'\|λ\| = ([0-9.e+-]+) 1/s', err).group(1))
     assert lam == pytest.approx(C_PIN / I_DISK, rel=1e-2), err
@@ -78,7 +78,7 @@ def test_an_implicit_integrator_runs_the_stiff_scene_within_the_budget(tmp_path)
     r = _run(tmp_path, '--integrator', 'radau', '--duration', '0.5')
     assert r.returncode == 0, r.stdout + r.stderr
     steps = int(re.search(r'(\d+) steps,', r.stdout).group(1))
-    assert 0 < steps < SIM.STEP_BUDGET * 0.5 / 100, r.stdout   # far below the budget
+    assert 0 < steps < IC.STEP_BUDGET * 0.5 / 100, r.stdout   # far below the budget
 
 
 def test_the_budget_comes_from_the_scene_the_option_or_the_default(tmp_path):
@@ -89,7 +89,7 @@ def test_the_budget_comes_from_the_scene_the_option_or_the_default(tmp_path):
     sim = Simulator(scene.system, scene.y0, integrator='rk45', rtol=1e-8, atol=1e-10)
     run_headless(sim, 0.003, 1000.0, None, [])                      # the default budget: no stop
     taken = sim.diag.steps
-    assert taken > 1e4 * (0.003 + SIM.STEP_BURST)                   # ... above a budget of 1e4 per second
+    assert taken > 1e4 * (0.003 + IC.STEP_BURST)                   # ... above a budget of 1e4 per second
     r = _run(tmp_path, text=short.replace('duration: 0.003', 'duration: 0.003, step_budget: 1.0e+4'))
     assert r.returncode == 1 and 'budget 1e+04 steps per simulated second' in r.stderr, r.stderr
     r = _run(tmp_path, '--step-budget', 'inf', text=short.replace('duration: 0.003', 'duration: 0.003, step_budget: 1.0e+4'))
@@ -143,7 +143,7 @@ def test_a_run_that_turns_stiff_late_stops_soon_after_whatever_it_saved_before(m
     t0, t1, n = (np.array([c[k] for c in calls], dtype=float) for k in (0, 1, 3))
     spent = np.concatenate([[0.0], np.cumsum(n)])
     for i in range(len(calls)):   # steps of calls i..j against the budget of [t0_i, t1_j]
-        assert np.all(spent[i + 1:] - spent[i] <= budget * (t1[i:] - t0[i] + SIM.STEP_BURST) + 1), i
+        assert np.all(spent[i + 1:] - spent[i] <= budget * (t1[i:] - t0[i] + IC.STEP_BURST) + 1), i
 
 
 def test_node_parameter_step_budget():

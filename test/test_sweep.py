@@ -535,16 +535,16 @@ def test_runs_stop_and_record_as_robodyn_run_does(tmp_path):
 def test_arm_runs_take_the_block_path_with_the_per_period_figures(tmp_path, monkeypatch):
     """Sweep runs of an arm run in compiled blocks (the figures sink takes them) and give the rows
     of the per-period path exactly: final states and every figure (energy drift, wrench maxima)."""
-    from robodyn_ros import simulation as SIM
+    from robodyn_ros.blocks import BlockRunner
     spec = _spec(tmp_path, SPEC.replace('duration: 0.05', 'duration: 0.3').replace('grid:\n  integrator: [rk4, dop853]\n', '')
                  + 'figures: [final_error, energy_drift, max_joint_wrench]\n')
     blocked = []
-    commit = SIM._BlockRunner._commit
-    monkeypatch.setattr(SIM._BlockRunner, '_commit', lambda self, a, b, *r: blocked.append(b - a) or commit(self, a, b, *r))
+    commit = BlockRunner._commit
+    monkeypatch.setattr(BlockRunner, '_commit', lambda self, a, b, *r: blocked.append(b - a) or commit(self, a, b, *r))
     fast = S.read_table(S.run_sweep(spec, str(tmp_path / 'blocks'), workers=0, plot=False).table)
     n_blocked = sum(blocked)
     S.clear_reference_cache()
-    monkeypatch.setattr(SIM._BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    monkeypatch.setattr(BlockRunner, 'plan', classmethod(lambda cls, *a: None))
     slow = S.read_table(S.run_sweep(spec, str(tmp_path / 'periods'), workers=0, plot=False).table)
     assert len(fast) == 4 and n_blocked >= 4 * 29   # 30 periods per run, the first on the per-period path
     assert all(r['status'] == 'ok' and r['max_joint_force'] > 0 and r['energy_drift'] > 0 for r in fast)

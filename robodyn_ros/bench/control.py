@@ -1,9 +1,9 @@
 """``robodyn bench control``: what position and trajectory commands cost (figures, never asserted).
 
-* ``cost``: xArm7 (example-robot-data) for 10 s at 1 ms under rosenbrock2 (what integrator auto picks
-  for it), integration alone (``Simulator.advance`` per 10 ms period, the compiled loop): effort commands
-  (zero), every joint holding a position (the servo with its feed-forward), and the bundled
-  ``xarm7_trajectory`` trajectory; each one's wall time against the effort run's (target: at most 1.2x).
+* ``cost``: the compiled loop's cost per step on xArm7 (rosenbrock2, what integrator auto picks for it)
+  and Panda (rk4 and rosenbrock2), 10 s at 1 ms from the initial posture: effort commands (zero), every
+  joint position-commanded and held without and with the feed-forward; each against the effort run
+  (target: at most 1.2x).
 * ``mujoco``: the bundled ``xarm7_trajectory`` scene run and recorded as ``robodyn run --record`` runs
   it (10 s at 1 ms, 100 Hz publications with the servo's desired and error states and the sensors):
   real-time factor and largest tracking error, beside MuJoCo stepping the same URDF (meshes left out)
@@ -50,52 +50,69 @@ def report(args) -> str:
     return '\n\n'.join(parts)
 
 
-def _scene(interfaces: str, trajectory: bool):
-    """The bundled scene with its part's command_interfaces replaced (effort: the URDF robot as it is),
-    without the scripted trajectory unless asked."""
+PANDA = 'package://example-robot-data/robots/panda_description/urdf/panda.urdf'
+
+
+def _robot(name: str, interfaces: str):
+    """A robot of the ``cost`` section on the given command interfaces: xarm7 (the bundled scene's part, no
+    scripted commands) or Panda (fingers locked)."""
     from ..scene import find_scene, parse_scene
-    path = find_scene(SCENE)
-    text = path.read_text()
-    text = text.replace('command_interfaces: position', f'command_interfaces: {interfaces}')
-    if not trajectory:
-        text = re.sub(r'\ncommands:.*?(?=\nsensors:)', '', text, flags=re.DOTALL)
-    return parse_scene(text, file=str(path))
+    if name == 'xarm7':
+        path = find_scene(SCENE)
+        text = re.sub(r'\ncommands:.*?(?=\nsensors:)', '', path.read_text(), flags=re.DOTALL)
+        return parse_scene(text.replace('command_interfaces: position', f'command_interfaces: {interfaces}'),
+                           file=str(path))
+    return parse_scene(f'name: panda\nparts:\n  - kind: urdf\n    name: panda\n    file: {PANDA}\n'
+                       '    locked: {panda_finger_joint1: 0.0, panda_finger_joint2: 0.0}\n'
+                       f'    command_interfaces: {interfaces}\n', file='panda.yaml')
 
 
-def _advance_wall(scene, repeat) -> float:
-    """Best wall seconds of HORIZON s of Simulator.advance at RATE periods (rosenbrock2 at DT), the scene's
-    scripted commands set at each period's start."""
+def cost_figures(repeat=3) -> list:
+    """``[(robot, method, {commands: µs per step})]``: the compiled loop's cost per step (``integrate_arm``
+    over 10-step periods from the initial state, HORIZON s in all), interleaved runs, the best of
+    ``10 repeat``: effort commands, position commands held without and with the feed-forward."""
     from ..simulation import Simulator
-    best = math.inf
-    for _ in range(max(1, repeat)):
-        sim = Simulator(scene.system, scene.y0, integrator='rosenbrock2', dt=DT)
-        n = int(round(HORIZON * RATE))
-        w0 = time.perf_counter()
-        for k in range(n):
-            if scene.script is not None:
-                for port, value in scene.script(sim.t, sim.y).items():
-                    sim.set_command(port, value)
-            sim.advance((k + 1) / RATE)
-        best = min(best, time.perf_counter() - w0)
-    return best
-
-
-def cost_figures(repeat=3) -> dict:
-    """``{label: wall seconds}`` of the three runs of the ``cost`` section."""
-    return {'effort (zero)': _advance_wall(_scene('effort', False), repeat),
-            'position held (servo + feed-forward)': _advance_wall(_scene('position', False), repeat),
-            'trajectory (servo + feed-forward)': _advance_wall(_scene('position', True), repeat)}
+    out = []
+    for robot, methods in (('xarm7', ('rosenbrock2',)), ('panda', ('rk4', 'rosenbrock2'))):
+        for method in methods:
+            runs = {}
+            for label, ci, ff in (('effort', 'effort', None), ('position, no feed-forward', 'position', 0.0),
+                                  ('position + feed-forward', 'position', 1.0)):
+                sc = _robot(robot, ci)
+                sim = Simulator(sc.system, sc.y0, integrator=method, dt=DT)
+                srv = sc.system._srv(sim.held_inputs()) if sc.system.servo is not None else None
+                runs[label] = (sc.system, ff, srv, np.concatenate([sim.y, [0.0]]))
+            best = {k: math.inf for k in runs}
+            n = int(round(HORIZON * RATE))
+            per = int(round(1.0 / (RATE * DT)))
+            for _ in range(10 * max(1, repeat)):
+                for label, (system, ff, srv, z0) in runs.items():
+                    if ff is not None:
+                        system.servo.opt[0] = ff
+                    z = z0.copy()
+                    tau = np.zeros(system.nv)
+                    w0 = time.perf_counter()
+                    for k in range(n):
+                        system._km.integrate_arm(method, z, tau, DT, per, 0.0, k / RATE, srv)
+                    best[label] = min(best[label], (time.perf_counter() - w0) / (n * per) * 1e6)
+            out.append((robot, method, best))
+    return out
 
 
 def section_cost(repeat=3) -> str:
     """The ``cost`` section."""
-    fig = cost_figures(repeat)
-    base = fig['effort (zero)']
-    lines = [f'## servo cost: xarm7, {HORIZON:g} s at {DT * 1e3:g} ms, rosenbrock2, integration alone '
-             f'(Simulator.advance per {1e3 / RATE:g} ms period)', '',
-             '| commands | wall (s) | real-time factor | x effort run (target <= 1.2) |', '|---|---|---|---|']
-    for label, wall in fig.items():
-        lines.append(f'| {label} | {wall:.3f} | {HORIZON / wall:.0f} | {wall / base:.2f} |')
+    lines = [f'## servo cost per step: the compiled loop alone ({HORIZON:g} s at {DT * 1e3:g} ms, held at the '
+             'initial posture)', '',
+             '| robot | method | effort (µs/step) | position, no feed-forward | position + feed-forward |',
+             '|---|---|---|---|---|']
+    for robot, method, best in cost_figures(repeat):
+        e = best['effort']
+        lines.append(f'| {robot} | {method} | {e:.2f} | '
+                     + ' | '.join(f'{best[k]:.2f} ({best[k] / e:.2f}x)'
+                                  for k in ('position, no feed-forward', 'position + feed-forward')) + ' |')
+    lines.append('')
+    lines.append('Target: at most 1.2x the effort run. The feed-forward costs one RNEA per rosenbrock2 step and two '
+                 'per rk4 step (cached across stages at the same time when every joint is a servo joint).')
     return '\n'.join(lines)
 
 
@@ -103,15 +120,15 @@ def robodyn_recorded(repeat=3) -> tuple:
     """``(best wall s, largest tracking error rad)`` of the bundled scene run and recorded as ``robodyn run
     --record`` runs it."""
     from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
-    from ..runs import resolve_auto, resolve_settings
+    from ..runs import plan_run, resolve_settings
     from ..scene import load_scene
     from ..simulation import Simulator, run_headless
     best, err = math.inf, None
     with tempfile.TemporaryDirectory(prefix='robodyn-bench-control-') as tmp:
         for _ in range(max(1, repeat)):
             scene = load_scene(SCENE)
-            st = resolve_auto(resolve_settings(scene, duration=HORIZON), scene.system, scene.y0)
-            sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'])
+            plan, st = plan_run(resolve_settings(scene, duration=HORIZON), scene.system, scene.y0)
+            sim = Simulator(scene.system, scene.y0, plan=plan)
             path = os.path.join(tmp, 'run.mcap')
             sink = McapRunSink(path, scene, {**st, 'mode': 'bench'}, batch=HEADLESS_BATCH)
             w0 = time.perf_counter()

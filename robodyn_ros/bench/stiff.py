@@ -195,15 +195,19 @@ def pinocchio_fall(urdf_text: str, names, q0, v0, horizon=HORIZON, rate=RATE, rt
     return sol.y[jv].T
 
 
-def robodyn_fall(scene, integrator='auto', horizon=HORIZON, rate=RATE, repeat=3, budget=BUDGET):
+def robodyn_fall(scene, integrator='auto', horizon=HORIZON, rate=RATE, repeat=3, budget=BUDGET, plan=None):
     """``(positions (n, nv), Simulator, best wall seconds)`` of the scene run from its initial state with
-    no command, in periods of 1/rate s (the fused path, as ``robodyn run`` without a recorder)."""
+    no command, in periods of 1/rate s (the fused path, as ``robodyn run`` without a recorder); plan: the
+    integrator plan (default: ``integrator`` at ``DT``, planned once for the repeats)."""
+    from ..integrator_choice import plan_integrator
     from ..simulation import Simulator
+    if plan is None:
+        plan = plan_integrator(scene.system, scene.y0, integrator, DT)
     best, out, sim = math.inf, None, None
     for _ in range(max(1, repeat)):
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')
-            sim = Simulator(scene.system, scene.y0, integrator=integrator, dt=DT)
+            sim = Simulator(scene.system, scene.y0, plan=plan)
         n = int(round(horizon * rate))
         q = np.empty((n, scene.system.nq))
         w0 = time.perf_counter()
@@ -245,7 +249,7 @@ def _fmt(x, spec='.2g'):
 
 def robot_row(path, repeat=3) -> dict:
     """One row of the robots table (see the module docstring); never raises."""
-    from ..integrator_choice import choose_integrator
+    from ..integrator_choice import plan_integrator
     name = os.path.splitext(os.path.basename(path))[0]
     row = {'robot': name, 'dof': None, 'method': '', 'rtf': math.nan, 'error': math.nan, 'note': ''}
     try:
@@ -256,9 +260,9 @@ def robot_row(path, repeat=3) -> dict:
     system = scene.system
     row['dof'] = system.nv
     try:
-        choice = choose_integrator(system, scene.y0, DT)
-        row['method'] = choice.integrator
-        q, sim, wall = robodyn_fall(scene, repeat=repeat)
+        plan = plan_integrator(system, scene.y0, dt=DT)
+        row['method'] = plan.integrator
+        q, sim, wall = robodyn_fall(scene, repeat=repeat, plan=plan)
         row['rtf'] = HORIZON / wall
         names = list(system.joint_names)
         with open(path) as f:

@@ -4,7 +4,8 @@ from __future__ import annotations
 import sys
 import time
 
-from ..runs import DIAGNOSTICS_PERIOD, resolve_auto, resolve_settings, summary
+from ..integrator_choice import DEFAULT_DT, STEP_BUDGET
+from ..runs import DEFAULT_RATE, DIAGNOSTICS_PERIOD, plan_run, resolve_settings, summary
 
 #: one line for ``robodyn --help``
 HELP = 'simulate a scene headless with its scripted commands'
@@ -21,13 +22,16 @@ def add_parser(sub):
     p.add_argument('--integrator', default=None,
                    help='auto (default unless the scene names one: rk4, else rosenbrock2 for stiff passive forces, '
                         'else radau), euler, semi_implicit_euler, rk4, rosenbrock2, rk45, dop853, radau, ...')
-    p.add_argument('--dt', type=float, default=None, help='fixed step (s) for fixed-step integrators')
+    p.add_argument('--dt', type=float, default=None,
+                   help=f'fixed step (s) for fixed-step integrators (default: the scene\'s, else {DEFAULT_DT:g})')
     p.add_argument('--rtol', type=float, default=None, help='relative tolerance (adaptive integrators)')
     p.add_argument('--atol', type=float, default=None, help='absolute tolerance (adaptive integrators)')
-    p.add_argument('--rate', type=float, default=None, help='publication/recording rate in Hz (default 100)')
+    p.add_argument('--rate', type=float, default=None,
+                   help=f'publication/recording rate in Hz (default: the scene\'s, else {DEFAULT_RATE:g})')
     p.add_argument('--step-budget', type=float, default=None, metavar='N',
                    help='error-controlled integrators: stop (exit 1, naming the stiff mode) past N accepted steps '
-                        'per simulated second (default: the scene\'s simulation.step_budget, else 1e6; inf: none)')
+                        f'per simulated second (default: the scene\'s simulation.step_budget, else {STEP_BUDGET:g}; '
+                        'inf: none)')
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
     p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
     p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
@@ -42,7 +46,7 @@ def add_parser(sub):
                         'joint_trajectory, tracked by a joint servo; a scene file gives command_interfaces on '
                         'its part)')
     p.add_argument('--diagnostics-period', type=float, default=DIAGNOSTICS_PERIOD,
-                   help='simulated seconds between recorded diagnostics messages (default 0.1)')
+                   help=f'simulated seconds between recorded diagnostics messages (default {DIAGNOSTICS_PERIOD:g})')
     return p
 
 
@@ -85,9 +89,8 @@ def main(args) -> int:
                           args.step_budget)
     st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
-        st = resolve_auto(st, scene.system, scene.y0)   # integrator auto: the method it picks, and why
-        sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                        atol=st['atol'], step_budget=st.get('step_budget'))
+        plan, st = plan_run(st, scene.system, scene.y0)   # which integrator, which step, and why: decided once
+        sim = Simulator(scene.system, scene.y0, plan=plan)
     except ValueError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2

@@ -15,6 +15,12 @@ joint), each run for :data:`DURATION` s the two ways the tools run them:
 The kernels' argument types do not depend on the robot, so a robot that was never run loads
 the same machine code (``robodyn bench startup`` measures it). A second ``robodyn warm`` only
 loads. It prints what it compiled and how long each scene took.
+
+numba compiles in one thread per process, so the scenes are shared among ``--jobs`` worker
+processes (default: the processors this process may use), the most expensive first
+(:data:`HEAVY_FIRST`); they write one cache, whose files are locked per directory
+(:mod:`robodyn_ros.kernels.cache`). This process then runs every scene once more: that pass only
+loads, and compiles whatever a worker's signature did not reach the cache (it prints how many).
 """
 from __future__ import annotations
 
@@ -24,6 +30,10 @@ import sys
 HELP = 'compile once the kernels every bundled scene and URDF robot uses (make run does it)'
 #: simulated seconds of each warm-up run (two diagnostics periods, a block of periods)
 DURATION = 0.2
+#: labels of the runs that compile the most on an empty cache (measured, most first): the workers
+#: start with them, so that the longest one does not start last; the others follow in list order
+HEAVY_FIRST = ('a1_stand', 'betancur_platform', 'stanford_arm as URDF, mimic', 'unfried_free_flyer',
+               'betancur_pendulum', 'unfried_air_bearing', 'huston_prescribed_planar3', 'diver_jackknife')
 
 
 def add_parser(sub):
@@ -32,6 +42,10 @@ def add_parser(sub):
     p.add_argument('--backend', choices=('numba', 'generated'), default=None,
                    help='kernels to warm (default: those of robodyn run: $ROBODYN_BACKEND, else numba)')
     p.add_argument('--quiet', action='store_true', help='print only the last line')
+    p.add_argument('--jobs', type=int, default=None, metavar='N',
+                   help='worker processes compiling at once (default: the processors available; 1: all here)')
+    p.add_argument('scenes', nargs='*', metavar='SCENE',
+                   help='warm only these runs (a bundled scene name, or a label warm prints); default: all')
     return p
 
 
@@ -81,16 +95,15 @@ def warm_scene(load, backend, scratch) -> None:
     import os
 
     from ..recording.run_sink import HEADLESS_BATCH, NODE_CHUNK_SPAN, McapRunSink
-    from ..runs import resolve_settings
+    from ..runs import plan_run, resolve_settings
     from ..simulation import Simulator, run_headless
     from ..systems.base import backend_scope
     with backend_scope(backend):
         scene = load()
-    st = resolve_settings(scene, duration=DURATION)
+    plan, st = plan_run(resolve_settings(scene, duration=DURATION), scene.system, scene.y0)
     st['backend'] = backend
     for batch, chunk_span in ((HEADLESS_BATCH, None), (0, NODE_CHUNK_SPAN)):
-        sim = Simulator(scene.system, scene.y0, integrator=st['integrator'], dt=st['dt'], rtol=st['rtol'],
-                        atol=st['atol'])
+        sim = Simulator(scene.system, scene.y0, plan=plan)
         sink = McapRunSink(os.path.join(scratch, 'warm.mcap'), scene, {**st, 'mode': 'warm'}, batch=batch,
                            chunk_span=chunk_span, diagnostics_period=0.1)
         try:
@@ -100,11 +113,47 @@ def warm_scene(load, backend, scratch) -> None:
         os.remove(os.path.join(scratch, 'warm.mcap'))
 
 
-def main(args) -> int:
-    """Warm every scene; print one line per scene and a total; 1 when the kernels are unavailable."""
+def _ordered(labels) -> list:
+    """The run labels, :data:`HEAVY_FIRST` first, then the others in their order."""
+    heavy = [h for h in HEAVY_FIRST if h in labels]
+    return heavy + [lb for lb in labels if lb not in heavy]
+
+
+def _warm_in_worker(label: str, backend: str) -> tuple:
+    """One run in a worker process: ``(label, seconds, kernel signatures this process compiled for it)``."""
     import tempfile
     import time
     import warnings
+
+    from ..kernels.cache import compiled_here
+    n0 = len(compiled_here())
+    t = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix='robodyn-warm-') as scratch, warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        load = dict(_scene_runs(scratch))[label]
+        warm_scene(load, backend, scratch)
+    return label, time.perf_counter() - t, len(compiled_here()) - n0
+
+
+def _jobs(requested) -> int:
+    """Worker processes: ``requested``, else the processors this process may run on."""
+    import os
+    if requested is not None:
+        return max(1, int(requested))
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def main(args) -> int:
+    """Warm every scene (in ``--jobs`` workers, then a loading pass here); print one line per scene and
+    a total; 1 when the kernels are unavailable, 2 for an unknown scene."""
+    import multiprocessing
+    import tempfile
+    import time
+    import warnings
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     from .. import kernels
     from ..kernels.cache import compiled_here
@@ -115,16 +164,39 @@ def main(args) -> int:
               f'{"" if kernels.AVAILABLE else "; " + kernels.UNAVAILABLE_REASON})', file=sys.stderr)
         return 1
     t0 = time.perf_counter()
-    n0 = 0
     with tempfile.TemporaryDirectory(prefix='robodyn-warm-') as scratch, warnings.catch_warnings():
         warnings.simplefilter('ignore')
-        for label, load in _scene_runs(scratch):
+        runs = _scene_runs(scratch)
+        labels = [lb for lb, _ in runs]
+        wanted = list(getattr(args, 'scenes', None) or [])
+        unknown = [w for w in wanted if w not in labels]
+        if unknown:
+            print(f'robodyn warm: unknown scene {unknown[0]!r} (expected one of: {", ".join(labels)})',
+                  file=sys.stderr)
+            return 2
+        if wanted:
+            runs = [(lb, load) for lb, load in runs if lb in wanted]
+        jobs = min(_jobs(getattr(args, 'jobs', None)), len(runs))
+        n_workers = 0
+        if jobs > 1:
+            ctx = multiprocessing.get_context('spawn')   # a fresh interpreter: no LLVM state forked
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+                futures = [pool.submit(_warm_in_worker, lb, backend) for lb in _ordered([lb for lb, _ in runs])]
+                for f in as_completed(futures):
+                    label, dt, n = f.result()
+                    n_workers += n
+                    if not args.quiet:
+                        print(f'{label:32s} {dt:6.1f} s, {n} kernel signatures compiled (worker)', flush=True)
+        n0 = 0
+        for label, load in runs:   # here: loads what the workers compiled, compiles what they did not leave
             t = time.perf_counter()
             warm_scene(load, backend, scratch)
             n = len(compiled_here())
-            if not args.quiet:
-                print(f'{label:32s} {time.perf_counter() - t:6.1f} s, {n - n0} kernel signatures compiled', flush=True)
+            if not args.quiet and (jobs == 1 or n > n0):
+                print(f'{label:32s} {time.perf_counter() - t:6.1f} s, {n - n0} kernel signatures compiled',
+                      flush=True)
             n0 = n
-    print(f'robodyn warm: {n0} kernel signatures compiled in {time.perf_counter() - t0:.1f} s '
-          f'({backend} backend; cache {kernels.CACHE_DIR})')
+    where = f'{jobs} processes: {n_workers} in the workers, {n0} after them' if jobs > 1 else 'one process'
+    print(f'robodyn warm: {n_workers + n0} kernel signatures compiled in {time.perf_counter() - t0:.1f} s '
+          f'({where}; {backend} backend; cache {kernels.CACHE_DIR})')
     return 0

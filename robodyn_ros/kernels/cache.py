@@ -25,11 +25,20 @@ index entries; nothing accumulates). The generated
 modules of :mod:`.codegen` (which import ``arm.py``'s forces and the kernels' constants) are
 stamped with the fingerprint and their own text.
 
+**Several processes at once.** numba's index of a function (``name.nbi``: signature -> data file)
+is read, extended and rewritten by whichever process compiles a new signature. Two processes that
+compile different signatures of one function at the same moment (``robodyn warm --jobs 2``, a test
+suite starting nodes and CLI children on an empty cache) could both take the same data file name,
+and one index would then name the other's machine code. Here every read and write of the kernels'
+index and data files holds a lock on the cache directory (:class:`_LockedCacheFile`: exclusive to
+write, shared to read), so each entry names its own code.
+
 **What a process compiled.** :func:`compiled_here` lists the kernels this process compiled
 rather than loaded: empty after ``robodyn warm`` for any bundled scene or URDF robot (tested).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import glob
 import hashlib
@@ -117,12 +126,61 @@ def _generated_stamp(py_file: str) -> str:
         return hashlib.sha256(FINGERPRINT.encode() + f.read()).hexdigest()
 
 
+#: directories :func:`_cache_path` gave the kernels (their cache files are locked, see the docstring)
+_OURS: set = set()
+
+
+@contextlib.contextmanager
+def _dir_lock(path: str, exclusive: bool):
+    """Hold ``path/.lock`` (flock) while the block runs: exclusive to write, shared to read."""
+    try:
+        import fcntl
+    except ImportError:   # no flock (Windows): one process at a time is the user's to keep
+        yield
+        return
+    with open(os.path.join(path, '.lock'), 'a+b') as f:
+        fcntl.flock(f, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _locked_cache_file():
+    """numba's ``IndexDataCacheFile`` whose save and load hold :func:`_dir_lock` in the kernels' own
+    cache directories (other numba users' caches behave as numba's)."""
+    from numba.core.caching import IndexDataCacheFile
+
+    class _LockedCacheFile(IndexDataCacheFile):
+        """Index and data files read and written under the cache directory's lock."""
+
+        ROBODYN = True
+
+        def save(self, key, data):
+            if self._cache_path not in _OURS:
+                return super().save(key, data)
+            with _dir_lock(self._cache_path, True):
+                return super().save(key, data)
+
+        def load(self, key):
+            if self._cache_path not in _OURS:
+                return super().load(key)
+            with _dir_lock(self._cache_path, False):
+                return super().load(key)
+
+    return _LockedCacheFile
+
+
 def install() -> None:
-    """Put the kernels' cache locator first in numba's list (once; before any kernel is defined)."""
+    """Put the kernels' cache locator first in numba's list and lock their cache files (once;
+    before any kernel is defined)."""
+    from numba.core import caching
     from numba.core.caching import CacheImpl, _CacheLocator
 
     if any(getattr(c, 'ROBODYN', False) for c in CacheImpl._locator_classes):
         return
+    if not getattr(caching.IndexDataCacheFile, 'ROBODYN', False):
+        caching.IndexDataCacheFile = _locked_cache_file()   # read by numba's _Cache at each function
 
     class KernelCacheLocator(_CacheLocator):
         """numba cache locator of the kernels and generated modules: :func:`_cache_path`, stamped
@@ -154,7 +212,10 @@ def install() -> None:
             if not py_func.__module__.startswith(PREFIXES) or not os.path.exists(py_file):
                 return None
             self = cls(py_func, py_file)
-            return self if _writable(self._path) else None   # None: numba's own locators decide
+            if not _writable(self._path):
+                return None   # numba's own locators decide
+            _OURS.add(self._path)
+            return self
 
     CacheImpl._locator_classes.insert(0, KernelCacheLocator)
 

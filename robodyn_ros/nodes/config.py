@@ -80,6 +80,7 @@ class Config:
     backend: str = ''
     auto: str = ''   # why integrator auto chose ``integrator`` ('' when the settings named it)
     step_budget: float | None = None
+    plan: object = None   # the run's IntegratorPlan (runs.plan_run): the Simulator is built from it
 
     def settings(self, namespace: str) -> dict:
         """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
@@ -126,7 +127,7 @@ def resolve_config(p: dict, scene) -> Config:
     """
     from ..integrator_choice import is_auto
     from ..integrators import INTEGRATORS
-    from ..runs import resolve_auto, resolve_settings
+    from ..runs import plan_run, resolve_settings
     if not isinstance(p['integrator'], str):
         raise ConfigError(f"parameter 'integrator' must be a string, got {p['integrator']!r}")
     if p['integrator'] and p['integrator'].lower() not in INTEGRATORS and not is_auto(p['integrator']):
@@ -187,12 +188,10 @@ def resolve_config(p: dict, scene) -> Config:
             raise ConfigError(f'initial_positions/initial_velocities: {e}') from None
     if p['initial_state'] is not None:
         y0 = check_vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
-    try:   # integrator auto: the method it picks at the initial state, and why (Config.auto)
-        st = resolve_auto(st, system, y0)
+    try:   # which integrator, which step, and why, decided once (Config.plan; Config.auto: auto's reason)
+        plan, st = plan_run(st, system, y0)
     except ValueError as e:
-        raise ConfigError(f"parameter 'integrator': auto: {e}") from None
-    if st['integrator'] not in INTEGRATORS:
-        raise ConfigError(f"scene {scene.name!r}: unknown integrator {st['integrator']!r}")
+        raise ConfigError(f'cannot build the simulator: {e}') from None
     kind = INTEGRATORS[st['integrator']].kind
     dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
     return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol, auto=st.get('auto', ''),
@@ -204,7 +203,7 @@ def resolve_config(p: dict, scene) -> Config:
                   record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
                   diagnostics_period=check_number('diagnostics_period', p['diagnostics_period'], positive=True),
                   y0=y0, publish_tf=p['publish_tf'], backend=check_backend(p.get('backend', '')),
-                  step_budget=st.get('step_budget'))
+                  step_budget=st.get('step_budget'), plan=plan)
 
 
 def urdf_options(raw: dict) -> dict:

@@ -133,9 +133,7 @@ def make_node_class():
             self.cfg = cfg = resolve_config(raw, self.scene)
             self.namespace = self.get_namespace()
             try:
-                self.sim = Simulator(self.scene.system, cfg.y0, integrator=cfg.integrator, dt=cfg.dt,
-                                     rtol=cfg.rtol, atol=cfg.atol, command_timeout=cfg.command_timeout,
-                                     step_budget=cfg.step_budget)
+                self.sim = Simulator(self.scene.system, cfg.y0, plan=cfg.plan, command_timeout=cfg.command_timeout)
             except (ValueError, SimulationError) as e:
                 raise ConfigError(f'cannot build the simulator: {e}') from None
             self.period = 1.0 / cfg.publish_rate   # s of simulation time per control period

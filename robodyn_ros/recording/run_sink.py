@@ -209,7 +209,7 @@ class _PeriodLayout:
             row[sl] = w
 
     def fill_block(self, rows, blk, i, m):
-        """Write periods ``i..i+m`` of a :class:`robodyn_ros.simulation.PeriodBlock` into ``rows`` (m, n_values),
+        """Write periods ``i..i+m`` of a :class:`robodyn_ros.blocks.PeriodBlock` into ``rows`` (m, n_values),
         as :meth:`fill` does one period (wrenches included: the block computed them)."""
         for sl, values in zip(self.cmd_cols, blk.commands.values()):
             rows[:, sl] = values[i:i + m]
@@ -434,7 +434,7 @@ class McapRunSink:
         return int(due[0]) + 1 if due.size else len(t_out)
 
     def on_block(self, blk, sim, level=0, message='running'):
-        """Record K periods run in one block (:class:`robodyn_ros.simulation.PeriodBlock`): the
+        """Record K periods run in one block (:class:`robodyn_ros.blocks.PeriodBlock`): the
         records :meth:`on_command` and :meth:`on_output` write for each, batch by batch as they
         would be (:meth:`block_periods` said this sink takes them; a diagnostics message is due
         at most after the last one, where ``sim`` is)."""

@@ -341,7 +341,8 @@ class System:
     def passive_jacobian(self, t: float, y: np.ndarray, u: dict, h: float | None = None):
         """The stiff part J (ny, ny) of ``∂(dy/dt)/∂y`` at (t, y) that the linearly implicit ``rosenbrock2``
         treats implicitly at step h (s): the passive forces (damping, friction slope, joint-limit springs
-        and dampers, motor electrics) and the parts of the rest it can afford (the gravity stiffness); or None:
+        and dampers, a ground's contact stiffness, damping and friction slope, motor electrics) and the parts
+        of the rest it can afford (the gravity stiffness); or None:
         J = 0 (the method is then Heun's). Also used by the step preflight (:mod:`robodyn_ros.stability`)."""
         return None
 

@@ -1,0 +1,176 @@
+"""The block path of :func:`robodyn_ros.simulation.run_headless`: many publication periods per compiled call.
+
+A headless run of an arm with compiled scripted commands does not need to return to Python at every
+period: :class:`BlockRunner` asks the system to run up to :data:`BLOCK_PERIODS` periods in one
+compiled call (``system.fused_periods``), which evaluates the scripted commands, integrates and
+computes the outputs of each period, and hands the sinks the periods as a :class:`PeriodBlock`. The
+numbers are those of the per-period path (the same compiled functions, the same arithmetic): the
+recording and the final Simulator equal it byte for byte (``test/test_block_path.py``). The
+Simulator is put at the end of each piece handed to the sinks (:meth:`Simulator.arrive
+<robodyn_ros.simulation.Simulator.arrive>`), as per-period calls leave it.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .integrators import IntegratorStats
+from .systems.base import SystemOutputs
+
+__all__ = ['BLOCK_PERIODS', 'PeriodBlock', 'BlockRunner']
+
+#: publication periods per compiled call of the block path (fewer where a sink needs the
+#: Simulator's state, e.g. at a diagnostics message)
+BLOCK_PERIODS = 64
+
+
+@dataclass
+class PeriodBlock:
+    """K consecutive publication periods run in one compiled call (:class:`BlockRunner`).
+
+    Period k starts at ``t_cmd[k]`` (its scripted commands, ``commands[port][k]``, are applied
+    then) and ends at ``t_out[k]``, where the system's outputs are ``position``, ``velocity``,
+    ``effort`` (K, ·) and, when computed, the joint wrenches ``wrenches`` (K, n, 6) in the order
+    of ``template.wrenches``; ``odom`` (K, 13: position, orientation, linear, angular) of a system
+    that publishes one, and the ground's ``contacts`` (K, nl, 6) in the order of ``template.contacts``
+    (else None). template: the SystemOutputs of one such period (names, frames, how wrenches are
+    computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and work quadrature
+    ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the last one.
+    """
+    t_cmd: np.ndarray
+    t_out: np.ndarray
+    commands: dict
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    wrenches: np.ndarray | None
+    template: SystemOutputs
+    z: np.ndarray
+    odom: np.ndarray | None = None
+    contacts: np.ndarray | None = None
+
+
+class BlockRunner:
+    """Runs periods of :func:`~robodyn_ros.simulation.run_headless` in compiled blocks.
+
+    Taken when the system runs periods in compiled code (``system.fused_periods``: the arms),
+    the integrator is fixed-step, the scripted commands have compiled forms (``script.programs``,
+    :mod:`robodyn_ros.profiles`) and every sink takes blocks (``sink.takes_blocks``: it has
+    ``block_periods`` and ``on_block``, see ``McapRunSink``); not with a ``stop`` condition or a
+    command timeout, nor with effort limits unless the system clamps in its loop
+    (``system.clamps_in_blocks``; the clamps are counted there, the velocity-limit samples here). A
+    period the compiled loop refuses (a non-finite command or state) is redone on the per-period
+    path, which raises as it always has.
+
+    sim: the Simulator; port: its one input port; program: the compiled form of that port's scripted
+    command (None: the command held as it is); sinks: the run's sinks; wrenches: compute joint wrenches.
+    """
+
+    def __init__(self, sim, port, program, sinks, wrenches):
+        self.sim, self.port, self.program, self.sinks, self.wrenches = sim, port, program, sinks, wrenches
+        self.template = None
+
+    @classmethod
+    def plan(cls, sim, script, sinks, stop, wrenches):
+        """A BlockRunner for this run, or None when the block path does not apply (class docstring)."""
+        sys_ = sim.system
+        if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
+                or sim.integrator.spec.kind != 'fixed' or len(sys_.inputs) != 1 \
+                or not all(getattr(s, 'takes_blocks', False) for s in sinks):
+            return None
+        (port, spec), = sys_.inputs.items()
+        if spec.limit is not None and not getattr(sys_, 'clamps_in_blocks', False):
+            return None
+        program = None
+        if script is not None:
+            programs = getattr(script, 'programs', None) or {}
+            if set(programs) != {port} or programs[port] is None:
+                return None
+            program = programs[port]
+        # the system may still decline (e.g. joint_states that are not its state as it is): ask with no period
+        none = np.zeros(0)
+        if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim.work_state(), none, none,
+                              np.array(sim.ports[port].applied, dtype=float), program, wrenches) is None:
+            return None
+        return cls(sim, port, program, sinks, wrenches)
+
+    def run(self, k: int, n: int, t_start: float, rate: float) -> int:
+        """Run periods k.. in blocks; returns the first period not run (n when all are).
+
+        One compiled call runs up to :data:`BLOCK_PERIODS` periods; the sinks then get them in
+        pieces that end where one wants the Simulator's state (a diagnostics message), the
+        Simulator being put at the end of each piece first, as per-period calls leave it."""
+        sim, sys_ = self.sim, self.sim.system
+        if self.template is None:
+            self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
+        cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
+        while k < n:
+            K = min(BLOCK_PERIODS, n - k)
+            t_out = t_start + (np.arange(k, k + K) + 1) / rate    # the per-period path's t_start + (k + 1) / rate
+            if any(s.block_periods(t_out, self.template, cmd_kind) <= 0 for s in self.sinks):
+                return k   # a sink wants this period on the per-period path
+            t_cmd = np.empty(K)
+            t_cmd[0] = sim.t
+            t_cmd[1:] = t_out[:-1]
+            u = np.array(sim.ports[self.port].applied, dtype=float)
+            z = sim.work_state()
+            w0 = time.perf_counter()
+            res = sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, t_cmd, t_out, u,
+                                     self.program, self.wrenches)
+            sim.diag.wall += time.perf_counter() - w0
+            if res is None:
+                return k
+            done, code = res[0], res[1]
+            a = 0
+            while a < done:
+                b = done
+                for s in self.sinks:
+                    b = min(b, a + s.block_periods(t_out[a:done], self.template, cmd_kind))
+                if b <= a:   # the rest of the block is dropped: the Simulator is at the end of period k + a - 1
+                    return k + a
+                self._commit(a, b, t_cmd, t_out, res)
+                a = b
+            k += done
+            if code:
+                return k
+        return n
+
+    def _commit(self, a, b, t_cmd, t_out, res):
+        """The Simulator at the end of period b - 1 of the block, as advance() calls leave it;
+        the sinks get periods a..b-1."""
+        sim, sys_ = self.sim, self.sim.system
+        _, _, Zs, Us, outs, Fs, steps = res[:7]
+        more = res[7] if len(res) > 7 else {}
+        ny = sys_.ny
+        z = Zs[b - 1]
+        st = IntegratorStats.of_fused_steps(sim.settings['integrator'], int(steps[a:b].sum()), b - a)
+        sim.integrator.stats.accumulate(st)
+        sim.diag.count(st)
+        sim.diag.block_periods += b - a
+        sim.arrive(float(t_out[b - 1]), z[:ny].copy(), z)
+        commands = {}
+        if self.program is not None:
+            p = sim.ports[self.port]
+            p.value = Us[b - 1].copy()
+            p.applied = p.value if p.limit is None else np.clip(p.value, -p.limit, p.limit)
+            p.stamp = float(t_cmd[b - 1])
+            p.timed_out = False
+            if p.limit is not None:   # the clamped components of these periods' commands, as set_command counts them
+                p.clamped += int(np.count_nonzero(np.abs(Us[a:b]) > p.limit))
+            commands[self.port] = Us[a:b]
+        position, velocity, effort = outs
+        # each published state's velocities against their limits, as Simulator.outputs counts them
+        sim.diag.velocity_limit_exceeded += sim.velocity_limits.count(sim.t, self.template.joint_names,
+                                                                      velocity[a:b])
+        extra = getattr(sys_, 'state_extra', None)
+        if extra is not None:   # what outputs() would have put in diag.extra at the last state
+            sim.diag.extra.update(extra(sim.y))
+        odom, contacts = more.get('odom'), more.get('contacts')
+        block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
+                            velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
+                            template=self.template, z=Zs[a:b], odom=None if odom is None else odom[a:b],
+                            contacts=None if contacts is None else contacts[a:b])
+        for s in self.sinks:
+            s.on_block(block, sim)
