@@ -1,9 +1,9 @@
 """``robodyn bench control``: what position and trajectory commands cost (figures, never asserted).
 
 * ``cost``: the compiled loop's cost per step on xArm7 (rosenbrock2, what integrator auto picks for it)
-  and Panda (rk4 and rosenbrock2), 10 s at 1 ms from the initial posture: effort commands (zero), every
-  joint position-commanded and held without and with the feed-forward; each against the effort run
-  (target: at most 1.2x).
+  and Panda (rk4 and rosenbrock2), 10 s at 1 ms: effort commands (zero), every joint position-commanded
+  tracking a trajectory without and with the feed-forward; each against the effort run (target: at
+  most 1.2x).
 * ``mujoco``: the bundled ``xarm7_trajectory`` scene run and recorded as ``robodyn run --record`` runs
   it (10 s at 1 ms, 100 Hz publications with the servo's desired and error states and the sensors):
   real-time factor and largest tracking error, beside MuJoCo stepping the same URDF (meshes left out)
@@ -51,26 +51,36 @@ def report(args) -> str:
 
 
 PANDA = 'package://example-robot-data/robots/panda_description/urdf/panda.urdf'
+#: Panda's trajectory of the cost section: two quintic segments through these positions (rad), at rest at each
+PANDA_POINTS = ((2.0, (0.5, -0.4, 0.3, -2.0, 0.4, 1.8, 0.6)), (4.0, (-0.3, 0.2, -0.2, -1.5, -0.3, 1.2, -0.4)))
 
 
 def _robot(name: str, interfaces: str):
-    """A robot of the ``cost`` section on the given command interfaces: xarm7 (the bundled scene's part, no
-    scripted commands) or Panda (fingers locked)."""
+    """A robot of the ``cost`` section on the given command interfaces, with a trajectory when they are
+    position: xarm7 (the bundled scene's part and trajectory) or Panda (fingers locked, :data:`PANDA_POINTS`)."""
     from ..scene import find_scene, parse_scene
     if name == 'xarm7':
         path = find_scene(SCENE)
-        text = re.sub(r'\ncommands:.*?(?=\nsensors:)', '', path.read_text(), flags=re.DOTALL)
-        return parse_scene(text.replace('command_interfaces: position', f'command_interfaces: {interfaces}'),
-                           file=str(path))
-    return parse_scene(f'name: panda\nparts:\n  - kind: urdf\n    name: panda\n    file: {PANDA}\n'
-                       '    locked: {panda_finger_joint1: 0.0, panda_finger_joint2: 0.0}\n'
-                       f'    command_interfaces: {interfaces}\n', file='panda.yaml')
+        text = path.read_text().replace('command_interfaces: position', f'command_interfaces: {interfaces}')
+        if interfaces != 'position':
+            text = re.sub(r'\ncommands:.*?(?=\nsensors:)', '', text, flags=re.DOTALL)
+        return parse_scene(text, file=str(path))
+    text = (f'name: panda\nparts:\n  - kind: urdf\n    name: panda\n    file: {PANDA}\n'
+            '    locked: {panda_finger_joint1: 0.0, panda_finger_joint2: 0.0}\n'
+            f'    command_interfaces: {interfaces}\n')
+    if interfaces == 'position':
+        pts = ', '.join(f'{{time_from_start: {t}, positions: {list(p)}, velocities: {[0.0] * 7}, '
+                        f'accelerations: {[0.0] * 7}}}' for t, p in PANDA_POINTS)
+        text += f'commands:\n  trajectory: {{profile: trajectory, points: [{pts}]}}\n'
+    return parse_scene(text, file='panda.yaml')
 
 
 def cost_figures(repeat=3) -> list:
     """``[(robot, method, {commands: µs per step})]``: the compiled loop's cost per step (``integrate_arm``
     over 10-step periods from the initial state, HORIZON s in all), interleaved runs, the best of
-    ``10 repeat``: effort commands, position commands held without and with the feed-forward."""
+    ``10 repeat``: effort commands (zero: the arm falls), and position commands tracking a trajectory without
+    and with the feed-forward (both moving: an arm held exactly still makes its velocities decay into
+    subnormal numbers, whose arithmetic is many times slower on x86)."""
     from ..simulation import Simulator
     out = []
     for robot, methods in (('xarm7', ('rosenbrock2',)), ('panda', ('rk4', 'rosenbrock2'))):
@@ -80,6 +90,9 @@ def cost_figures(repeat=3) -> list:
                                   ('position + feed-forward', 'position', 1.0)):
                 sc = _robot(robot, ci)
                 sim = Simulator(sc.system, sc.y0, integrator=method, dt=DT)
+                if sc.script is not None:
+                    for port, value in sc.script(0.0, sc.y0).items():
+                        sim.set_command(port, value)
                 srv = sc.system._srv(sim.held_inputs()) if sc.system.servo is not None else None
                 runs[label] = (sc.system, ff, srv, np.concatenate([sim.y, [0.0]]))
             best = {k: math.inf for k in runs}
@@ -101,8 +114,8 @@ def cost_figures(repeat=3) -> list:
 
 def section_cost(repeat=3) -> str:
     """The ``cost`` section."""
-    lines = [f'## servo cost per step: the compiled loop alone ({HORIZON:g} s at {DT * 1e3:g} ms, held at the '
-             'initial posture)', '',
+    lines = [f'## servo cost per step: the compiled loop alone ({HORIZON:g} s at {DT * 1e3:g} ms; position: '
+             'tracking a trajectory)', '',
              '| robot | method | effort (µs/step) | position, no feed-forward | position + feed-forward |',
              '|---|---|---|---|---|']
     for robot, method, best in cost_figures(repeat):
