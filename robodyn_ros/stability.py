@@ -62,7 +62,7 @@ import numpy as np
 __all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'StepWarning', 'StepAnalysis',
            'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step',
            'preflight', 'diagnose', 'stable_step_limit', 'rosenbrock2_amplification', 'rosenbrock2_step_matrix',
-           'passive_jacobian', 'step_alternatives', 'stiff_mode']
+           'passive_jacobian', 'step_alternatives', 'stiff_mode', 'start_inputs']
 
 #: spurious amplification per step (eq. S3, as ln ρ) above which a fixed step is refused
 REFUSE_GROWTH = 1e-2
@@ -117,9 +117,13 @@ class StepAnalysis:
     extra: dict = field(default_factory=dict)
 
 
-def _zero_inputs(system) -> dict:
-    """Zero commands for every input port of ``system``."""
-    return {k: np.zeros(p.size) for k, p in getattr(system, 'inputs', {}).items()}
+def start_inputs(system, y=None, t: float = 0.0) -> dict:
+    """The inputs in force before any command, at state y and time t: what ``System.initial_input`` applies
+    (zeros, but a servo's hold of the initial posture), zeros where the system does not say."""
+    init = getattr(system, 'initial_input', None)
+    if init is None or y is None:
+        return {k: np.zeros(p.size) for k, p in getattr(system, 'inputs', {}).items()}
+    return {k: init(k, np.asarray(y, dtype=float), t)[1] for k in getattr(system, 'inputs', {})}
 
 
 def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_STEP) -> np.ndarray:
@@ -128,7 +132,7 @@ def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_ST
     system: the System; y: (ny,) state; u: inputs (default zeros); t: time (s); rel_step:
     perturbation of component j is ``rel_step * max(1, |y_j|)``. Costs 2 ny evaluations of f.
     """
-    u = _zero_inputs(system) if u is None else u
+    u = start_inputs(system, y, t) if u is None else u
     y = np.array(y, dtype=float)
     n = y.size
     J = np.empty((n, n))
@@ -243,7 +247,7 @@ def spin_rate(system, y) -> float:
 def passive_jacobian(system, y, u=None, t: float = 0.0, h: float | None = None) -> np.ndarray:
     """The system's implicit Jacobian (ny, ny) at y for step h (``System.passive_jacobian``), zeros when it
     has none."""
-    u = _zero_inputs(system) if u is None else u
+    u = start_inputs(system, y, t) if u is None else u
     fn = getattr(system, 'passive_jacobian', None)
     Jp = fn(t, np.asarray(y, dtype=float), u, h) if fn is not None else None
     n = np.asarray(y).size
@@ -445,7 +449,7 @@ def preflight(system, y, t: float = 0.0) -> None:
     A singular mass matrix (a moving joint without inertia about its axis), a constraint system
     the system's solver refuses, or a non-finite derivative are reported with their cause.
     """
-    u = _zero_inputs(system)
+    u = start_inputs(system, y, t)
     try:
         f = np.asarray(system.rhs(t, np.array(y, dtype=float), u), dtype=float)
     except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:

@@ -45,6 +45,10 @@ def add_parser(sub):
                    help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
                         '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
                         '(Huston eq. 20.2.1; a scene file gives position_limits on its kind: urdf part)')
+    p.add_argument('--command-interface', choices=('effort', 'position', 'velocity'), default=None,
+                   help='URDF file only: every actuated joint takes this command (position: held setpoints and '
+                        'joint_trajectory, tracked by a joint servo; a scene file gives command_interfaces on '
+                        'its part)')
     p.add_argument('--diagnostics-period', type=float, default=DIAGNOSTICS_PERIOD,
                    help=f'simulated seconds between recorded diagnostics messages (default {DIAGNOSTICS_PERIOD:g})')
     live = p.add_argument_group('live', 'watch and steer the run in Foxglove (a Foxglove WebSocket server)')
@@ -128,7 +132,7 @@ def _run(args, sock, rate_factor) -> int:
             return 2
     try:
         with backend_scope(backend):
-            scene = load_scene(args.scene, position_limits=limits)
+            scene = load_scene(args.scene, position_limits=limits, command_interface=args.command_interface)
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2

@@ -58,11 +58,13 @@ def _scene_runs(scratch):
     from ..scene import list_scenes, load_scene
     runs = [(name, lambda name=name: load_scene(name)) for name, _ in list_scenes()]
 
-    def urdf_robot(variant):
+    def urdf_robot(variant, command_interface=None):
         """stanford_arm's arm as a URDF file: as it is, with Coulomb friction and effort limits on
         every joint (the right-hand side of URDF robots with ``<dynamics friction>``), with its last
         joint following the one before (``<mimic>``: the coupled dynamics), with stiff joint damping
-        (integrator auto runs it with rosenbrock2, the linearly implicit step), or both."""
+        (integrator auto runs it with rosenbrock2, the linearly implicit step), or both; the plain one also with
+        every joint position-commanded (the joint servo in rk4's stages; the bundled xarm7_trajectory scene runs
+        it in rosenbrock2's)."""
         path = os.path.join(scratch, f'robot_{variant.replace(", ", "_")}.urdf')
         if not os.path.exists(path):
             m = load_scene('stanford_arm').system.model
@@ -82,9 +84,10 @@ def _scene_runs(scratch):
                 specs = m.specs
             with open(path, 'w') as f:
                 f.write(to_urdf(build_model(specs, gravity=m.gravity, name=m.name, root=m.root)))
-        return load_scene(path)
+        return load_scene(path, command_interface=command_interface)
     return runs + [(f'stanford_arm as URDF{"" if v == "plain" else ", " + v}', lambda v=v: urdf_robot(v))
-                   for v in ('plain', 'friction', 'mimic', 'damped', 'damped, mimic')]
+                   for v in ('plain', 'friction', 'mimic', 'damped', 'damped, mimic')] + \
+        [('stanford_arm as URDF, position', lambda: urdf_robot('plain', 'position'))]
 
 
 def warm_scene(load, backend, scratch) -> None:

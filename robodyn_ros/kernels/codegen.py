@@ -466,13 +466,16 @@ def aba_source(model) -> str | None:
 _RHS = '''
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx):
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx, t, srv):
     """``dz/dt`` for ``z = [q, v, W]`` or ``[q, v, W, W_lim]`` with the specialised ``aba`` (see arm.arm_rhs;
-    a tree with mimic joints or ground contacts is never specialised, so cpl, cs, con and fx go unused)."""
+    a tree with mimic joints or ground contacts is never specialised, so cpl, cs, con and fx go unused; the
+    joint servo srv at time t is arm.py's)."""
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
     P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    if srv is not None:
+        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
     aba(q, v, tauv, dz[nq:nq + nv])
     dz[nq + nv] = P
 
@@ -515,15 +518,15 @@ def module_source(model) -> str | None:
 def _key(model) -> str:
     """Hash of everything the generated code depends on: packed model, generator, the kernels it
     imports or copies (tree.py, arm.py, profiles.py, fixed_step.py, coupled.py, passive.py, rosenbrock.py,
-    linalg.py, contact.py)."""
-    from . import arm, contact, coupled, fixed_step, linalg, pack_model, passive, profiles, rosenbrock, tree
+    linalg.py, contact.py, servo.py)."""
+    from . import arm, contact, coupled, fixed_step, linalg, pack_model, passive, profiles, rosenbrock, servo, tree
     mi, mf = pack_model(model, merge=True)
     h = hashlib.sha256()
     with open(__file__, 'rb') as f:
         generator = f.read()
     for part in (mi.tobytes(), mf.tobytes(), VERSION.encode(), *(inspect.getsource(m).encode() for m in
                                                                   (tree, arm, profiles, fixed_step, coupled,
-                                                                   passive, rosenbrock, linalg, contact)),
+                                                                   passive, rosenbrock, linalg, contact, servo)),
                  generator):
         h.update(part)
     return h.hexdigest()[:20]
@@ -537,7 +540,7 @@ def specialize(model):
 
     Returns None for trees with FREE or SPHERICAL joints. The module has ``aba(q, v, tau, qdd)``,
     ``integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl,
-    con)`` with the arguments of :func:`robodyn_ros.kernels.arm.integrate_arm` (mi/mf: the merged packing) and
+    con, t0, srv)`` with the arguments of :func:`robodyn_ros.kernels.arm.integrate_arm` (mi/mf: the merged packing) and
     ``run_arm_periods`` with those of :func:`robodyn_ros.kernels.arm.run_arm_periods`.
     """
     key = _key(model)

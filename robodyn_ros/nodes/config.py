@@ -49,6 +49,10 @@ PARAMETERS = {
                             "twist angular first in its body axes"),
     'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
     'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
+    'command_interface': ('', "a URDF robot (robot_description_file or the robot_description topic): effort, "
+                              "position or velocity commands for every actuated joint; '' = effort"),
+    'sensors': ('', "a URDF robot: its sensors as a YAML list (as a scene's sensors key), e.g. "
+                    "'[{kind: imu, link: base_link}]'; '' = none"),
     'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else numba "
                     '(generic, compiled once per install); generated = specialised per model, compiled '
                     'once per model and cached'),
@@ -272,6 +276,27 @@ def resolve_config(p: dict, scene) -> Config:
                   diagnostics_period=check_number('diagnostics_period', p['diagnostics_period'], positive=True),
                   y0=y0, publish_tf=p['publish_tf'], backend=check_backend(p.get('backend', '')),
                   step_budget=st.get('step_budget'), plan=plan, embed_meshes=p.get('embed_meshes', True))
+
+
+def urdf_options(raw: dict) -> dict:
+    """The ``command_interface`` and ``sensors`` parameters as ``load_scene``/``urdf_scene_text`` keywords
+    (for a URDF robot; a scene file gives them itself); ConfigError for a bad value."""
+    import yaml
+    ci, sensors = raw.get('command_interface', ''), raw.get('sensors', '')
+    if not isinstance(ci, str) or ci not in ('', 'effort', 'position', 'velocity'):
+        raise ConfigError(f"parameter 'command_interface' must be effort, position or velocity ('' = effort), "
+                          f'got {ci!r}')
+    if not isinstance(sensors, str):
+        raise ConfigError(f"parameter 'sensors' must be a YAML list text, got {sensors!r}")
+    items = None
+    if sensors.strip():
+        try:
+            items = yaml.safe_load(sensors)
+        except yaml.YAMLError as e:
+            raise ConfigError(f"parameter 'sensors': not YAML: {e}") from None
+        if not isinstance(items, list):
+            raise ConfigError(f"parameter 'sensors' must be a YAML list of sensors, got {sensors!r}")
+    return {'command_interface': ci or None, 'sensors': items}
 
 
 def check_backend(value) -> str:

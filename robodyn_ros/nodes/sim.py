@@ -41,7 +41,7 @@ from ..recording import cdr
 from ..recording.run_sink import output_records
 from ..recording.target import episode_path
 from ..simulation import CommandError, SimulationError, Simulator
-from .config import PARAMETERS, ConfigError, check_backend, check_live, check_number, resolve_config
+from .config import PARAMETERS, ConfigError, check_backend, check_live, check_number, resolve_config, urdf_options
 from .ports import command_topics, command_values
 
 NODE_NAME = 'robodyn_sim'
@@ -106,6 +106,11 @@ def make_node_class():
             self._live_sock = self._bind_live(raw)   # a port in use is refused before the scene loads
             # scene:='' without a URDF file: the robot is the URDF another node publishes
             self.external_description = not raw['scene'] and not urdf_file
+            urdf_opts = urdf_options(raw)   # command_interface, sensors: for a URDF robot
+            if not (urdf_file or self.external_description) and any(v is not None for v in urdf_opts.values()):
+                raise ConfigError("parameters 'command_interface' and 'sensors' apply to a URDF robot "
+                                  "(robot_description_file, or scene:=''); a scene file gives command_interfaces "
+                                  'on its part and a sensors list')
             from ..systems.base import backend_scope
             with backend_scope(check_backend(raw['backend'])):
                 if self.external_description:
@@ -113,11 +118,13 @@ def make_node_class():
                     text = self._read_robot_description(check_number('robot_description_timeout',
                                                                 raw['robot_description_timeout'], positive=True))
                     try:
-                        self.scene = parse_scene(urdf_scene_text(text=text), file='robot_description')
+                        self.scene = parse_scene(urdf_scene_text(text=text, **urdf_opts), file='robot_description')
                     except SceneError as e:
                         raise ConfigError(f'the URDF on robot_description cannot be simulated: {e}') from None
+                elif urdf_file:
+                    self.scene = load_scene(urdf_file, **urdf_opts)
                 else:
-                    self.scene = load_scene(urdf_file or raw['scene'])
+                    self.scene = load_scene(raw['scene'])
             self.cfg = cfg = resolve_config(raw, self.scene)
             self.namespace = self.get_namespace()
             try:
@@ -150,6 +157,7 @@ def make_node_class():
             for link in out0.contacts:   # the ground's wrench on each link that has contact points
                 topic = M.contact_topic(link)
                 self.pub[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
+            self._control_publishers(out0)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                                  reliability=ReliabilityPolicy.RELIABLE)
             self.description = M.string(self.scene.system.urdf())
@@ -173,6 +181,8 @@ def make_node_class():
             self.subs = []
             if not cfg.scripted_commands:
                 for port, (topic, type_name) in command_topics(self.scene.system).items():
+                    if self.scene.system.inputs[port].kind == 'vector' and not self.scene.system.inputs[port].size:
+                        continue   # a port with nothing to command (an arm whose joints all take positions)
                     self.subs.append(self.create_subscription(
                         _import_msg(type_name), topic, lambda msg, port=port: self._on_command(port, msg), 10))
 
@@ -188,6 +198,7 @@ def make_node_class():
                 if static['transforms']:
                     self.pub['/tf_static'].publish(M.fill(self.pub['/tf_static'].msg_type(), static))
             self._tf_layouts = {}
+            self._publish_command_joint_names(latched)
             self._markers_setup()
             self._start_live()
             self._refresh_subscribers()
@@ -212,6 +223,27 @@ def make_node_class():
             # the run (real-time schedule, summary wall time) starts now, after the set-up
             self._wall_start = self._anchor_wall = self._rtf_wall = self._pause_began = time.monotonic()
             self._cpu_start = time.process_time()   # CPU of the run (paused spinning costs next to none)
+
+        # -- command interfaces, servo and sensors (robodyn_ros.systems.servo, .sensors) ---------
+        def _control_publishers(self, out0):
+            """Publishers of the further messages of each output (a servo's desired and error states, the
+            sensors' readings: ``SystemOutputs.messages``), known from the initial output."""
+            for topic, type_name, _ in out0.messages:
+                self.pub[topic] = self.create_publisher(_import_msg(type_name), topic, 10)
+
+        def _publish_command_joint_names(self, latched):
+            """Latch ``command_joint_names`` (std_msgs/String: one line ``<topic>: [joints]`` per joint command
+            topic, in that topic's order) and log it, when the scene has position or velocity commands."""
+            sys_ = self.scene.system
+            self.command_joint_names = None
+            if not any(p in sys_.inputs for p in ('position', 'velocity')):
+                return
+            self.command_joint_names = M.string(M.command_joint_names(sys_))
+            pub = self.create_publisher(_import_msg(M.TOPIC_TYPES['command_joint_names']), 'command_joint_names',
+                                        latched)
+            self.pub['command_joint_names'] = pub
+            pub.publish(M.fill(pub.msg_type(), self.command_joint_names))
+            self.get_logger().info('command joints (command_joint_names):\n' + self.command_joint_names['data'])
 
         # -- set-up helpers -------------------------------------------------------------------
         def _read_robot_description(self, timeout: float) -> str:

@@ -68,6 +68,19 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
         topic = M.contact_topic(link)
         if want is None or want(topic):
             recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
+    js_type = M.TOPIC_TYPES['joint_states']
+    for topic, type_name, msg in out.messages:   # sensors, a servo's desired and error states
+        if want is None or want(topic):
+            data = None
+            if type_name == js_type:   # the fast encoders (the same bytes as cdr.encode)
+                data = cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names(msg['header']['frame_id'],
+                                                                              tuple(msg['name'])),
+                                             msg['position'], msg['velocity'], msg['effort'])
+            elif type_name == M.WRENCH_TYPE:
+                n, f = msg['wrench']['torque'], msg['wrench']['force']
+                data = cdr.wrench_stamped_bytes(sec, nsec, msg['header']['frame_id'],
+                                                (n['x'], n['y'], n['z'], f['x'], f['y'], f['z']))
+            recs.append((topic, type_name, cdr.encode(type_name, msg) if data is None else data))
     if tf is not None and (want is None or want('/tf')):
         trs = tf.transforms(out.joint_names, out.position, out.odom)
         if trs:
@@ -326,11 +339,17 @@ class McapRunSink:
         self.count += 1
 
     def on_start(self, sim):
-        """Record ``robot_description`` (and ``/tf_static``) at the start time."""
+        """Record ``robot_description`` (``command_joint_names`` with position or velocity commands, and
+        ``/tf_static``) at the start time."""
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic(resolve('robot_description', self.namespace), M.TOPIC_TYPES['robot_description'],
                               qos='transient_local')
         self._write('robot_description', M.TOPIC_TYPES['robot_description'], M.string(self.description(sim)), t_ns)
+        if any(p in sim.system.inputs for p in ('position', 'velocity')):   # the joints of each command topic
+            self.writer.add_topic(resolve('command_joint_names', self.namespace),
+                                  M.TOPIC_TYPES['command_joint_names'], qos='transient_local')
+            self._write('command_joint_names', M.TOPIC_TYPES['command_joint_names'],
+                        M.string(M.command_joint_names(sim.system)), t_ns)
         if self.record_tf:
             from ..tf import TfTree
             self.tf = TfTree(sim.system)
@@ -363,7 +382,12 @@ class McapRunSink:
             self._write('/tf_static', M.TOPIC_TYPES['/tf_static'], msg, t_ns)
 
     def on_command(self, t, port, values):
-        """Record a command as it was applied (Float64MultiArray for effort/voltage ports)."""
+        """Record a command as it was applied (Float64MultiArray for effort/voltage ports, the
+        JointTrajectory message for a trajectory)."""
+        if port == 'trajectory':   # a message, not numbers: after the periods held, as it comes
+            self._write_held()
+            self._write('joint_trajectory', M.TOPIC_TYPES['joint_trajectory'], values, M.to_ns(t))
+            return
         if self.batch:
             self._cmds.append((t, port, np.array(values, dtype=float)))
             return
@@ -529,8 +553,8 @@ class McapRunSink:
     def _layout_ready(self, kind, out) -> bool:
         """True when every topic of this kind of period has its channel and the arrays are floats."""
         arrays = (out.position, out.velocity, out.effort)
-        if not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
-            return False
+        if out.messages or not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
+            return False   # (further messages: written one by one)
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
         topics += [] if out.odom is None else ['odom']
         topics += [M.wrench_topic(k) for k in out.wrenches] if self.wants_wrenches else []

@@ -18,7 +18,7 @@ from .part import Part
 
 
 _URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated', 'position_limits',
-              'armature', 'density')
+              'armature', 'density', 'command_interfaces', 'servo')
 
 
 def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
@@ -167,12 +167,14 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         except ModelError as e:
             ctx.fail(where, str(e))
         system = ff.FreeFlyerSystem(model, actuated=_actuated(ctx, spec, path, model), environment=env)
-        return Part(name=name, kind='free_base', mount='world', system=system, path=path)
+        from .control import part_control
+        return Part(name=name, kind='free_base', mount='world', system=system, path=path,
+                    control=part_control(ctx, spec, path))
     root = robot.root
     host = next((p for p in ctx.parts if p.name == mount and p.kind == 'free_base'), None)
     if host is not None:  # hang from the free base's link
         specs = [replace(s, parent=host.system.base_link) if s.parent == root else s for s in specs]
         root = host.system.base_link
     arm_spec = {'kind': 'arm', 'name': name, 'mount': mount, 'root': root,
-                **{k: spec[k] for k in ('origin', 'actuated') if k in spec}}
+                **{k: spec[k] for k in ('origin', 'actuated', 'command_interfaces', 'servo') if k in spec}}
     return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)))
