@@ -324,7 +324,9 @@ def execute_run(task: dict) -> dict:
             from .runs import DIAGNOSTICS_PERIOD
             # robodyn run's vectorised path: the same bytes, but for the meshes, which the many recordings of
             # a sweep reference instead of carrying (an A1's are 9 MB a file; robodyn run records them)
-            sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
+            from .systems.base import recorded_backend
+            sinks.append(McapRunSink(tmp, scene, {**st, 'backend': recorded_backend(task['backend']),
+                                                  'mode': 'headless'},
                                      diagnostics_period=DIAGNOSTICS_PERIOD, batch=HEADLESS_BATCH,
                                      embed_meshes=False))
         try:

@@ -91,7 +91,7 @@ def test_armature_in_the_kernels_and_the_reference_agrees_with_pinocchio():
             errs['aba'].append(rel(km.aba(q, v, tau), qdd_p))
             if gen is not None:
                 assert gen.gen is not None
-                errs['aba_gen'].append(rel(gen.aba(q, v, tau), qdd_p))
+                errs['aba_gen'].append(rel(gen.forward(q, v, tau), qdd_p))
             if not m.has_spherical:
                 errs['ref'].append(max(rel(dynamics.crba(m, q), Mp), rel(dynamics.aba(m, q, v, tau), qdd_p),
                                        rel(dynamics.rnea(m, q, v, a), tau_k),

@@ -122,7 +122,7 @@ def test_generated_backend_falls_back_to_generic_kernels():
     from robodyn_ros.systems.arm import ArmSystem
     m = random_tree(4, np.random.default_rng(5), spherical_fraction=0.7)
     assert m.has_spherical
-    assert codegen.aba_source(m) is None
+    assert codegen.trace(m) is None
     sys_g = ArmSystem(m, backend='generated')
     assert sys_g._km.gen is None
     q, v, _, tau = random_state(m, np.random.default_rng(6))

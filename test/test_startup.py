@@ -146,6 +146,7 @@ def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_pat
     first.write_text(load_scene('stanford_arm').system.urdf())
     env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
     env['NUMBA_CACHE_DIR'] = str(tmp_path / 'cache')
+    env['ROBODYN_COLD_START'] = 'compile'   # (robodyn run would interpret while a child compiles: test_cold_start)
     compiled, _ = _compiled_in_new_process([['run', str(first), '--duration', '0.05']], env)
     assert compiled                                   # the cache was empty: this process compiled
     others = [str(next(d.rglob('go2.urdf'))), str(next(d.rglob('ur5_robot.urdf')))]
@@ -153,7 +154,7 @@ def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_pat
     assert compiled == [] and len(loaded) >= 3, (compiled, loaded)
 
 
-def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
+def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path, monkeypatch):
     """After ``robodyn warm``'s runs, the runs of ``robodyn run`` (every bundled scene, with and
     without recording) and of example-robot-data robots (friction, mimic joints) add no kernel
     signature: what warm compiles into the cache is all they load. In one process, whatever the
@@ -168,6 +169,7 @@ def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
     from robodyn_ros.systems.base import tools_backend
     from robodyn_ros.urdf import example_robot_data_dir
     backend = tools_backend()
+    monkeypatch.setenv('ROBODYN_COLD_START', 'compile')   # a miss compiles here (interpreted, it would hide)
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         for _, load in _scene_runs(str(tmp_path)):

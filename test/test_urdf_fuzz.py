@@ -211,14 +211,14 @@ def test_a_leaf_without_inertia_about_its_axis_gets_armature_or_is_refused_on_ev
             sc = load_scene(bare)
             with pytest.raises(ValueError, match=r"joint\(s\) j2 move a subtree with no mass or inertia about"):
                 Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)
-            assert codegen.aba_source(sc.system.model) is None
+            assert codegen.trace(sc.system.model) is None
             with pytest.warns(UserWarning, match=r'a motion of joint j2 meets no inertia there\): armature 1e-06'):
                 sc = load_scene(f)
             assert list(sc.system.model.armature) == [0.0, 1e-6]
             sim = Simulator(sc.system, sc.y0, integrator='rk4', dt=1e-3)
             run_headless(sim, 0.02, 100.0)
             ran += 1
-    assert ran == 3 and codegen.aba_source(sc.system.model) is not None
+    assert ran == 3 and codegen.trace(sc.system.model) is not None
     p = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'run', str(bare), '--duration', '0.02'],
                        capture_output=True, text=True, timeout=240)
     assert p.returncode == 2 and 'Traceback' not in p.stderr and len(p.stderr.splitlines()) == 1, p.stderr

@@ -234,9 +234,9 @@ def section_kernels(args, names) -> str:
                      'M': _rel(km.crba(q), dyn.crba(model, q)),
                      'FD': _rel(km.aba(q, v, a), dyn.aba(model, q, v, a))}
         if kg and not no_np:
-            agree['FD (generated)'] = _rel(kg.aba(q, v, a), dyn.aba(model, q, v, a))
+            agree['FD (generated)'] = _rel(kg.forward(q, v, a), dyn.aba(model, q, v, a))
         for op, (f_np, f_c, f_pin) in ops.items():
-            f_g = (lambda: kg.aba(q, v, a)) if (op == 'FD' and kg) else None
+            f_g = (lambda: kg.forward(q, v, a)) if (op == 'FD' and kg) else None
             t = per_call({'numpy': f_np, 'compiled': f_c, 'generated': f_g, 'pin': f_pin}, repeat=args.repeat)
             tn, tc, tg, tp = (t[k][0] if t[k] else None for k in ('numpy', 'compiled', 'generated', 'pin'))
             if op == 'FD':

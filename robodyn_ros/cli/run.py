@@ -38,9 +38,10 @@ def add_parser(sub):
     p.add_argument('--no-embed-meshes', action='store_true',
                    help='record robot_description with its package:// mesh references (by default it carries the '
                         'meshes as data: URIs, so that Foxglove draws them without ROS: 9 MB for the A1)')
-    p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
-                   help='dynamics kernels (default: $ROBODYN_BACKEND, else numba: generic, compiled once per '
-                        'install; generated: specialised per model, compiled once per model and cached)')
+    p.add_argument('--backend', choices=('numpy', 'numba', 'generated', 'auto'), default=None,
+                   help='dynamics kernels (default: $ROBODYN_BACKEND, else auto: the generic compiled kernels, '
+                        'then the model\'s own code once a background process has compiled it, the same bytes; '
+                        'numba: generic only; generated: the model\'s own from the first step)')
     p.add_argument('--position-limits', default=None, metavar='K,C[,RETURN]',
                    help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
                         '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
@@ -73,7 +74,20 @@ def main(args) -> int:
     """Run, record, print a summary; exit 1 with the cause if the simulation fails.
 
     Imports what the run uses when it uses it (the recorder only with ``--record``, the live server
-    only with ``--live``), so a short run starts fast (``robodyn bench startup``)."""
+    only with ``--live``), so a short run starts fast (``robodyn bench startup``). On a cold kernel
+    cache the kernels run as Python while a child process compiles them (``kernels.jit``, mode 'interpret'),
+    the same bytes."""
+    from ..kernels import jit
+    mode = jit.MODE
+    jit.set_mode('interpret')
+    try:
+        return _main(args)
+    finally:
+        jit.MODE = mode   # (an in-process caller keeps its own mode)
+
+
+def _main(args) -> int:
+    """:func:`main` in the cold-start mode it has set."""
     live_opts = [o for o, v in (('--port', args.port), ('--host', args.host), ('--rate-factor', args.rate_factor),
                                 ('--start-paused', args.start_paused or None)) if v is not None]
     if live_opts and not args.live:
@@ -104,7 +118,7 @@ def _run(args, sock, rate_factor) -> int:
     """The run once the live port (if any) is bound."""
     from ..scene import SceneError, load_scene
     from ..simulation import SimulationError, Simulator, run_headless
-    from ..systems.base import backend_scope, tools_backend
+    from ..systems.base import backend_scope, recorded_backend, tools_backend
     if args.record:
         from ..recording.target import RecordPathError, check_record_path
         try:  # before anything is simulated: never overwrite silently, never fail at the end
@@ -138,7 +152,7 @@ def _run(args, sock, rate_factor) -> int:
         return 2
     st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration,
                           args.step_budget)
-    st['backend'] = backend  # recorded: robodyn resim rebuilds the system on the same kernels
+    st['backend'] = recorded_backend(backend)  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
         plan, st = plan_run(st, scene.system, scene.y0)   # which integrator, which step, and why: decided once
         sim = Simulator(scene.system, scene.y0, plan=plan)

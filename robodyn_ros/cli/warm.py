@@ -1,8 +1,8 @@
 """``robodyn warm``: compile, once, every kernel the bundled scenes and URDF robots run on.
 
 numba compiles a kernel the first time a process calls it and caches the machine code on disk
-(:mod:`robodyn_ros.kernels.cache`); a fresh install would pay that (about a minute in all) in its
-first runs. This command pays it up front, as ``make run`` does once after installing: every
+(:mod:`robodyn_ros.kernels.cache`); a fresh install would pay that in its first runs. This command
+pays it up front, as ``make test`` does before the suite: every
 bundled scene, and a URDF robot (stanford_arm's arm written to URDF and read back, the path of
 ``robodyn run robot.urdf``; again with joint friction and effort limits, and with a ``<mimic>``
 joint), each run for :data:`DURATION` s the two ways the tools run them:
@@ -27,7 +27,7 @@ from __future__ import annotations
 import sys
 
 #: one line for ``robodyn --help``
-HELP = 'compile once the kernels every bundled scene and URDF robot uses (make run does it)'
+HELP = 'compile once the kernels every bundled scene and URDF robot uses (make test does it first)'
 #: simulated seconds of each warm-up run (two diagnostics periods, a block of periods)
 DURATION = 0.2
 #: labels of the runs that compile the most on an empty cache (measured, most first): the workers
@@ -39,8 +39,9 @@ HEAVY_FIRST = ('a1_stand', 'betancur_platform', 'stanford_arm as URDF, mimic', '
 def add_parser(sub):
     """Register the subcommand and its options."""
     p = sub.add_parser('warm', help=HELP, description=__doc__.split('\n\n')[1])
-    p.add_argument('--backend', choices=('numba', 'generated'), default=None,
-                   help='kernels to warm (default: those of robodyn run: $ROBODYN_BACKEND, else numba)')
+    p.add_argument('--backend', choices=('numba', 'generated', 'auto'), default=None,
+                   help='kernels to warm (default: those of robodyn run: $ROBODYN_BACKEND, else auto, whose '
+                        'short runs use the generic kernels, as numba)')
     p.add_argument('--quiet', action='store_true', help='print only the last line')
     p.add_argument('--jobs', type=int, default=None, metavar='N',
                    help='worker processes compiling at once (default: the processors available; 1: all here)')
@@ -171,6 +172,8 @@ def main(args) -> int:
     from ..kernels.cache import compiled_here
     from ..systems.base import tools_backend
     backend = tools_backend(args.backend)
+    if backend == 'auto':   # auto's runs start on the generic kernels: warm those (a model's own code is
+        backend = 'numba'   # compiled by a long run's child process, and cached per model)
     if backend == 'numpy' or not kernels.AVAILABLE:
         print(f'robodyn warm: nothing to compile (backend {backend}'
               f'{"" if kernels.AVAILABLE else "; " + kernels.UNAVAILABLE_REASON})', file=sys.stderr)

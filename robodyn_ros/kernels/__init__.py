@@ -15,8 +15,9 @@ code on a packed copy of the model::
 
 Arguments are float64 numpy arrays (1-D slices of a state vector are fine); results are new
 arrays. ``AVAILABLE`` is False when numba cannot be imported, and callers (``ArmSystem``) then
-use the reference. The fused integrators (:meth:`CompiledModel.integrate_arm`) run a whole
-publication period of fixed steps in one compiled call. The constrained and floating-base
+use the reference. The fused integrators (:meth:`CompiledModel.integrate_arm`, :meth:`CompiledModel.run_periods`)
+run whole publication periods of fixed steps in one compiled call, on the generic kernels or on the model's
+generated code (:mod:`.codegen`: the same operations), which a run may take up between two calls. The constrained and floating-base
 systems (differential drive, free base in minimal and augmented coordinates, prescribed path)
 run on :class:`CompiledSystem`, with the same fused loop (:mod:`robodyn_ros.kernels.fixed_step`).
 
@@ -25,18 +26,20 @@ arrays), :mod:`.frames` (body frames, velocities, momentum), :mod:`.linalg` (sma
 algebra), one module per system (:mod:`.arm`, :mod:`.diffdrive`, :mod:`.freeflyer`,
 :mod:`.augmented`, :mod:`.prescribed`), :mod:`.fixed_step` (the constrained systems' fused
 loop), :mod:`.profiles` (command profiles), :mod:`.pfl` (the PFL law), :mod:`.outputs` and
-:mod:`.records` (the recorder's batches), :mod:`.passive` (joint friction) and :mod:`.codegen`
-(scene-specialised code).
+:mod:`.records` (the recorder's batches), :mod:`.passive` (joint friction), :mod:`.treefn` (the tree
+dynamics behind function addresses) and :mod:`.codegen` (a model's own code for them).
 
 Compilation cache. Every kernel is ``@njit(cache=True)``: the first start of a new install
-compiles (about a minute for every kernel; ``robodyn warm``, which ``make run`` runs once,
+compiles (a few minutes of CPU for every kernel; ``robodyn warm``, which ``make test`` runs first,
 does it for every function the bundled scenes and URDF robots use) and writes the machine code
 next to the source in ``robodyn_ros/kernels/__pycache__``; later starts load it, for any robot.
 Where the cache goes when that directory is not writable, and why any edit of a kernel module
 invalidates all of them: :mod:`.cache` (:data:`CACHE_DIR` says where it is). Set
-``ROBODYN_BACKEND=numpy`` to switch the compiled path off, or ``ROBODYN_BACKEND=generated`` to
-make ArmSystems use scene-specialised code (:mod:`robodyn_ros.kernels.codegen`, cached under
-``~/.cache/robodyn_ros/generated``).
+``ROBODYN_BACKEND=numpy`` to switch the compiled path off, ``numba`` to keep an arm on the generic
+kernels, ``generated`` to compile its own code (:mod:`robodyn_ros.kernels.codegen`, cached under
+``~/.cache/robodyn_ros/generated``) before its first step; ``auto`` (the tools' default) starts on the
+generic kernels and takes the model's code up once it is compiled, in a child process
+(:data:`GENERATE_AFTER`).
 """
 from __future__ import annotations
 
@@ -60,7 +63,7 @@ try:
     if not NUMBA:
         raise ImportError("No module named 'numba'")
     from . import (arm, augmented, contact, diffdrive, fixed_step, frames, freeflyer, linalg,  # noqa: F401
-                   prescribed, profiles, sensors, servo, tree)
+                   prescribed, profiles, sensors, servo, tree, treefn)
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
 except ImportError as _e:  # the compiled path is off: the systems use the numpy reference
@@ -73,6 +76,9 @@ __all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_mo
 
 #: integrator names the fused loop implements -> method code in :mod:`.fixed_step`
 FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2, 'rosenbrock2': 3}
+#: wall time (s) an arm on backend 'auto' integrates on the generic kernels before it starts compiling its
+#: generated code in a child process (a shorter run never pays for it)
+GENERATE_AFTER = 0.5
 
 
 def merge_fixed(model: Model) -> dict:
@@ -170,10 +176,11 @@ class CompiledModel:
     (q (nq,), v/a/tau (nv,), f_ext (nb, 6) in body coordinates) and return new arrays.
     Joint-space results use the tree with FIXED bodies welded into their parents
     (``mi_r, mf_r``, :func:`merge_fixed`); per-body results (wrenches) and external forces
-    use the full tree (``mi, mf``). specialize: also generate (or load from the disk cache) the
-    model's own forward dynamics by the method of Zs (:mod:`robodyn_ros.kernels.codegen`), used
-    by :meth:`aba` without external forces and by :meth:`integrate_arm`; ignored (``gen`` is
-    None) for trees with FREE or SPHERICAL joints, which the generic kernels compute.
+    use the full tree (``mi, mf``). specialize: False (the generic kernels), True (the model's own
+    code for the fused loops' dynamics, :mod:`robodyn_ros.kernels.codegen`, loaded or compiled now) or
+    ``'auto'`` (generic, and the model's own code taken up once a child process has compiled it:
+    :meth:`poll_generated`). Both compute the same bits; trees the generator declines (free and
+    spherical joints, mimic joints, ground contacts) stay generic (``gen`` None).
     """
 
     def __init__(self, model: Model, specialize: bool = False):
@@ -200,10 +207,70 @@ class CompiledModel:
             self.col, self.mul, self.nr = coupled.coupling(self.mimic, self.nv)
             self.cpl = (self.mimic, self.col, self.mul)
         self.con = None   # the packed ground contacts (kernels.contact), set by systems.contact
-        self.gen = None
-        if specialize and self.coupled is None:   # a coupled tree stays on the generic kernels
+        self.cpo = None   # their points' (body, link) rows (kernels.arm.run_arm_periods), set with con
+        self.gen = None   # the generated (fd, bm) cfuncs in use (kernels.codegen), or None
+        self._auto = specialize == 'auto' and self.coupled is None
+        self._requested = None    # the generated module the compiler child was asked for (backend 'auto')
+        self._spent = 0.0         # wall time integrated on the generic kernels (backend 'auto')
+        self._ros = None          # the linearly implicit step's work arrays (arm.rosenbrock_work)
+        self._pygen = False       # interpreting: the generated code's Python tokens (None: none), once asked
+        if specialize is True and self.coupled is None:   # a coupled tree stays on the generic kernels
             from . import codegen
             self.gen = codegen.specialize(model)
+
+    def no_generated(self):
+        """Stay on the generic kernels (a tree put on a ground: its loop takes the contact path)."""
+        self.gen = None
+        self._auto = False
+        self._pygen = None
+
+    def poll_generated(self):
+        """Backend 'auto': take up the model's generated code once the compiler child (:mod:`.jit`) has it in
+        the cache; ask the child for it once :data:`GENERATE_AFTER` seconds were integrated here (called
+        between loop calls, so the code changes at a period boundary)."""
+        if not self._auto or self.gen is not None:
+            return
+        from . import codegen, jit
+        if self._requested is None:
+            if self._spent < GENERATE_AFTER:
+                return
+            self._requested = codegen.module_path(self.model)
+            if self._requested is None:
+                self._auto = False
+                return
+            if not codegen.is_compiled(self._requested):   # else another run compiled it
+                jit.COMPILER.request(('generated', self._requested))
+                self._seen = jit.COMPILER.generation
+                return
+        else:
+            jit.COMPILER.poll()
+            if jit.COMPILER.generation == self._seen:
+                return
+            self._seen = jit.COMPILER.generation
+            if not codegen.is_compiled(self._requested):
+                return
+        self.gen = codegen.load(self._requested)
+
+    def dynamics(self, z):
+        """``(dyn, tokens)``: the addresses of the forward dynamics and bias/mass pass the loop takes for state
+        z (:mod:`.treefn`): the generated code's, or the generic kernels' while there is none or while z holds
+        an entry −0.0 (the one state whose bits a folded zero could change: :mod:`.codegen`). Interpreting
+        (:mod:`.jit`) while the generic cfuncs are not compiled: Python-only tokens (``tokens`` True: the
+        model's generated code as Python, else the generic kernels' Python), for interpreted calls only."""
+        from . import jit
+        signed_zero = np.any((z == 0.0) & np.signbit(z))
+        if self.gen is not None and not signed_zero:
+            return (self.gen[0].address, self.gen[1].address), False
+        if jit.MODE == 'compile':
+            fd, bm = treefn.generic_pointers()
+            return (fd.address, bm.address), False
+        generic = treefn.generic_pointers(block=False)
+        if generic is not None:
+            return (generic[0].address, generic[1].address), False
+        if self._pygen is False:
+            from . import codegen
+            self._pygen = codegen.python_dynamics(self.model) if self.coupled is None and self.con is None else None
+        return (self._pygen if self._pygen is not None and not signed_zero else treefn.GENERIC_TOKENS), True
 
     def aba(self, q, v, tau, f_ext=None):
         """Forward dynamics ``qdd`` (nv,) by the articulated-body algorithm (a tree with mimic joints:
@@ -213,13 +280,31 @@ class CompiledModel:
             if f_ext is not None:
                 raise NotImplementedError('external forces on a tree with mimic joints')
             self.coupled.coupled_fd_into(self.mi_r, self.mf_r, self.col, self.mul, self.nr, q, v, tau, qdd)
-        elif f_ext is None:
-            if self.gen is not None:
-                self.gen.aba(q, v, tau, qdd)
-            else:
-                tree.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
+        elif f_ext is None:   # (the operations of the loops' generic fd, treefn.generic_fd, without its Python detour)
+            tree.aba_into(self.mi_r, self.mf_r, q, v, tau, qdd)
         else:
             tree.aba_fext_into(self.mi, self.mf, q, v, tau, np.ascontiguousarray(f_ext, dtype=float), qdd)
+        return qdd
+
+    def _fd(self, q, v, tau, qdd, generic):
+        """qdd through an fd of :mod:`.treefn` (the generic one, or the one the loops take now)."""
+        from . import jit
+        c = np.ascontiguousarray
+        if generic:
+            fd, tokens = treefn.generic_pointers(block=jit.MODE == 'compile'), False
+            dyn = (fd[0].address,) if fd is not None else None
+            if dyn is None:
+                dyn, tokens = treefn.GENERIC_TOKENS, True
+        else:
+            dyn, tokens = self.dynamics(np.zeros(0))
+        treefn.call(treefn.call_fd, [dyn[0], self.mi_r, self.mf_r, c(q, dtype=float), c(v, dtype=float),
+                                     c(tau, dtype=float), qdd], 0, tokens)
+
+    def forward(self, q, v, tau):
+        """Forward dynamics ``qdd`` (nv,) through the fused loops' ``fd`` (:mod:`.treefn`): the generated code
+        when it is in use (the same bits as :meth:`aba`'s, but for the sign of zeros), else the generic one."""
+        qdd = np.empty(self.nv)
+        self._fd(q, v, tau, qdd, generic=False)
         return qdd
 
     def rnea(self, q, v, a, f_ext=None):
@@ -301,16 +386,53 @@ class CompiledModel:
         return q
 
     def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last, t0=0.0, srv=None) -> int:
-        """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``arm.integrate_arm``).
+        """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``arm.arm_steps``): one period
+        of :meth:`run_periods`, the applied forces given.
 
         method: a key of :data:`FUSED_METHODS`; z (nq + nv + 1,) float64, modified in place;
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid; t0: the time of
         its first step (s); srv: None, or a joint servo (:mod:`.servo`) evaluated at every stage.
         Returns the index of the first non-finite step or -1.
         """
-        run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
-        return run(self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, self.lim, tau_app, self.nq,
-                   FUSED_METHODS[method], z, float(dt), int(n_full), float(h_last), self.cpl, self.con, float(t0), srv)
+        e2 = np.zeros((0, 0))
+        out = self.run_periods(method, e2, z, dt, np.array([float(t0)]), np.array([int(n_full)], dtype=np.int64),
+                               np.array([float(h_last)]), None, np.ascontiguousarray(tau_app, dtype=np.float64),
+                               np.empty((1, z.shape[0])), np.empty((1, self.nv)), np.empty((1, self.nv)),
+                               np.empty((0, self.nb, 6)), False, np.full(self.nv, np.inf), np.empty((1, 0, 6)),
+                               np.array([float(t0)]), srv, np.empty((1, 0, 6)))
+        return out[2]
+
+    def run_periods(self, method: str, B, z, dt, t_start, n_full, h_last, program, u, Zs, Us, TAUs, Fs, want_f,
+                    ulim, Cs, t_end, srv=None, SVs=None):
+        """K publication periods in one compiled call (``arm.run_arm_periods``, the loops' one entry): the
+        per-period path (:meth:`integrate_arm`) and the block path (``ArmSystem.fused_periods``). program:
+        a compiled command profile ``(kind, P, times, values, BT, Bq)`` or None (u held); B (nv, nu), or no
+        rows (u is τ_app); t_end (K,) the periods' ends; srv: None, or a joint servo (:mod:`.servo`), whose
+        outputs go to SVs (K, ns, 6) when it has rows. Returns ``(k, code, step)``. Between two calls a run on backend 'auto' takes up the
+        model's generated code (:meth:`poll_generated`)."""
+        import time
+        self.poll_generated()
+        if program is None:
+            e2 = np.zeros((0, 0))
+            program = (profiles.CMD_NONE, e2, np.zeros(0), e2, e2, e2)
+        kind, P, times, values, BT, Bq = program
+        if SVs is None:
+            SVs = np.empty((t_start.shape[0], 0, 6))
+        ros = None
+        if method == 'rosenbrock2':
+            if self._ros is None:
+                self._ros = arm.rosenbrock_work(self.nv, self.nr if self.coupled is not None else self.nv)
+            ros = self._ros
+        generic = self.gen is None
+        dyn, tokens = self.dynamics(z)
+        t0 = time.perf_counter()
+        out = treefn.call(arm.run_arm_periods, [
+            self.mi, self.mf, self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, self.lim, B, self.nq,
+            FUSED_METHODS[method], z, float(dt), t_start, n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us,
+            TAUs, Fs, bool(want_f), ulim, self.con, self.cpo, Cs, t_end, srv, SVs, self.cpl, ros, dyn], 37, tokens)
+        if generic:
+            self._spent += time.perf_counter() - t0
+        return out
 
     def servo_state(self, srv, t, q, v):
         """``(out (ns, 6), power)``: the joint servo (:mod:`.servo`) at time t and (q, v): per servo joint
@@ -445,7 +567,7 @@ def warmup(model: Model | None = None) -> float:
     km.energies(q, v)
     km.qdot(q, v)
     km.normalize(q)
-    for m in FUSED_METHODS:
+    for m in FUSED_METHODS:   # (the per-period path; the block path passes the same argument types)
         z = np.concatenate([q, v, [0.0]])
         km.integrate_arm(m, z, v, 1e-3, 2, 0.0)
     return time.perf_counter() - t0

@@ -1,17 +1,20 @@
 """The arm's compiled loops (:mod:`robodyn_ros.systems.arm`): its right-hand side with the work
-quadrature (:func:`arm_rhs`), the fused fixed-step integration of one publication period
-(:func:`integrate_arm`) and many periods in one call with the scripted commands and the outputs
-(:func:`run_arm_periods`), on the tree algorithms of :mod:`robodyn_ros.kernels.tree`.
+quadrature (:func:`arm_rhs`), the fused fixed-step integration (:func:`arm_steps`) and publication
+periods with their scripted commands and outputs (:func:`run_arm_periods`, the one entry from Python:
+one period for the per-period path, many for the block path), on the tree algorithms of
+:mod:`robodyn_ros.kernels.tree`.
 
-:mod:`robodyn_ros.kernels.codegen` compiles the source of the last two again against a scene's
-generated ABA (the 'generated' backend).
+The forward dynamics and the bias/mass pass of a tree without mimic joints or ground contacts are
+reached through the function addresses ``dyn = (fd, bm)`` of :mod:`robodyn_ros.kernels.treefn`: the
+generic kernels or a model's generated code (:mod:`robodyn_ros.kernels.codegen`), the same operations,
+behind one compiled loop.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .contact import (contact_jacobian_add, contact_points, ground_fext_ws, link_wrenches, point_body_forces,
                       touching_points)
@@ -27,6 +30,7 @@ from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, jo
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
                    rnea_ws, tangent_rate_into, tangent_velocity_into, transforms, workspace,
                    world_kinematics_ws)
+from .treefn import bm_at, fd_at
 
 
 # ----------------------------------------------------------------------------------------------
@@ -65,7 +69,7 @@ def arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv):
 
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx, t, srv):
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx, t, srv, dyn):
     """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v − F tanh(v/v_s) +
     τ_lim``;
     for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
@@ -78,8 +82,8 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
     ground contacts (:mod:`.contact`) whose body forces (into the scratch fx (nb, 6)) enter ABA; then
     ``z`` ends with the contact work ``W_c`` (``[q, v, W(, W_lim), W_c]``), whose rate is their power
     (also part of W's). srv: None, or the joint servo (:mod:`.servo`), whose torques at time t (s) join
-    τ and whose power joins W's. (ArmSystem.rhs, .input_power and .work_component_powers of the
-    reference path.)
+    τ and whose power joins W's. Without cpl and con, ABA is the ``fd`` at the address ``dyn[0]``
+    (:mod:`.treefn`). (ArmSystem.rhs, .input_power and .work_component_powers of the reference path.)
     """
     q = z[:nq]
     v = z[nq:nq + nv]
@@ -90,23 +94,37 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:z.shape[0] - 1], dz, tauv)
     if srv is not None:   # before W holds q's transforms: the feed-forward's RNEA uses W
         P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
-    transforms(mi, mf, q, W)
     if cpl is not None:   # a None argument prunes this branch at compile time: no coupled code for other trees
+        transforms(mi, mf, q, W)
         coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
         dz[nq + nv] = P
     elif con is not None:
+        transforms(mi, mf, q, W)
         world_kinematics_ws(mi, mf, v, W)
         Pc = ground_fext_ws(con, W, fx)
         aba_ws(mi, mf, q, v, tauv, fx, True, dz[nq:nq + nv], W)
         dz[nq + nv] = P + Pc
         dz[z.shape[0] - 1] = Pc
     else:
-        aba_ws(mi, mf, q, v, tauv, W, False, dz[nq:nq + nv], W)
+        fd_at(dyn[0])(mi, mf, q, v, tauv, dz[nq:nq + nv], W)
         dz[nq + nv] = P
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con, t0, srv):
+def coupled_scratch(cpl, nv):
+    """The work arrays of the coupled dynamics (:func:`.coupled.coupled_fd_ws`) of a tree with mimic joints
+    (cpl, :func:`arm_rhs`), nv velocities; empty ones for cpl None (which prunes the rest at compile time)."""
+    if cpl is None:
+        e = np.zeros(0)
+        e2 = np.zeros((0, 0))
+        return e2, e, e2, e2, e, e
+    nr = nv - cpl[0].shape[0]
+    return np.zeros((nv, nv)), np.zeros(nv), np.zeros((nr, nr)), np.zeros((nr, nr)), np.zeros(nr), np.zeros(nr)
+
+
+@njit(**_JIT)
+def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con, t0, srv, ros,
+              dyn):
     """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
     ``n_full`` steps of dt and one of h_last (if > 0).
 
@@ -118,21 +136,13 @@ def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, d
     (cpl: None, or see :func:`arm_rhs`) after every step, as the Simulator's projection does.
     con: None, or the ground contacts of :func:`arm_rhs`. t0: the time (s) of the first step (step k starts
     at ``t0 + k dt``); srv: None, or the joint servo of :func:`arm_rhs`, evaluated at each stage's time.
-    Returns the index of the first step whose result is non-finite (z then holds that result), or -1.
+    ros: the linearly implicit step's work arrays
+    ``(vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv), (red (2, nr, nr), red (2, nr)), (cj (3, nv),
+    cj (nv,) int64))`` (:func:`rosenbrock_work`), or None for the other methods (a None argument prunes the
+    implicit step's code at compile time: an rk4 run compiles none of it). dyn: the dynamics' addresses
+    (:mod:`.treefn`). Returns the index of the first step whose result is non-finite (z then holds that
+    result), or -1.
     """
-    if cpl is None:
-        return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None,
-                         con, t0, srv)
-    nv = damping.shape[0]
-    nr = nv - cpl[0].shape[0]
-    cs = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nr, nr)), np.zeros((nr, nr)), np.zeros(nr), np.zeros(nr))
-    return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, None,
-                     t0, srv)
-
-
-@njit(**_JIT)
-def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, con, t0, srv):
-    """The steps of :func:`integrate_arm` (cs: the coupled dynamics' scratch, None with cpl)."""
     nb = mi.shape[0]
     fx = np.zeros((nb, 6))
     n = z.shape[0]
@@ -144,12 +154,7 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
     acc = buf[2 * n:3 * n]
     tauv = buf[3 * n:3 * n + nv]
     qd = buf[3 * n + nv:]
-    if method == M_ROSENBROCK2:
-        vec = np.empty((ROS_VECTORS, nv))
-        mat = np.empty((ROS_MATRICES, nv, nv))
-        nr = nv if cpl is None else nv - cpl[0].shape[0]
-        red = (np.empty((2, nr, nr)), np.empty((2, nr)))   # the iteration matrix in independent joints
-        cj = (np.empty((3, nv)), np.empty(nv, dtype=np.int64))   # a contact point's Jacobian and its columns
+    cs = coupled_scratch(cpl, nv)
     n_steps = n_full + (1 if h_last > 0.0 else 0)
     for k in range(n_steps):
         h = dt if k < n_full else h_last
@@ -157,54 +162,58 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
         servo_side(srv, 1.0)   # a servo's setpoints: a knot on the step grid is read from this step's side
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv, dyn)
             servo_side(srv, 0.0)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
             arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + half,
-                    srv)
+                    srv, dyn)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
             arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + half,
-                    srv)
+                    srv, dyn)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
             servo_side(srv, -1.0)
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + h, srv)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + h, srv, dyn)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
         elif method == M_ROSENBROCK2:
-            rest = h            # one step, or several where it enters a stiff stop (limit_event)
-            splits = 0
-            while rest > 0.0:
-                hs = rest
-                taken = -1.0
-                while taken < 0.0:
-                    taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs,
-                                                splits < MAX_SPLITS, W, K, Y, acc, tauv, vec, mat, cpl, cs, red,
-                                                con, fx, cj, t + (h - rest), srv)
+            if ros is None:
+                z[nq] = math.nan   # called without the implicit step's work arrays: a failed step
+            else:
+                rest = h            # one step, or several where it enters a stiff stop (limit_event)
+                splits = 0
+                while rest > 0.0:
+                    hs = rest
+                    taken = -1.0
+                    while taken < 0.0:
+                        taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs,
+                                                    splits < MAX_SPLITS, W, K, Y, acc, tauv, ros[0], ros[1], cpl, cs,
+                                                    ros[2], con, fx, ros[3], t + (h - rest), srv,
+                                                    dyn)
+                        if taken == -math.inf:
+                            break
+                        if taken < 0.0:
+                            hs = -taken
+                            splits += 1
                     if taken == -math.inf:
+                        z[nq] = math.nan   # the iteration matrix was not positive definite: a failed step
                         break
-                    if taken < 0.0:
-                        hs = -taken
-                        splits += 1
-                if taken == -math.inf:
-                    z[nq] = math.nan   # the iteration matrix was not positive definite: a failed step
-                    break
-                rest = 0.0 if hs >= rest else rest - hs
+                    rest = 0.0 if hs >= rest else rest - hs
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv, dyn)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv, dyn)
             for a in range(n):
                 z[a] += K[a] * h
         servo_side(srv, 0.0)
@@ -322,25 +331,8 @@ def limit_event(lim, q, v, h, qs, H):
 
 
 @njit(**_JIT)
-def arm_bias_mass(mi, mf, q, v, zero, bias, H, G, W):
-    """``bias (nv,) = C(q, v) + g(q)`` (:func:`rnea_ws` at zero acceleration), ``H (nv, nv) = M(q)``
-    (:func:`crba_ws`) and the gravity stiffness ``G (nv, nv) = ∂g/∂q``
-    (:func:`~robodyn_ros.kernels.tree.gravity_stiffness_ws`, from the CRBA's composite inertias) at one
-    transform pass; zero (nv,) zeros. The generated modules (:mod:`robodyn_ros.kernels.codegen`) have
-    their own, specialised to the model."""
-    transforms(mi, mf, q, W)
-    rnea_ws(mi, mf, q, v, zero, W, False, bias, W)
-    nv = H.shape[0]
-    for a in range(nv):
-        for b in range(nv):
-            H[a, b] = 0.0
-    crba_ws(mi, mf, H, W)
-    gravity_stiffness_ws(mi, mf, W, G)
-
-
-@njit(**_JIT)
 def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W):
-    """:func:`arm_bias_mass` on a ground (con: :func:`arm_rhs`): ``bias = C + g − τ_c`` with the contacts'
+    """The bias/mass pass (:func:`.treefn.generic_bm`) on a ground (con: :func:`arm_rhs`): ``bias = C + g − τ_c`` with the contacts'
     generalised force ``τ_c = Σ J_iᵀ F_i`` (their body forces fx (nb, 6), :func:`.contact.ground_fext_ws`,
     given to :func:`rnea_ws`), H, G as there, and the contacts' damping and stiffness ``Dc, Kc`` (nv, nv) =
     ``Σ J_iᵀ D_i J_i``, ``Σ J_iᵀ K_i J_i`` (:func:`.contact.contact_jacobian_add`, (C4)-(C5); cj: its
@@ -391,7 +383,7 @@ def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs
     factor, into ``mat = [H (= M, given), D, K, A, L, G (given)]``: D, K from :func:`passive_jacobian`
     (stops at the stage configuration qs too with use_qs), when ``touching`` > 0 points touch a ground the
     contacts' ``D_c, K_c`` (``mat[6], mat[7]``: :func:`contact_bias_mass`, :func:`contact_stage_jacobian`),
-    plus the gravity stiffness G = ∂g/∂q of the 1-DOF joints (:func:`arm_bias_mass`), which is dropped
+    plus the gravity stiffness G = ∂g/∂q of the 1-DOF joints (the bias/mass pass ``bm``), which is dropped
     when A is not positive definite with it (a load above its axis stiff enough to matter at this step),
     and the joint servo's kp, kd on the joints not saturated at the step's start (srv: None, or
     :mod:`.servo`; sat (ns,) their flags, :func:`.servo.servo_jacobian_add`).
@@ -472,6 +464,14 @@ MAX_SPLITS = 16
 ROS_VECTORS, ROS_MATRICES = 13, 9
 
 
+def rosenbrock_work(nv: int, nr: int):
+    """The work arrays ``ros`` of :func:`arm_steps` for the linearly implicit step of a tree with nv
+    velocities, nr of them independent (nv without mimic joints): vectors, matrices, the iteration matrix
+    in the independent joints, a contact point's Jacobian and its columns."""
+    return (np.empty((ROS_VECTORS, nv)), np.empty((ROS_MATRICES, nv, nv)),
+            (np.empty((2, nr, nr)), np.empty((2, nr))), (np.empty((3, nv)), np.empty(nv, dtype=np.int64)))
+
+
 @njit(**_JIT)
 def tangent_rate(mi, simple, q, v, out):
     """:func:`~robodyn_ros.kernels.tree.tangent_rate_into`, or ``out = v`` when ``simple`` (1-DOF joints only)."""
@@ -508,7 +508,7 @@ def retract(mi, simple, q, dq, h, out):
 
 @njit(**_JIT)
 def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, h, split, W, dz, Y, k1, tauv, vec,
-                        mat, cpl, cs, red, con, fx, cj, t, srv):
+                        mat, cpl, cs, red, con, fx, cj, t, srv, dyn):
     """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R6)) of an arm,
     ``z = [q, v, W(, W_lim)]`` in place. Returns h when taken; ``−s`` (z untouched) when the step meets a
     stiff stop it should enter as a shorter step s (with split; :func:`limit_event`: the caller takes s,
@@ -530,7 +530,8 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     scratch). The step starts at time t (s); a joint servo (srv, :mod:`.servo`) is in the residual at t and
     in the stage-2 forces at t + h, its kp, kd in J while not saturated at zₙ, and its time rate ``F_t`` in the
     stages (``+γh F_t`` in stage 1, ``−γh F_t`` in stage 2: ROS2's non-autonomous form). dz, Y, k1 (n,),
-    tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv): work arrays.
+    tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv): work arrays; dyn: the
+    dynamics' addresses (:mod:`.treefn`: the bias/mass pass ``bm`` off the ground, ABA).
     """
     n = z.shape[0]
     q = z[:nq]
@@ -557,7 +558,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         zero[a] = 0.0
     touching = -1
     if con is None:
-        arm_bias_mass(mi, mf, q, v, zero, y, H, mat[5], W)
+        bm_at(dyn[1])(mi, mf, q, v, zero, y, H, mat[5], W)
     else:
         Pc, touching = contact_bias_mass(mi, mf, con, q, v, zero, y, H, mat[5], mat[6], mat[7], fx, cj, W)
         k1[nq + nv] = P + Pc
@@ -596,7 +597,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         for a in range(nq + nv, n):
             Y[a] = z[a] + h * k1[a]
         servo_side(srv, -1.0)   # stage 2 at the step's end
-        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx, t + h, srv)
+        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx, t + h, srv, dyn)
         servo_side(srv, 0.0)
         if con is None or attempt == 2:
             break
@@ -628,27 +629,31 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
 
 @njit(**_JIT)
 def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, method, z, dt, t_start, n_full, h_last,
-                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs, t_end, srv, SVs):
+                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs, t_end, srv, SVs,
+                    cpl, ros, dyn):
     """K publication periods of an arm in one call: per period k the scripted command at its
     start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), clamped to the
-    effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``,
-    :func:`integrate_arm` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
+    effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``
+    (B with no rows: ``τ_app = u``, the per-period path's applied forces as they are),
+    :func:`arm_steps` over its step grid ``(n_full[k], h_last[k])``, then the outputs at its end:
     ``Zs[k] = z``, ``Us[k] = u`` (as commanded), ``TAUs[k] = τ_app`` and, with want_f, the joint
     wrenches ``Fs[k]`` (:func:`joint_wrenches` under ``τ = B u − D v − F tanh(v/v_s) + τ_lim``,
     :func:`arm_forces`, and on a ground the contacts' forces on their own links,
     :func:`.contact.point_body_forces`) -- the numbers the Simulator's per-period path computes with
     the same functions. con: None, or the ground contacts (:func:`arm_rhs`; z then ends with W_c), with
     cpo = ``(body_of, link_of)`` (each point's body of the full tree and its link's row in Cs) and the
-    links' contact wrenches ``Cs[k]`` (nl, 6) (:func:`.contact.link_wrenches`). srv: None, or a joint
-    servo (:mod:`.servo`) held over the K periods (its setpoint program fixed), whose torques at each
-    period's end ``t_end[k]`` join ``TAUs[k]`` (its joints take no B u) and the wrenches' τ, with its
-    desired values in ``SVs[k]`` (ns, 6) (:func:`.servo.servo_state`).
+    links' contact wrenches ``Cs[k]`` (nl, 6) (:func:`.contact.link_wrenches`; Cs with no links: not
+    computed). srv: None, or a joint servo (:mod:`.servo`) held over the K periods (its setpoint program
+    fixed), evaluated at each stage; with SVs (K, ns, 6) (SVs with no rows: not computed) its torques at each
+    period's end ``t_end[k]`` join ``TAUs[k]`` (its joints take no B u) and the wrenches' τ, with its desired
+    values in ``SVs[k]`` (:func:`.servo.servo_state`). cpl: None, or the mimic coupling (:func:`arm_rhs`; the block path declines such trees, the
+    per-period path runs them here); ros, dyn: see :func:`arm_steps`.
 
     z: ``[q, v, W(, W_lim)(, W_c)]`` in place; u (n,) the command held before period 0. Returns
-    ``(k, code)``: code 0 after all K periods; 1: the command of period k is non-finite (not
+    ``(k, code, step)``: code 0 after all K periods; 1: the command of period k is non-finite (not
     applied: u and z are those of the end of period k − 1); 2: the state became non-finite in
-    period k (z as the failed integration left it; ``Zs[k − 1]`` is the end of period k − 1).
-    The caller redoes period k on the per-period path, which raises with the diagnosis.
+    step ``step`` of period k (z as the failed integration left it; ``Zs[k − 1]`` is the end of period
+    k − 1). The block path redoes period k on the per-period path, which raises with the diagnosis.
     """
     K = t_start.shape[0]
     nv = damping.shape[0]
@@ -671,42 +676,46 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
             command_eval(kind, P, times, values, BT, Bq, z[:nq], z[nq:nq + nv], g, t_start[k], un)
             for i in range(nu):
                 if not math.isfinite(un[i]):
-                    return k, 1
+                    return k, 1, -1
             for i in range(nu):
                 u[i] = un[i]
         for i in range(nu):
             ua[i] = (ulim[i] if u[i] > 0.0 else -ulim[i]) if abs(u[i]) > ulim[i] else u[i]
-        for r in range(nv):
-            acc = 0.0
-            for i in range(nu):
-                acc += B[r, i] * ua[i]
-            tau_app[r] = acc
-        # (the block path declines trees with mimic joints: ArmSystem.fused_periods)
-        if integrate_arm(mi_r, mf_r, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full[k],
-                         h_last[k], None, con, t_start[k], srv) >= 0:
-            return k, 2
+        if B.shape[0] == 0:
+            for r in range(nv):
+                tau_app[r] = ua[r]
+        else:
+            for r in range(nv):
+                acc = 0.0
+                for i in range(nu):
+                    acc += B[r, i] * ua[i]
+                tau_app[r] = acc
+        step = arm_steps(mi_r, mf_r, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full[k], h_last[k],
+                         cpl, con, t_start[k], srv, ros, dyn)
+        if step >= 0:
+            return k, 2, step
         for a in range(n):
             Zs[k, a] = z[a]
         for i in range(nu):
             Us[k, i] = u[i]
         for r in range(nv):
             TAUs[k, r] = tau_app[r]
-        if srv is not None:   # the servo's torques at the period's end: the effort its joints publish
+        if srv is not None and SVs.shape[1] > 0:   # the servo's torques at the period's end: its joints' effort
             servo_state(mi_r, mf_r, damping, friction, v_s, srv, t_end[k], z[:nq], z[nq:nq + nv], Wr, SVs[k])
             for j in range(srv[0].shape[0]):
                 TAUs[k, srv[0][j, 0]] += SVs[k, j, 4]
-        if con is not None:   # the contacts at the period's end: per link, and (for the joint wrenches) per body
+        if con is not None and Cs.shape[1] > 0:   # the contacts at the period's end: per link, and per body
             Pc = contact_points(con, mi_r, mf_r, z[:nq], z[nq:nq + nv])
             link_wrenches(con[0], Pc, cpo[1], Cs[k])
             if want_f:
                 point_body_forces(mi, mf, z[:nq], Pc, cpo[0], zf)
         if want_f:
             arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:nw], dz, tauv)
-            if srv is not None:
+            if srv is not None and SVs.shape[1] > 0:
                 for j in range(srv[0].shape[0]):
                     tauv[srv[0][j, 0]] += SVs[k, j, 4]
             _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, con is not None)
             for b in range(f.shape[0]):
                 for c in range(6):
                     Fs[k, b, c] = f[b, c]
-    return K, 0
+    return K, 0, -1

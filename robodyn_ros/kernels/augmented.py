@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .linalg import NINFO, OK, cross, flag, kkt_solve, quat_to_R
 from .tree import _JIT

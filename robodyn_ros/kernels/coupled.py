@@ -25,7 +25,7 @@ their coupling, robots without one never enter this module.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .linalg import chol_solve, cholesky
 from .tree import _JIT, P_, crba_ws, rnea_ws, transforms, workspace

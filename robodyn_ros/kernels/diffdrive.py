@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .frames import frames_ws
 from .linalg import NINFO, OK, flag, kkt_solve, project_velocities

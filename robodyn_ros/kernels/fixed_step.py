@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .augmented import au_config_rate, au_evaluate, au_project
 from .diffdrive import dd_evaluate, dd_project, dd_rosenbrock_step

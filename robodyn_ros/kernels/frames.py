@@ -6,7 +6,7 @@ the centre of mass of ``systems.freeflyer.momentum_about_com``, on the packed tr
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL
 from .linalg import cross

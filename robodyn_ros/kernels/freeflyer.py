@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .linalg import NINFO, OK, cross, flag, kkt_solve, project_velocities, quat_to_R
 from .tree import _JIT, aba_fext_into, crba_into, crba_ws, normalize_into, qdot_into, rnea_ws, transforms, workspace

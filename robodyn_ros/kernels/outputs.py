@@ -8,7 +8,7 @@ Python calls.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from . import tree
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from ..model import PRISMATIC, REVOLUTE
 from .frames import body_frames, joint_motion_vector, xmot_vector

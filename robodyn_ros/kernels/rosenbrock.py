@@ -79,7 +79,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from .jit import njit
 
 from .linalg import chol_solve, cholesky
 from .tree import _JIT

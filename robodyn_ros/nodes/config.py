@@ -53,9 +53,9 @@ PARAMETERS = {
                               "position or velocity commands for every actuated joint; '' = effort"),
     'sensors': ('', "a URDF robot: its sensors as a YAML list (as a scene's sensors key), e.g. "
                     "'[{kind: imu, link: base_link}]'; '' = none"),
-    'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else numba "
-                    '(generic, compiled once per install); generated = specialised per model, compiled '
-                    'once per model and cached'),
+    'backend': ('', "dynamics kernels: numpy, numba, generated or auto; '' = $ROBODYN_BACKEND, else auto "
+                    "(the generic compiled kernels, then the model's own code once a background process has "
+                    'compiled it, the same bytes); numba = generic only; generated = the model\'s own from the start'),
     'foxglove_port': (0, 'serve the run live on a Foxglove WebSocket at this TCP port (0 = off); clients see '
                          'every recorded topic and may publish commands, call reset and pause, set rate_factor'),
     'foxglove_host': ('127.0.0.1', 'address the Foxglove WebSocket serves on (127.0.0.1: this machine only)'),
@@ -108,11 +108,12 @@ class Config:
 
     def settings(self, namespace: str) -> dict:
         """The run settings recorded in the MCAP metadata (what ``robodyn resim`` rebuilds from)."""
+        from ..systems.base import recorded_backend
         st = {'integrator': self.integrator, 'dt': self.dt, 'rtol': self.rtol, 'atol': self.atol,
               'rate': self.publish_rate, 'duration': self.duration, 'mode': self.mode,
               'rate_factor': self.rate_factor, 'command_timeout': self.command_timeout,
               'scripted_commands': self.scripted_commands, 'namespace': namespace,
-              'y0': [float(x) for x in self.y0], 'backend': self.backend,
+              'y0': [float(x) for x in self.y0], 'backend': recorded_backend(self.backend),
               **({'auto': self.auto} if self.auto else {})}
         if self.step_budget is not None:   # (only when given: other recordings keep their bytes)
             st['step_budget'] = self.step_budget

@@ -728,7 +728,9 @@ def main(args=None) -> int:
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
+    from ..kernels import jit
     from ..scene import SceneError
+    jit.set_mode('interpret')   # a cold cache: run the kernels as Python while a child compiles them
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # warnings (a URDF read leniently, a marginal step) as one log line each; the default filter
     # prints each once

@@ -56,10 +56,13 @@ class ArmSystem(System):
     model: the kinematic tree; actuated: names of the driven joints (default: every 1-DOF
     joint); the others are passive (zero effort) but still damped by the model's damping.
     backend: ``'numpy'`` (the reference kernels of :mod:`robodyn_ros.dynamics`), ``'numba'``
-    (the compiled :mod:`robodyn_ros.kernels`, equal to 1e-12, plus :meth:`fused_advance`) or
-    ``'generated'`` (as numba, with forward dynamics and the fused loop generated for this
-    model by :mod:`robodyn_ros.kernels.codegen`: a few seconds on first use of a model, cached
-    on disk; trees with FREE joints stay generic); default :func:`default_backend`.
+    (the compiled :mod:`robodyn_ros.kernels`, equal to 1e-12, plus :meth:`fused_advance`),
+    ``'generated'`` (as numba, the fused loop calling this model's own forward dynamics and bias/mass
+    pass, :mod:`robodyn_ros.kernels.codegen`: the same operations, compiled before the first step, a few
+    seconds on first use of a model, cached on disk; trees with free, spherical or mimic joints and trees on
+    a ground stay generic) or ``'auto'`` (numba, taking up the generated code once a child process has
+    compiled it: ``kernels.GENERATE_AFTER``); default :func:`default_backend`. The recordings of the last
+    three are the same bytes.
     """
 
     #: the block path (fused_periods) clamps commands to the effort limits as the Simulator does
@@ -79,7 +82,8 @@ class ArmSystem(System):
                              "backend 'numpy' cannot simulate this model (use 'numba' or 'generated')")
         self._lim = lim
         self.backend = backend
-        self._km = kernels.CompiledModel(model, specialize=backend == 'generated') if backend != 'numpy' else None
+        self._km = kernels.CompiledModel(model, specialize={'generated': True, 'auto': 'auto'}.get(backend, False)) \
+            if backend != 'numpy' else None
         self._grids = {}
         # a subclass that changes the dynamics keeps the reference path (see fused_advance)
         self._fused_class_ok = all(getattr(type(self), n) is getattr(ArmSystem, n) for n in _FUSED_METHODS_OF)
@@ -208,7 +212,8 @@ class ArmSystem(System):
                              '(lock the mimic joints)')
         self.contact = contact
         self._km.con = contact.con
-        self._km.gen = None
+        self._km.cpo = contact.point_rows
+        self._km.no_generated()
         self._grids = {}
 
     def split(self, y):
@@ -485,7 +490,8 @@ class ArmSystem(System):
         return z, IntegratorStats.of_fused_steps(integrator_name, n_steps)
 
     def fused_periods(self, integrator_name, dt, z, t_start, t_end, u, program=None, wrenches=False):
-        """Run K publication periods in one compiled call (``kernels.arm.run_arm_periods``), or None to decline.
+        """Run K publication periods in one compiled call (``kernels.arm.run_arm_periods`` through
+        ``CompiledModel.run_periods``), or None to decline.
 
         The block path of :func:`robodyn_ros.simulation.run_headless`: per period the scripted
         command at its start (program: a compiled command profile ``(kind, P, times, values, BT,
@@ -508,17 +514,11 @@ class ArmSystem(System):
                 or self.servo is not None or self.sensors is not None \
                 or self._coupled or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
-        from ..kernels import arm as karm
-        from ..kernels import profiles as kprofiles
         grid = self._grids.get(dt)
         if grid is None:
             grid = self._grids[dt] = make_integrator('rk4', dt=dt)
         K = len(t_start)
         n_full, h_last = grid.step_grids(t_start, t_end)
-        if program is None:
-            e = np.zeros((0, 0))
-            program = (kprofiles.CMD_NONE, e, np.zeros(0), e, e, e)
-        kind, P, times, values, BT, Bq = program
         nb = self.model.nb
         Zs = np.empty((K, z.shape[0]))
         Us = np.empty((K, u.shape[0]))
@@ -528,13 +528,9 @@ class ArmSystem(System):
         Cs = np.empty((K, len(c.links) if c is not None else 0, 6))
         lim = self.inputs['effort'].limit
         ulim = np.full(u.shape[0], np.inf) if lim is None else np.asarray(lim, dtype=float)
-        km = self._km
-        run = karm.run_arm_periods if km.gen is None else km.gen.run_arm_periods
-        k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.friction, km.v_s, km.lim, self._B, self.nq,
-                      kernels.FUSED_METHODS[integrator_name], z, float(dt), np.ascontiguousarray(t_start, dtype=float),
-                      n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches), ulim,
-                      None if c is None else c.con, None if c is None else c.point_rows, Cs,
-                      np.ascontiguousarray(t_end, dtype=float), None, np.zeros((K, 0, 6)))
+        k, code, _ = self._km.run_periods(integrator_name, self._B, z, dt, np.ascontiguousarray(t_start, dtype=float),
+                                          n_full, h_last, program, u, Zs, Us, TAUs, Fs, wrenches, ulim, Cs,
+                                          np.ascontiguousarray(t_end, dtype=float))
         steps = n_full + (h_last > 0.0)
         more = {'odom': None, 'contacts': Cs if c is not None else None}
         if self._simple:

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-BACKENDS = ('numpy', 'numba', 'generated')
+BACKENDS = ('numpy', 'numba', 'generated', 'auto')
 
 
 def default_backend() -> str:
@@ -23,12 +23,13 @@ def default_backend() -> str:
 
 
 #: backend of ``robodyn run``, the sim node and sweeps when neither their option nor
-#: ``ROBODYN_BACKEND`` chooses one: the generic compiled kernels, compiled once per install (and
-#: cached on disk) for every robot, so a new robot starts without compiling. ``'generated'``
-#: (:mod:`robodyn_ros.kernels.codegen`: arm code specialised per model, 2-4x faster per step)
-#: is on request: its compilation per model (3 s for a 6-DOF arm, 20-40 s for 30-45 DOF) is
-#: repaid only after many simulated minutes (figures: ``robodyn bench startup``).
-TOOLS_BACKEND = 'numba'
+#: ``ROBODYN_BACKEND`` chooses one: an arm starts on the generic compiled kernels (compiled once per
+#: install, cached on disk, for every robot: a new robot starts without compiling) and takes up its
+#: own generated code (:mod:`robodyn_ros.kernels.codegen`: the same operations without the generic
+#: loops, 2-3x faster per call) once a child process has compiled it, which it starts after
+#: ``kernels.GENERATE_AFTER`` seconds of integration; the bytes of a run do not depend on when.
+#: Other systems take 'auto' as 'numba'.
+TOOLS_BACKEND = 'auto'
 
 
 def tools_backend(requested=None) -> str:
@@ -40,6 +41,13 @@ def tools_backend(requested=None) -> str:
     if name not in BACKENDS:
         raise ValueError(f'unknown backend {name!r}; valid: {", ".join(BACKENDS)}')
     return name
+
+
+def recorded_backend(name: str) -> str:
+    """The backend a recording's settings name (what ``robodyn resim`` rebuilds on): ``'numpy'`` for the
+    reference, ``'numba'`` for every compiled backend (numba, generated and auto compute the same bits,
+    so a recording does not depend on which ran)."""
+    return 'numpy' if name == 'numpy' else 'numba'
 
 
 class backend_scope:

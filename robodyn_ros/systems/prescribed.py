@@ -292,7 +292,7 @@ class PrescribedPathSystem(ArmSystem):
         from .base import resolve_backend
         backend = resolve_backend(backend)
         # the constrained solve runs on kernels.prescribed: nothing to specialise
-        super().__init__(model, actuated=list(actuated), backend='numba' if backend == 'generated' else backend)
+        super().__init__(model, actuated=list(actuated), backend='numba' if backend in ('generated', 'auto') else backend)
         if not self.actuated:
             self.inputs = {}
         else:

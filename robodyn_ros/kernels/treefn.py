@@ -1,0 +1,187 @@
+"""The tree dynamics an arm's compiled loop calls, as C function pointers: one compiled loop for every
+implementation of them.
+
+:mod:`robodyn_ros.kernels.arm`'s loops reach the forward dynamics and the bias/mass pass of the linearly
+implicit step through two function addresses, ``dyn = (fd, bm)`` (int64), instead of calling
+:func:`~robodyn_ros.kernels.tree.aba_ws` and its kin directly. Two implementations stand behind them, with
+the same floating-point operations in the same order:
+
+* the generic ones, :func:`generic_fd` and :func:`generic_bm` on the packed model (``mi, mf``), compiled
+  once per install (:func:`generic_pointers`);
+* a model's generated ones (:mod:`robodyn_ros.kernels.codegen`): these two functions traced on that
+  model, straight-line code with its constants in place.
+
+So the loop is compiled once whichever runs (a model's own code costs only its two functions), a run can
+change from one to the other between two calls of the loop, and its results do not change by a bit.
+
+Signatures (every array C-contiguous float64, mi int64)::
+
+    fd(mi (nb, 5), mf (nb + 1, NF), q (nq,), v (nv,), tau (nv,), qdd (nv,) out, W (nb + 1, NW) work)
+    bm(mi, mf, q (nq,), v (nv,), zero (nv,) zeros, bias (nv,) out, H (nv, nv) out, G (nv, nv) out, W work)
+
+``fd``: ``qdd = ABA(q, v, tau)`` (book Table 7.1) with every body's ``Xup`` formed first (:func:`generic_fd`);
+``bm``: ``bias = C(q, v) + g(q)``, ``H = M(q)``, ``G = ∂g/∂q`` (:func:`generic_bm`). W holds nothing the
+caller reads afterwards. Inside compiled code :func:`fd_at` and :func:`bm_at` turn an address into a
+callable; Python passes ``cfunc.address`` (a plain int: no per-call unboxing of function objects).
+
+Interpreted (:mod:`.jit`, a cold cache), ``fd_at`` and ``bm_at`` look the address up in :data:`PYTHON`:
+each cfunc's Python source under its address, and Python-only implementations under negative "addresses"
+(:data:`GENERIC_TOKENS`, a model's traced code before it is compiled), which only interpreted code is given
+(:func:`call`).
+"""
+from __future__ import annotations
+
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from . import jit
+from .jit import njit
+from .tree import _JIT, aba_ws, crba_ws, gravity_stiffness_ws, rnea_ws, transforms, workspace
+
+_F1 = types.float64[::1]
+_F2 = types.float64[:, ::1]
+_I2 = types.int64[:, ::1]
+#: ``fd(mi, mf, q, v, tau, qdd, W)``
+FD_SIG = types.void(_I2, _F2, _F1, _F1, _F1, _F1, _F2)
+#: ``bm(mi, mf, q, v, zero, bias, H, G, W)``
+BM_SIG = types.void(_I2, _F2, _F1, _F1, _F1, _F1, _F2, _F2, _F2)
+FD_TYPE = types.FunctionType(FD_SIG)
+BM_TYPE = types.FunctionType(BM_SIG)
+#: options of every cfunc behind an address (generic and generated): numba's numpy error model, as the kernels
+CFUNC_OPTIONS = dict(cache=True, error_model='numpy')
+
+
+def generic_fd(mi, mf, q, v, tau, qdd, W):
+    """``qdd (nv,) = ABA(q, v, tau)`` on the packed model: every ``Xup`` (:func:`~robodyn_ros.kernels.tree.transforms`),
+    then :func:`~robodyn_ros.kernels.tree.aba_ws` without external forces. What a generated ``fd`` computes."""
+    transforms(mi, mf, q, W)
+    aba_ws(mi, mf, q, v, tau, W, False, qdd, W)
+
+
+def generic_bm(mi, mf, q, v, zero, bias, H, G, W):
+    """``bias (nv,) = C(q, v) + g(q)`` (:func:`~robodyn_ros.kernels.tree.rnea_ws` at zero acceleration),
+    ``H (nv, nv) = M(q)`` (:func:`~robodyn_ros.kernels.tree.crba_ws`) and the gravity stiffness
+    ``G (nv, nv) = ∂g/∂q`` (:func:`~robodyn_ros.kernels.tree.gravity_stiffness_ws`, from the CRBA's
+    composite inertias) at one transform pass; zero (nv,): zeros. What a generated ``bm`` computes."""
+    transforms(mi, mf, q, W)
+    rnea_ws(mi, mf, q, v, zero, W, False, bias, W)
+    nv = H.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            H[a, b] = 0.0
+    crba_ws(mi, mf, H, W)
+    gravity_stiffness_ws(mi, mf, W, G)
+
+
+def _function_at(ftype, context, builder, addr):
+    """The first-class function value of type ``ftype`` at the C address addr (an LLVM int64)."""
+    f = cgutils.create_struct_proxy(ftype)(context, builder)
+    vp = context.get_value_type(types.voidptr)
+    f.c_addr = builder.inttoptr(addr, vp)
+    f.py_addr = cgutils.get_null_value(vp)   # never called back through Python
+    f.jit_addr = cgutils.get_null_value(vp)  # called through the C wrapper at c_addr
+    return f._getvalue()
+
+
+@intrinsic
+def fd_at(typingctx, addr):
+    """``fd_at(addr)``: the ``fd`` at that address (int64), callable in compiled code."""
+    if isinstance(addr, types.Integer):
+        return FD_TYPE(addr), lambda context, builder, sig, args: _function_at(FD_TYPE, context, builder, args[0])
+    return None
+
+
+@intrinsic
+def bm_at(typingctx, addr):
+    """``bm_at(addr)``: the ``bm`` at that address (int64), callable in compiled code."""
+    if isinstance(addr, types.Integer):
+        return BM_TYPE(addr), lambda context, builder, sig, args: _function_at(BM_TYPE, context, builder, args[0])
+    return None
+
+
+@njit(**_JIT)
+def call_fd(fd, mi, mf, q, v, tau, qdd):
+    """``qdd (nv,) = fd(q, v, tau)`` for a call from Python: the fd at address fd, with its own work array."""
+    fd_at(fd)(mi, mf, q, v, tau, qdd, workspace(mi.shape[0]))
+
+
+_GENERIC: list = []
+_GENERIC_MISS = [None]   # the compiler generation at which the cache last lacked the generic cfuncs
+
+
+def generic_pointers(block: bool = True):
+    """``(fd, bm)``: the generic implementations as numba cfuncs, their ``.address`` what the loops take;
+    compiled, or loaded from the kernels' cache, on first use. ``block=False`` (interpreting, :mod:`.jit`):
+    None when the cache lacks them, and the compiler child is asked for them."""
+    if not _GENERIC:
+        if jit.MODE == 'python' and not block:
+            return None
+        if not block:
+            if _GENERIC_MISS[0] == jit.COMPILER.generation:
+                jit.COMPILER.poll()
+                if _GENERIC_MISS[0] == jit.COMPILER.generation:
+                    return None
+            if not cached((generic_fd, FD_SIG), (generic_bm, BM_SIG)):
+                _GENERIC_MISS[0] = jit.COMPILER.generation
+                jit.COMPILER.request(('call', __name__, 'generic_pointers'))
+                return None
+        from numba import cfunc
+        fd, bm = cfunc(FD_SIG, **CFUNC_OPTIONS)(generic_fd), cfunc(BM_SIG, **CFUNC_OPTIONS)(generic_bm)
+        register(fd.address, generic_fd)
+        register(bm.address, generic_bm)
+        _GENERIC.extend((fd, bm))
+    return tuple(_GENERIC)
+
+
+def cached(*funcs) -> bool:
+    """True when the kernels' cache holds machine code of every ``(python function, cfunc signature)``."""
+    from numba.core.caching import FunctionCache
+    from numba.core.registry import cpu_target
+    return all(FunctionCache(f).load_overload(sig, cpu_target.target_context) is not None for f, sig in funcs)
+
+
+#: ``{address: Python function}`` behind the addresses an interpreted loop may be given (:func:`register`)
+PYTHON: dict = {}
+#: the generic fd and bm as Python, for interpreted code before their cfuncs exist
+GENERIC_TOKENS = (-1, -2)
+_NEXT_TOKEN = [-3]
+
+
+def register(address: int, func) -> int:
+    """Put ``func`` (a plain function of the fd or bm signature) behind ``address`` (its cfunc's, or None for a
+    new negative token) for interpreted code; returns the address."""
+    if address is None:
+        address = _NEXT_TOKEN[0]
+        _NEXT_TOKEN[0] -= 1
+    PYTHON[address] = jit.python_kernel(func)
+    return address
+
+
+def python_function(address):
+    """The Python function behind an address (``fd_at`` / ``bm_at`` in interpreted code)."""
+    f = PYTHON.get(address)
+    if f is None and address in GENERIC_TOKENS:
+        f = PYTHON[address] = jit.python_kernel(generic_fd if address == GENERIC_TOKENS[0] else generic_bm)
+    return f
+
+
+jit.PY_OVERRIDES.update(fd_at=python_function, bm_at=python_function)
+
+
+def call(d, args: list, dyn_index: int, tokens: bool):
+    """Kernel d on args whose entry ``dyn_index`` is a dynamics address (or ``(fd, bm)`` addresses): as any
+    kernel (compiled, or interpreted on a miss) when they are cfuncs' addresses; with ``tokens`` (Python-only
+    implementations, :func:`register`) always interpreted, for compiled code cannot call them. Where the
+    interpreter raises (a failing state: :func:`.jit.run_interpreted`) it is run compiled on the generic
+    cfuncs."""
+    if not tokens:
+        return d(*args)
+    jit.request_compiled(d, args)   # (tokens type as addresses: the child compiles what the next call takes)
+
+    def compiled():
+        fd, bm = generic_pointers()
+        real = list(args)
+        real[dyn_index] = fd.address if isinstance(args[dyn_index], int) else (fd.address, bm.address)
+        return d(*real)
+    return jit.run_interpreted(d, None, args, fallback=compiled)

@@ -1,0 +1,158 @@
+"""A cold kernel cache: the kernels run as Python (kernels.jit, mode 'interpret'/'python') with the compiled
+code's bits, while a child process compiles them for the next call.
+
+The claim is equality of arithmetic: every bundled scene (and the URDF variants robodyn warm runs: friction
+and effort limits, a mimic joint, stiff damping under rosenbrock2) is recorded by a process that runs every
+kernel as Python (mode 'python', an empty cache) and by one that runs the compiled kernels: the same file.
+The compiled kernels themselves are checked against independent references elsewhere.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robodyn_ros import kernels
+from robodyn_ros.kernels import jit
+from robodyn_ros.scene import list_scenes
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+
+#: simulated seconds per scene: enough for several diagnostics periods and a block of periods (the
+#: recorder's layouts, the block path), short where the interpreter is slow (54 DOF at 50 µs steps)
+DURATION = {'huston_human17': 0.05, 'huston_human17_fall': 0.01, 'solo12_drop': 0.02, 'a1_stand': 0.1,
+            'mobile_manipulator': 0.1, 'unfried_free_flyer': 0.1}
+
+
+def _env(mode, cache):
+    """The environment of a child: cold-start mode, and an own kernel cache (None: the package's)."""
+    env = dict(os.environ, ROBODYN_COLD_START=mode)
+    if cache is not None:
+        env.update(NUMBA_CACHE_DIR=str(cache), ROBODYN_GENERATED_DIR=str(Path(cache) / 'generated'))
+    env['PYTHONPATH'] = str(ROOT) + (os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
+    return env
+
+
+def _run(scene, out, mode, cache, duration, extra=()):
+    cmd = [PY, '-m', 'robodyn_ros.cli', 'run', scene, '--duration', str(duration), '--record', str(out),
+           '--overwrite', *extra]
+    return subprocess.run(cmd, env=_env(mode, cache), capture_output=True, text=True, timeout=1800)
+
+
+def _urdf_variants(tmp_path):
+    """robodyn warm's URDF robots (stanford_arm's arm as URDF: friction and effort limits, a mimic joint,
+    stiff damping), written here."""
+    from robodyn_ros.cli.warm import _scene_runs
+    return [(label, load) for label, load in _scene_runs(str(tmp_path)) if label.startswith('stanford_arm as URDF')]
+
+
+SCENES = [n for n, _ in list_scenes()]
+
+
+def test_every_bundled_scene_is_covered():
+    assert len(SCENES) >= 17 and {'a1_stand', 'huston_human17_fall', 'unfried_free_flyer'} <= set(SCENES)
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize('scene', SCENES)
+def test_interpreted_kernels_record_the_compiled_bytes(tmp_path, scene):
+    """robodyn run SCENE --record, once with every kernel interpreted (an empty cache, nothing compiled) and
+    once on the compiled kernels: the same file."""
+    d = DURATION.get(scene, 0.2)
+    a = _run(scene, tmp_path / 'python.mcap', 'python', tmp_path / 'empty', d)
+    b = _run(scene, tmp_path / 'compiled.mcap', 'compile', None, d)
+    assert a.returncode == 0, a.stderr[-2000:]
+    assert b.returncode == 0, b.stderr[-2000:]
+    assert not (tmp_path / 'empty').exists() or not list((tmp_path / 'empty').rglob('*.nbc'))   # nothing compiled
+    pa, pb = (tmp_path / 'python.mcap').read_bytes(), (tmp_path / 'compiled.mcap').read_bytes()
+    assert len(pa) > 1000 and pa == pb
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize('variant', ['friction', 'mimic', 'damped'])
+def test_interpreted_urdf_robots_record_the_compiled_bytes(tmp_path, variant):
+    """The URDF paths robodyn warm covers (Coulomb friction and effort limits, the coupled dynamics of a
+    mimic joint, rosenbrock2 on stiff damping), interpreted and compiled: the same file."""
+    label = f'stanford_arm as URDF, {variant}'
+    load = dict(_urdf_variants(tmp_path))[label]
+    load()   # writes the URDF file
+    urdf = tmp_path / f'robot_{variant}.urdf'
+    assert urdf.exists()
+    a = _run(str(urdf), tmp_path / 'python.mcap', 'python', tmp_path / 'empty', 0.2)
+    b = _run(str(urdf), tmp_path / 'compiled.mcap', 'compile', None, 0.2)
+    assert a.returncode == 0 and b.returncode == 0, a.stderr[-2000:] + b.stderr[-2000:]
+    assert (tmp_path / 'python.mcap').read_bytes() == (tmp_path / 'compiled.mcap').read_bytes()
+
+
+_COLD_THEN_WAIT = r'''
+import sys
+from robodyn_ros.kernels import jit
+from robodyn_ros.cli import main
+status = main(sys.argv[1:])
+print('requested', len(jit.COMPILER.sent))
+jit.COMPILER.wait()   # the child's compile done before the next process looks
+sys.exit(status)
+'''
+
+_LOADS = r'''
+import sys
+from robodyn_ros.kernels import jit, cache
+from robodyn_ros.cli import main
+status = main(sys.argv[1:])
+print('requested', len(jit.COMPILER.sent), 'compiled', len(cache.compiled_here()))
+sys.exit(status)
+'''
+
+
+@pytest.mark.processes
+def test_a_cold_run_has_a_child_compile_what_the_next_run_loads(tmp_path):
+    """On an empty cache robodyn run interprets and asks a child for the machine code; once the child is done,
+    the same run in a new process neither interprets nor compiles anything, and records the same bytes."""
+    args = ['run', 'betancur_pendulum', '--duration', '0.2', '--record']
+    env = _env('interpret', tmp_path / 'cache')
+    env.pop('ROBODYN_COLD_START')   # robodyn run sets 'interpret' itself
+    a = subprocess.run([PY, '-c', _COLD_THEN_WAIT, *args, str(tmp_path / 'a.mcap')], env=env, capture_output=True,
+                       text=True, timeout=1800)
+    assert a.returncode == 0, a.stderr[-2000:]
+    assert int(a.stdout.split('requested')[1].split()[0]) >= 5
+    b = subprocess.run([PY, '-c', _LOADS, *args, str(tmp_path / 'b.mcap')], env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert b.returncode == 0, b.stderr[-2000:]
+    assert 'requested 0 compiled 0' in b.stdout, b.stdout
+    assert (tmp_path / 'a.mcap').read_bytes() == (tmp_path / 'b.mcap').read_bytes()
+
+
+def test_where_python_raises_the_call_is_compiled_and_gives_the_compiled_result(monkeypatch):
+    """math.cos(inf) raises in Python and is nan in compiled code: an interpreted call on such a state puts
+    its arrays back, runs compiled and returns the compiled result (nan where the compiled kernel has nan)."""
+    from robodyn_ros.kernels import tree
+    from robodyn_ros.scene import load_scene
+    model = load_scene('betancur_pendulum').system.model
+    mi, mf = kernels.pack_model(model, merge=True)
+    q = np.full(model.nq, np.inf)
+    v = np.zeros(model.nv)
+    ref = np.empty(model.nv)
+    tree.aba_into(mi, mf, q, v, v, ref)          # compiled (the cache is warm)
+    d = tree.aba_into
+    sig = tuple(d.typeof_pyval(a) for a in (mi, mf, q, v, v, ref))
+    with pytest.raises(ValueError):   # what the interpreter alone does
+        jit.interpreted(d)(mi, mf, q, v, v, np.empty(model.nv))
+    out = np.zeros(model.nv)
+    jit.run_interpreted(d, sig, (mi, mf, q, v, v, out))
+    assert np.array_equal(np.isnan(out), np.isnan(ref)) and np.isnan(out).any()
+
+
+def test_interpreted_calls_use_the_python_source_of_every_kernel_they_reach():
+    """python_kernel rebinds a kernel's callees to their Python source: the interpreted RNEA calls no
+    dispatcher (a compiled callee would compile or load on a cold cache, in the foreground)."""
+    from numba.core.dispatcher import Dispatcher
+    from robodyn_ros.kernels import tree
+    f = jit.python_kernel(tree.rnea_into)
+    ns = f.__globals__
+    assert not any(isinstance(ns[name], Dispatcher) for name in f.__code__.co_names if name in ns)
+    assert ns['rnea_ws'].__code__ is tree.rnea_ws.py_func.__code__
