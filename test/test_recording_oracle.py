@@ -69,6 +69,10 @@ class OracleSink:
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic('/robot_description', M.TOPIC_TYPES['robot_description'], qos='transient_local')
         self.write('robot_description', M.string(embed_meshes(sim.system.urdf())[0]), t_ns)
+        if any(p in sim.system.inputs for p in ('position', 'velocity')):   # the joints of each command topic
+            self.writer.add_topic('/command_joint_names', 'std_msgs/msg/String', qos='transient_local')
+            self.write('command_joint_names', M.string(M.command_joint_names(sim.system)), t_ns,
+                       'std_msgs/msg/String')
         self.weight = None
         if getattr(sim.system, 'contact', None) is not None:
             self.weight = sim.system.model.total_mass() * float(np.linalg.norm(sim.system.model.gravity))
@@ -85,6 +89,9 @@ class OracleSink:
     def on_command(self, t, port, values):
         t_ns = M.to_ns(t)
         topic = M.PORT_TOPICS[port]
+        if port == 'trajectory':   # the JointTrajectory message as it was applied
+            self.write(topic, values, t_ns, 'trajectory_msgs/msg/JointTrajectory')
+            return
         if port == 'base_wrench':  # [fx, fy, fz, tx, ty, tz] -> the spatial force [torque; force]
             msg = M.wrench_stamped(t_ns, 'base_link', np.r_[values[3:6], values[0:3]])
         else:
@@ -166,11 +173,19 @@ def test_every_scene_records_the_oracle_bytes(tmp_path, name, batch):
     # the message-by-message path of the node, HEADLESS_BATCH the vectorised one of robodyn run
     # (one batch here), 7 many batches per run; RK4 at 2 ms, or at the scene's step where it needs a
     # smaller one (a body on the ground: contact is stiff)
+    # smaller one (a body on the ground: contact is stiff); a scene on auto, by auto's choice (xarm7's
+    # stiff joint damping refuses rk4: rosenbrock2 at its step)
+    from robodyn_ros.runs import plan_run
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
-        st = load_scene(name).settings
-    dt = min(2e-3, st['dt']) if st['integrator'] == 'rk4' else 2e-3
-    data = _compare(tmp_path, name, 0.4, batch=batch, chunk_size=3000, diagnostics_period=0.05, dt=dt)
+        scene = load_scene(name)
+        st = scene.settings
+        if st['integrator'] == 'auto':
+            st = plan_run(st, scene.system, scene.y0)[1]
+    integrator = 'rosenbrock2' if st.get('auto') and st['integrator'] == 'rosenbrock2' else 'rk4'
+    dt = min(2e-3, st['dt']) if st['integrator'] == 'rk4' or integrator == 'rosenbrock2' else 2e-3
+    data = _compare(tmp_path, name, 0.4, batch=batch, chunk_size=3000, diagnostics_period=0.05, dt=dt,
+                    integrator=integrator)
     assert len(data) > 5000
 
 
