@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(PY) -m robodyn_ros.bench urdf --out docs/urdf_robots.md
 	$(PY) -m robodyn_ros.bench stiff --out docs/bench_stiff.md
 	$(PY) -m robodyn_ros.bench contact --out docs/bench_contact.md
+	$(PY) -m robodyn_ros.bench contact --steps --out docs/bench_contact_steps.md
 	$(PY) -m robodyn_ros.bench startup --out docs/bench_startup.md
 
 clean:

@@ -11,7 +11,10 @@ The choice (:func:`choose`): among successful runs whose error is at most the to
 with the least CPU time per simulated second (``measurements.cost_key``; ties: fewer rhs
 evaluations per simulated second).
 Only measured settings are offered (no interpolation between ladder points), and the error is
-the measure the benchmark uses (``bench.precision.state_error`` over its horizon).
+the measure the benchmark uses (``bench.precision.state_error`` over its horizon), against a
+reference that cannot take a measured run's steps (``bench.precision.reference``). An error at
+or below that reference's floor is printed as "≤ floor", never as 0, and an error-controlled run
+that took about one step per publication period says so: there rtol did not set its steps.
 """
 from __future__ import annotations
 
@@ -93,10 +96,16 @@ def run_command(scene: str, run) -> str:
     return f'robodyn run {scene} --integrator {run.integrator} --rtol {run.rtol:g} --atol {run.atol:g}'
 
 
-def _describe(r) -> str:
-    err = f'error {r.error:.2g}' + (' (at the reference\'s own accuracy)' if r.error_floor else '')
+def _describe(r, meta: dict) -> str:
+    """One run as advise prints it: setting, error (``≤ floor`` at or below the reference's floor, never
+    0), whether rtol mattered (one step per period: it did not), cost."""
+    floor = (meta.get('reference') or {}).get('error_estimate', 0.0) or 0.0
+    once = r.one_step_per_period(float(meta.get('rate', 100.0)))
     return (f'{r.integrator} {r.setting}' + (f' [{r.formulation}]' if r.formulation else '') +
-            f': {err}, {r.cpu_per_sim_s:.3g} CPU s per simulated s, {r.rhs_per_sim_s:.0f} rhs/s')
+            f': error {r.error_text(floor)}'
+            + (' (about one step per period: the period, not rtol, sets its steps; a tighter rtol may give '
+               'this same run)' if once else '') +
+            f', {r.cpu_per_sim_s:.3g} CPU s per simulated s, {r.rhs_per_sim_s:.0f} rhs/s')
 
 
 def format_advice(adv: Advice, scene_arg: str | None = None) -> str:
@@ -109,22 +118,25 @@ def format_advice(adv: Advice, scene_arg: str | None = None) -> str:
     if adv.best is None:
         most = adv.most_accurate
         lines.append(f'  no measured setting reaches it; the most accurate was '
-                     f'{_describe(most) if most else "none (every run failed)"}')
+                     f'{_describe(most, m) if most else "none (every run failed)"}')
         lines.append('  try a tighter setting (robodyn bench precision --integrators dop853 radau) '
                      'or a looser tolerance')
     else:
         b = adv.best
-        lines.append(f'  cheapest: {_describe(b)}')
+        lines.append(f'  cheapest: {_describe(b, m)}')
         own = m.get('own_formulation') or ''
         if b.formulation and own and b.formulation != own:
             lines.append(f'  (in the {b.formulation} formulation: set "formulation: {b.formulation}" in the scene; '
                          f'the scene uses {own})')
         lines.append(f'  run it:   {run_command(scene_arg, b)}')
         for r in adv.others[:3]:
-            lines.append(f'  next:     {_describe(r)}')
+            lines.append(f'  next:     {_describe(r, m)}')
     floor = m.get('reference', {}).get('error_estimate', 0.0) or 0.0
     if floor and adv.tolerance < 10 * floor:
         lines.append(f'  note: the reference itself is only good to about {floor:.1g}')
+    ref = m.get('reference', {})
+    if ref.get('kind'):
+        lines.append(f'  reference: {ref["kind"]} ({ref.get("check", "")})')
     lines.append(f'  measurements: {m.get("path", "?")} ({adv.source}, {m.get("created", "?")}, machine '
                  f'{m.get("machine", "?")}; --refresh measures again)')
     return '\n'.join(lines)

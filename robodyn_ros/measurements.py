@@ -37,6 +37,10 @@ CSV_FIELDS = ('scene', 'formulation', 'integrator', 'kind', 'dt', 'rtol', 'atol'
               'energy_drift', 'momentum_drift', 'constraint_residual', 'note')
 
 
+#: "about one step per period": at most this many steps per publication period (:meth:`Run.one_step_per_period`)
+ONE_STEP_SLACK = 1.25
+
+
 @dataclass
 class Run:
     """One measured run (a row of the CSV; see the module docstring for the fields)."""
@@ -73,6 +77,24 @@ class Run:
     def label(self) -> str:
         """Method and formulation, for plot legends."""
         return self.integrator + (f' ({self.formulation})' if self.formulation else '')
+
+    def one_step_per_period(self, rate: float) -> bool:
+        """An error-controlled run that took about one step per publication period (``rate`` Hz; at most
+        :data:`ONE_STEP_SLACK` times as many steps as periods: the first periods may take two while
+        the controller finds its step): each period starts afresh (held commands) and one step met
+        the tolerance, so a looser or tighter rtol, down to where that stops, takes the same steps and
+        gives the same run: the period, not rtol, sets the step."""
+        periods = int(round(self.horizon * rate))
+        return self.kind == 'adaptive' and self.status == 'ok' and 0 < self.steps <= ONE_STEP_SLACK * periods
+
+    def error_text(self, floor: float) -> str:
+        """The error as printed: ``3.2e-07``, or ``≤ 2e-15 (the reference's floor)`` when it is at or below
+        the reference's error estimate ``floor``: a smaller figure, 0 included, says nothing of the run."""
+        if not math.isfinite(self.error):
+            return '—'
+        if self.error_floor:
+            return f'≤ {max(floor, 0.0):.1g} (the reference\'s floor)'
+        return f'{self.error:.1e}'
 
     def row(self) -> dict:
         """The CSV row."""
@@ -125,7 +147,7 @@ def load_scene_quietly(name_or_path):
 
 
 #: bump when the cached JSON layout or the meaning of its figures changes
-CACHE_FORMAT = 3   # 3: rosenbrock2 in the precision ladder
+CACHE_FORMAT = 4   # 3: rosenbrock2 in the precision ladder; 4: the reference's steps bounded (its floor)
 
 
 def cache_dir() -> Path:

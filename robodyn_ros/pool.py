@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ['ClusterError', 'Pool', 'chunk_size', 'dask_setup']
+__all__ = ['ClusterError', 'Pool', 'CtrlC', 'chunk_size', 'dask_setup']
 
 #: Dask tasks per worker thread a sweep aims at, and the most runs one task carries (a task costs
 #: the scheduler, the worker and the client a few ms, more than a tenth of a short run on a busy
@@ -14,6 +14,9 @@ __all__ = ['ClusterError', 'Pool', 'chunk_size', 'dask_setup']
 TASKS_PER_THREAD, MAX_CHUNK = 4, 8
 #: seconds a sweep on a remote scheduler waits for its first worker
 WORKER_WAIT = 60.0
+#: seconds after a Ctrl-C that reached this process without becoming a KeyboardInterrupt in the main
+#: thread before :class:`CtrlC` raises it there again
+CTRL_C_RESEND = 1.0
 
 
 class ClusterError(RuntimeError):
@@ -130,6 +133,91 @@ class Pool:
             for fut in futures:
                 if not fut.done():
                     fut.cancel()
+
+
+class CtrlC:
+    """Ctrl-C for a client that waits on Dask workers: SIGINT becomes a KeyboardInterrupt in the main
+    thread, whichever thread the signal reached and wherever the main thread waits.
+
+    Python turns SIGINT into KeyboardInterrupt in the main thread; while a Dask client runs, the
+    signal usually lands in one of its other threads (the IO loop, the process watchers), and Python
+    passes it on. Once, under load, the sweep's client held in its test hook, sleeping in the main
+    thread, never raised it: SIGINT had reached the process (the workers of the same process group
+    had it), the main thread went on sleeping, and the sweep did not exit (test_sweep's Ctrl-C test).
+    So the signal is also written to a wakeup file (``signal.set_wakeup_fd``: written by the C-level
+    handler itself, in whichever thread it runs) that a watcher thread reads: it sets
+    :attr:`requested` and, while the main thread has not raised, raises it there again every
+    :data:`CTRL_C_RESEND` s (``_thread.interrupt_main``). The caller also checks :attr:`requested`
+    where it waits (and after each result), so an interrupt that was raised and swallowed is not
+    lost either. Use as a context manager in the main thread; elsewhere, or where SIGINT has a
+    handler of its own, it does nothing.
+    """
+
+    def __init__(self):
+        import threading
+        self.requested = threading.Event()
+        self.raised = False
+        self.active = False
+
+    def __enter__(self):
+        import signal
+        import socket
+        import threading
+        if threading.current_thread() is not threading.main_thread() or \
+                signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            return self
+        self._r, self._w = socket.socketpair()
+        self._r.setblocking(False)
+        self._w.setblocking(False)
+        self._stop = threading.Event()
+        self._old_fd = signal.set_wakeup_fd(self._w.fileno(), warn_on_full_buffer=False)
+        signal.signal(signal.SIGINT, self._handler)
+        self.active = True
+        self._thread = threading.Thread(target=self._watch, name='robodyn Ctrl-C', daemon=True)
+        self._thread.start()
+        return self
+
+    def _handler(self, signum, frame):
+        """The SIGINT handler while active: note it, then raise as Python's default handler does."""
+        self.requested.set()
+        self.raised = True
+        raise KeyboardInterrupt
+
+    def _watch(self):
+        """Watcher thread: a SIGINT written to the wakeup file sets :attr:`requested`; until the main
+        thread has raised, raise it there again every :data:`CTRL_C_RESEND` s."""
+        import _thread
+        import select
+        import signal
+        while not self._stop.is_set():
+            if not select.select([self._r], [], [], 0.1)[0]:
+                continue
+            try:
+                data = self._r.recv(256)
+            except BlockingIOError:
+                continue
+            if signal.SIGINT in data:
+                self.requested.set()
+                while not self.raised and not self._stop.wait(CTRL_C_RESEND):
+                    _thread.interrupt_main()
+
+    def check(self):
+        """Raise KeyboardInterrupt if a Ctrl-C reached this process (the caller's waits call it)."""
+        if self.requested.is_set():
+            self.raised = True
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        if self.active:
+            import signal
+            self._stop.set()
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            signal.set_wakeup_fd(self._old_fd)
+            self._thread.join()
+            self._r.close()
+            self._w.close()
+            self.active = False
+        return False
 
 
 def dask_setup(worker):

@@ -182,8 +182,9 @@ def _pd_hold_profile(params, path, ctx, system, port):
     ``gravity_compensation`` (default false): add the gravity torques ``g(q) = RNEA(q, 0, 0)`` of the
     tree (for a floating tree, those that would hold it still with its root held: a swing leg's, not
     a stance leg's). Sampled at the start of each period and held, as a controller node's command
-    (``examples/pd_hold_controller.py`` runs the same law over ROS topics). Needs an arm's ``effort``
-    port whose actuated joints are 1-DOF (revolute, prismatic), on a fixed or free root.
+    (the ``pd_hold_controller`` node, :mod:`robodyn_ros.nodes.pd_hold_controller`, runs the same law
+    over ROS topics). Needs an arm's ``effort`` port whose actuated joints are 1-DOF (revolute,
+    prismatic), on a fixed or free root.
     """
     from .model import PRISMATIC, REVOLUTE
     ctx.mapping(params, path, required=('profile', 'kp', 'kd'), optional=('posture', 'gravity_compensation'))

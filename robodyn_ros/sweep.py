@@ -81,7 +81,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .measures import Progress, state_error  # noqa: F401  (Progress: part of this module's API)
-from .pool import ClusterError, Pool, chunk_size
+from .pool import ClusterError, CtrlC, Pool, chunk_size
 from .sweep_spec import (FIGURES, FORMAT, SETTINGS, Spec, SweepError, build_scene, expand,  # noqa: F401
                          files_digest, load_spec, parse_spec)
 from .version import __version__
@@ -447,10 +447,12 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
     if todo:
         tasks = {t['index']: t for t in expand(spec, todo)}
         import contextlib
+        here = contextlib.nullcontext(pool) if pool is not None else Pool(workers, scheduler)
         try:
-            with (contextlib.nullcontext(pool) if pool is not None else Pool(workers, scheduler)) as p:
+            with CtrlC() as ctrl_c, here as p:
                 chunk = chunk_size(len(tasks), p.threads())
                 for i, res in p.run(execute_run, tasks.items(), name='run', chunk=chunk):
+                    ctrl_c.check()
                     if os.path.exists(_row_path(out, i)):
                         continue  # a rerun of a task already written
                     if 'error' in res:
@@ -462,9 +464,10 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
                         _write_atomic(os.path.join(out, 'mcap', f'run-{i:06d}.mcap'), mcap)
                     _write_atomic(_row_path(out, i), json.dumps(row).encode())
                     executed += 1
-                    _pause_after(executed)
+                    _pause_after(executed, ctrl_c)
                     if progress is not None:
                         progress.step(f'run {i}: {row["status"]}')
+                ctrl_c.check()
         except KeyboardInterrupt:
             interrupted = True
     table = fig = None
@@ -476,12 +479,14 @@ def run_sweep(spec: Spec, out: str, workers: int | None = None, scheduler: str |
                        table=table, plot=fig, wall=time.perf_counter() - w0)
 
 
-def _pause_after(written: int):
-    """The test hook of :data:`PAUSE_ENV`: after the N-th row written, wait for its file."""
+def _pause_after(written: int, ctrl_c: CtrlC):
+    """The test hook of :data:`PAUSE_ENV`: after the N-th row written, wait for its file (a Ctrl-C ends
+    the wait: ``ctrl_c.check``)."""
     hook = os.environ.get(PAUSE_ENV)
     if hook:
         n, path = hook.split(':', 1)
         while written == int(n) and not os.path.exists(path):
+            ctrl_c.check()
             time.sleep(0.01)
 
 

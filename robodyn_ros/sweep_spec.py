@@ -122,7 +122,7 @@ def lookup(data, path: str):
 
 
 def assign(data, path: str, value):
-    """Set a dotted path in the nested scene mapping (the path exists: checked by :func:`_lookup`)."""
+    """Set a dotted path in the nested scene mapping (the path exists: checked by :func:`lookup`)."""
     keys = _split(path)
     node = data
     for key in keys[:-1]:
@@ -328,8 +328,34 @@ def parse_spec(text: str, file: str = '<string>', base_dir: str | None = None) -
         spec.files.update(scene.files)   # read here, on the client, and only here
         if g == 0:
             spec.settings = dict(scene.settings)
+            _warn_bare_root_velocity(file, grid, random, scene)
     spec.duration = float(duration) if duration is not None else float(spec.settings.get('duration', 10.0))
     return spec
+
+
+def _warn_bare_root_velocity(file, grid, random, scene):
+    """Warn once per spec (``scene.state.VelocityOrderWarning``) where a parameter sets a free root's
+    velocities as bare numbers (``initial_state.v`` a list, or its elements 0..5 from the root's first):
+    they are read angular first, in the root's body axes; the mapping form
+    (``initial_state.v.root.linear``, ``...angular``, with its ``frame``) says which."""
+    import warnings
+
+    from .scene.state import VelocityOrderWarning, free_root
+    root = free_root(scene.system)
+    v = (scene.data.get('initial_state') or {}).get('v')
+    if root is None or isinstance(v, dict):
+        return
+    for section, items in (('grid', grid), ('random', random)):
+        for key, _ in items:
+            keys = _split(key)
+            if keys[:2] != ['initial_state', 'v'] or (len(keys) > 2 and not root[2] <= keys[2] < root[2] + 6):
+                continue
+            warnings.warn(VelocityOrderWarning(
+                f'{file}: {section}.{key}: the free root {root[0]!r}\'s velocities are read angular first, in its '
+                f'body axes (Featherstone\'s order, not ROS Twist\'s); to say which, give the scene initial_state.v: '
+                f'{{root: {{linear: [...], angular: [...], frame: world or body}}, joints: [...]}} and vary '
+                f'initial_state.v.root.linear or .angular'), stacklevel=3)
+            return
 
 
 def files_digest(files: dict) -> str:

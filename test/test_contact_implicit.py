@@ -205,6 +205,9 @@ def test_auto_sees_the_ground_a_body_will_land_on(monkeypatch):
     assert abs(P[:, PDEPTH].max() - mass * G / s.contact.ground.stiffness) < 1e-12
     c = plan_integrator(s, sc.y0, dt=1e-3)
     assert c.integrator == 'rosenbrock2' and 'resting on the ground' in c.reason, c.reason
+    import re
+    hl = float(re.search(r'h·\|λ\| = ([0-9.e+]+)', c.reason).group(1))
+    assert 2.785 < hl < 278.5, c.reason          # beyond RK4's limit; docs/contact.md: 58
     monkeypatch.setattr(ArmSystem, 'analysis_states', lambda self, y: [])
     assert plan_integrator(s, sc.y0, dt=1e-3).integrator == 'rk4'
 
@@ -290,3 +293,18 @@ def test_the_steps_the_ground_scenes_do_not_take():
     q, _, _, _, _ = _scene_run('huston_human17_fall', 'rosenbrock2', 1e-3)
     q_ref, _, _, _, _ = _scene_run('huston_human17_fall', 'rk4', 5e-5)
     assert np.abs(q - q_ref).max() > 0.1
+
+
+def test_the_large_root_damps_a_bounce_by_7_percent_per_step_at_omega_h_045():
+    """docs/contact.md's price of γ = 1 + 1/√2: one generic rosenbrock2 step (J exact) on an undamped
+    oscillator at ω h = 0.45 shrinks its amplitude (the energy norm) by 7 %; the small root by 0.1 %."""
+    from robodyn_ros.integrators import GAMMA, make_integrator
+    w, h = 450.0, 1e-3
+    J = np.array([[0.0, 1.0], [-w * w, 0.0]])
+    loss = {}
+    for g in (GAMMA_STOP, GAMMA):
+        integ = make_integrator('rosenbrock2', dt=h, jac=lambda t, y: J, gamma=g)
+        y1, _ = integ.advance(lambda t, y: J @ y, 0.0, np.array([1.0, 0.0]), h)
+        loss[g] = 1.0 - math.hypot(y1[0], y1[1] / w)
+    assert abs(loss[GAMMA_STOP] - 0.07) < 0.005, loss
+    assert 0.0 < loss[GAMMA] < 0.002, loss

@@ -72,7 +72,8 @@ def test_a1_stands_on_its_feet_carrying_its_weight():
     e = sim.energy_report()
     assert e['contact_work'] < 0.0
     # the balance E − E₀ − W closes to the step's numerical dissipation (rosenbrock2 at 1 ms with a
-    # contact touching: γ = 1 + 1/√2; measured −1.16 J of W = −15.3 J; 0.57 J at 0.5 ms): it takes, never adds
+    # contact touching: γ = 1 + 1/√2; docs/contact.md: −0.59 J of W = −15.9 J, 3.7 %; −0.29 J at 0.5 ms):
+    # it takes, never adds
     assert -0.1 * abs(e['work']) < e['drift'] < 0.0, e
 
 

@@ -64,6 +64,7 @@ class Bridge:
         self.jm = [self.pm.joints[self.pm.getJointId(n)] for n in self.names]
         cpl = xml_coupling(path)
         self.cpl = {n: c for n, c in cpl.items() if n in self.names and c[0] in self.names}
+        assert self.cpl, f'{path}: no mimic coupling read from the XML: the comparison would test none'
         ind = [n for n in self.names if n not in self.cpl]
         self.G = np.zeros((m.nv, len(ind)))
         for k, n in enumerate(self.names):

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import warnings
 
@@ -286,3 +287,44 @@ def test_bench_precision_without_matplotlib_writes_the_tables_and_says_how_to_ge
     err = capsys.readouterr().err
     assert 'matplotlib is not installed' in err and 'pip install matplotlib' in err
     assert 'Traceback' not in err
+
+
+def test_the_reference_and_its_floor_against_an_independent_reference():
+    """stanford_arm holds its commands per 10 ms period, so every period is a fresh start and one
+    DOP853 or RK45 step per period meets any rtol: an unbounded DOP853 reference would take the very
+    steps of the dop853 run it measures and call its error 0. The reference's steps are bounded
+    (at least 4 per period: it cannot coincide with a measured run) and its floor is its difference
+    to the same with 8 per period. Against an independent reference, rk4 at 1e-5 s converged by
+    halving (to round-off): the reference agrees within its floor, each measured error agrees with
+    the independent one (rk45 1.9e-13 over 0.1 s, dop853 2.2e-15: figures, not 0), a value at or
+    below the floor is printed as "≤ floor", and both runs say that rtol had no effect (about one step
+    per period)."""
+    sc = _quiet(load_scene, 'stanford_arm')
+    H, rate = 0.1, float(sc.settings['publish_rate'])
+    fine = [P.simulate(sc, 'rk4', dt=h, horizon=H, sample=False) for h in (1e-5, 5e-6)]
+    rk_diff = P.state_error(fine[0].y, fine[1].y)
+    assert rk_diff < 1e-13, rk_diff                      # converged: round-off
+    y_ind = fine[1].y
+    ref = P.reference(sc, H)
+    periods = int(round(H * rate))
+    assert ref.steps >= P.REFERENCE_STEPS_PER_PERIOD * periods
+    slack = ref.error_estimate + 2 * rk_diff + 1e-15
+    assert P.state_error(ref.y, y_ind) <= slack, (P.state_error(ref.y, y_ind), ref.error_estimate, rk_diff)
+    runs = {name: P.simulate(sc, name, rtol=1e-4, atol=1e-4, horizon=H, sample=False) for name in ('dop853', 'rk45')}
+    for name, r in runs.items():
+        assert r.status == 'ok' and periods <= r.steps <= periods + 2 < ref.steps, (name, r.steps)
+        assert r.one_step_per_period(rate)
+        r.error = P.state_error(r.y, ref.y)
+        r.error_floor = r.error <= ref.error_estimate
+        assert abs(r.error - P.state_error(r.y, y_ind)) <= slack, (name, r.error, P.state_error(r.y, y_ind))
+    rk45, dop = runs['rk45'], runs['dop853']
+    assert 10 * ref.error_estimate < rk45.error < 1e-11, rk45.error      # measured 1.9e-13 over 0.1 s
+    assert 0.0 < dop.error < 1e-13 and P.state_error(dop.y, y_ind) < 1e-13, dop.error   # measured 2.2e-15
+    meta = {'rate': rate, 'reference': {'error_estimate': ref.error_estimate, 'kind': ref.kind, 'check': ref.check}}
+    assert 'one step per period' in adv._describe(dop, meta) and 'e-' in adv._describe(rk45, meta)
+    below = dataclasses.replace(dop, error=0.0, error_floor=True)     # a value at or below the floor
+    text = adv._describe(below, meta)
+    assert f'≤ {ref.error_estimate:.1g} (the reference\'s floor)' in text and 'error 0' not in text, text
+    res = P.SceneResult(scene=sc.name, horizon=H, rate=rate, mode='quick', reference=ref, runs=[rk45, below])
+    md = P.markdown(res)
+    assert '~1 step/period' in md and '(the reference\'s floor)' in md and '0.0e+00' not in md

@@ -25,7 +25,7 @@ import pytest
 
 from robodyn_ros import kernels
 
-pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='numba not installed')
+assert kernels.AVAILABLE, kernels.UNAVAILABLE_REASON   # numba is a hard dependency: fail, never skip
 
 ROOT = Path(__file__).resolve().parents[1]
 #: what a run without recording, plots, sweeps or adaptive integrators must not import
@@ -141,8 +141,7 @@ def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_pat
     from robodyn_ros.scene import load_scene
     from robodyn_ros.urdf import example_robot_data_dir
     d = example_robot_data_dir()
-    if d is None:
-        pytest.skip('example-robot-data not installed')
+    assert d is not None, 'example-robot-data (a test dependency) is not installed'
     first = tmp_path / 'stanford_arm.urdf'
     first.write_text(load_scene('stanford_arm').system.urdf())
     env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
@@ -180,13 +179,16 @@ def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path):
         runs += [['run', name, '--duration', '0.3'],
                  ['run', name, '--duration', '0.3', '--record', str(tmp_path / 'r.mcap'), '--overwrite']]
     d = example_robot_data_dir()
-    if d is not None:   # a quadruped, an arm with friction (z1), a humanoid, an arm with a mimic finger
-        runs += [['run', str(next(d.rglob(f))), '--duration', '0.05']
-                 for f in ('go2.urdf', 'z1.urdf', 'human.urdf', 'panda.urdf')]
+    assert d is not None, 'example-robot-data (a test dependency) is not installed'
+    # a quadruped, an arm with friction (z1), a humanoid, an arm with a mimic finger
+    runs += [['run', str(next(d.rglob(f))), '--duration', '0.05'] for f in ('go2.urdf', 'z1.urdf', 'human.urdf', 'panda.urdf')]
     out = io.StringIO()
+    failed = []
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
         for argv in runs:
-            main(argv)
+            if main(argv) != 0:
+                failed.append(argv)
+    assert not failed, (failed, out.getvalue()[-3000:])
     after = {n: set(d.overloads) for n, d in dispatchers().items()}
     new = {n: sorted(map(str, s - warmed.get(n, set()))) for n, s in after.items() if s - warmed.get(n, set())}
     assert new == {}, new

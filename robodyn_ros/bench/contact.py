@@ -15,8 +15,16 @@ Two parts, each printed as a table (``--out FILE`` writes them as markdown; ``ma
   computed in Python at the same rate and its state copied out every period, measured in the
   same run (CPU time, median of ``--repeat`` runs).
 
+* **steps** (``--steps``, instead of the two above) — the integrator and step of each bundled ground
+  scene (``a1_stand``, ``solo12_drop``, ``huston_human17_fall``) against rk4 at 25 µs over the scene's
+  duration: the largest joint-position difference at the publications and the one at the end (at
+  rest), the base height at the end, the energy balance ``E − E0 − W`` beside the work W, and the
+  CPU time per simulated second; then A1 at 1 ms on the generic rosenbrock2 step (the Python path:
+  ``integrators.Rosenbrock2`` with the system's passive Jacobian) with either root of γ held for the
+  whole run, the choice docs/contact.md explains. The table of docs/contact.md, "Integrator and step".
+
 Figures are printed, never asserted here; ``test/test_contact_mujoco.py`` asserts the comparison's
-tolerances.
+tolerances and ``test/test_contact_implicit.py`` the steps' bounds.
 """
 from __future__ import annotations
 
@@ -43,6 +51,9 @@ def add_arguments(p):
     p.add_argument('--dt', type=float, default=None, help='our step (default: the scene\'s)')
     p.add_argument('--repeat', type=int, default=3, help='timed runs of each (median; default 3)')
     p.add_argument('--skip-speed', action='store_true', help='the comparison only')
+    p.add_argument('--steps', action='store_true',
+                   help='instead: the integrator and step of each bundled ground scene against rk4 at 25 us, '
+                        'and A1 on the generic rosenbrock2 step with either root of gamma')
     return p
 
 
@@ -294,8 +305,122 @@ def speed(duration, integrator, dt, repeat):
     return {'ours': t_ours, 'mujoco': t_mj, 'duration': duration}
 
 
+# ------------------------------------------------------------------------------------------------
+# steps: the integrator and step of the ground scenes
+# ------------------------------------------------------------------------------------------------
+#: the reference of the steps table: rk4 at this step (s)
+REFERENCE_DT = 2.5e-5
+#: per ground scene, the (integrator, step) rows of the steps table
+STEP_ROWS = {'a1_stand': [('rosenbrock2', 1e-3), ('rosenbrock2', 5e-4), ('rk4', 1e-3), ('rk4', 5e-5)],
+             'solo12_drop': [('rosenbrock2', 1e-3), ('rosenbrock2', 5e-4), ('rk4', 5e-5)],
+             'huston_human17_fall': [('rk4', 5e-5), ('rosenbrock2', 1e-3)]}
+
+
+def scene_run(name, integrator=None, dt=None, generic_gamma=None):
+    """Scene ``name`` over its duration with its settings (or integrator, dt), its scripted commands
+    held per publication period: ``{'q': joint positions per publication (n+1, nq − 7), 'z': base
+    height per publication, 'first': the first publication where a point touches, 'energy':
+    Simulator.energy_report(), 'cpu': CPU s, 'sim', 'scene'}``. generic_gamma: run rosenbrock2 on the
+    Simulator's Python path (``integrators.Rosenbrock2`` on the system's right-hand side and passive
+    Jacobian) with this γ in every step, instead of the compiled loop (which takes 1 + 1/√2 while a
+    point touches, 1 − 1/√2 otherwise)."""
+    from ..kernels.contact import PACTIVE
+    from ..scene import load_scene
+    from ..simulation import Simulator, run_headless
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sc = load_scene(name)
+        s = sc.system
+        sim = Simulator(s, sc.y0, integrator=integrator or sc.settings['integrator'], dt=dt or sc.settings['dt'])
+    if generic_gamma is not None:
+        assert sim.settings['integrator'] == 'rosenbrock2', sim.settings
+        s.fused_advance = lambda *a, **k: None      # this instance only: the Simulator's Python path
+        s.fused_periods = None
+        sim.integrator.gamma = float(generic_gamma)
+    rows = []
+
+    class Sink:
+        def on_start(self, sim):
+            pass
+
+        def on_command(self, t, port, values):
+            pass
+
+        def on_output(self, t, out, sim):
+            on = (s.contact.point_outputs(s._km, sim.y[:s.nq], sim.y[s.nq:])[:, PACTIVE] > 0).any()
+            rows.append((sim.y[7:s.nq].copy(), sim.y[2], on))
+
+        def close(self):
+            pass
+    c0 = time.process_time()
+    run_headless(sim, sc.settings['duration'], sc.settings['publish_rate'], sc.script, sinks=[Sink()])
+    cpu = time.process_time() - c0
+    return {'q': np.array([r[0] for r in rows]), 'z': np.array([r[1] for r in rows]),
+            'first': int(np.flatnonzero([r[2] for r in rows])[0]), 'energy': sim.energy_report(), 'cpu': cpu,
+            'sim': sim, 'scene': sc}
+
+
+def step_row(run, ref) -> dict:
+    """One row of the steps table: ``run`` (:func:`scene_run`) against the reference run ``ref``."""
+    e = run['energy']
+    return {'q_max': float(np.abs(run['q'] - ref['q']).max()), 'q_rest': float(np.abs(run['q'][-1] - ref['q'][-1]).max()),
+            'z_rest': float(run['z'][-1] - ref['z'][-1]), 'balance': float(e['drift']), 'work': float(e['work']),
+            'same_impact': run['first'] == ref['first'],
+            'cpu_per_s': run['cpu'] / float(run['scene'].settings['duration'])}
+
+
+def steps(progress=print) -> dict:
+    """The steps table: ``{scene: [(integrator, dt, row)]}`` (the reference first, then :data:`STEP_ROWS`
+    against rk4 at :data:`REFERENCE_DT`) and ``'gamma'``: A1 at 1 ms on the generic step with γ = 1 − 1/√2 and 1 + 1/√2."""
+    from ..kernels.rosenbrock import GAMMA, GAMMA_STOP
+    out = {}
+    for name, rows in STEP_ROWS.items():
+        ref = scene_run(name, 'rk4', REFERENCE_DT)
+        out[name] = [('rk4', REFERENCE_DT, step_row(ref, ref))]   # the reference's own balance and cost
+        for integ, dt in rows:
+            out[name].append((integ, dt, step_row(scene_run(name, integ, dt), ref)))
+            progress(f'{name} {integ} {dt:g}: {out[name][-1][2]}')
+        if name == 'a1_stand':
+            out['gamma'] = [(g, step_row(scene_run(name, 'rosenbrock2', 1e-3, generic_gamma=g), ref))
+                            for g in (GAMMA, GAMMA_STOP)]
+            progress(f'gamma: {out["gamma"]}')
+    return out
+
+
+def steps_report(t: dict) -> str:
+    """Markdown of :func:`steps`."""
+    lines = [f'Each bundled ground scene against rk4 at {REFERENCE_DT * 1e6:g} µs over its duration (joint positions '
+             'at every publication; CPU time per simulated second, this machine, this run):', '',
+             '| scene | method | joint positions (max) | at rest | base height at rest | E − E0 − W | W | same first '
+             'contact | CPU per simulated s |', '|---|---|---|---|---|---|---|---|---|']
+    for name in STEP_ROWS:
+        for integ, dt, r in t[name]:
+            if dt == REFERENCE_DT:
+                lines.append(f'| `{name}` | {integ}, {dt * 1e3:g} ms (the reference) | | | | {r["balance"]:+.2g} J | '
+                             f'{r["work"]:+.3g} J | | {1e3 * r["cpu_per_s"]:.0f} ms |')
+                continue
+            lines.append(f'| `{name}` | {integ}, {dt * 1e3:g} ms | {r["q_max"]:.2g} rad | {r["q_rest"]:.2g} rad | '
+                         f'{r["z_rest"]:+.2g} m | {r["balance"]:+.2g} J | {r["work"]:+.3g} J | '
+                         f'{"yes" if r["same_impact"] else "no"} | {1e3 * r["cpu_per_s"]:.0f} ms |')
+    lines += ['', 'A1 (`a1_stand`) at 1 ms on the generic rosenbrock2 step (the Python path) with one root of γ in '
+                  'every step, against the same reference:', '',
+              '| γ | joint positions (max) | at rest | E − E0 − W |', '|---|---|---|---|']
+    for g, r in t['gamma']:
+        lines.append(f'| {g:.4f} | {r["q_max"]:.2g} rad | {r["q_rest"]:.2g} rad | {r["balance"]:+.2g} J |')
+    return '\n'.join(lines) + '\n'
+
+
 def main(args) -> int:
-    """Print the comparison and the speed tables (and write them with --out)."""
+    """Print the comparison and the speed tables, or with --steps the steps table (and write it with --out)."""
+    if args.steps:
+        text = ('# Ground scenes: integrator and step\n\n`robodyn bench contact --steps` (read in '
+                '[contact.md](contact.md#integrator-and-step-of-the-bundled-scenes)).\n\n'
+                + steps_report(steps(progress=lambda m: None)))
+        print(text)
+        if args.out:
+            with open(args.out, 'w', encoding='utf-8') as f:
+                f.write(text)
+        return 0
     sc = load()
     integ = args.integrator or sc.settings['integrator']
     dt = args.dt or sc.settings['dt']

@@ -21,9 +21,14 @@ Per run it records:
 * ``error`` — the final-state error ``max_i |y_i − y_ref,i| / (1 + |y_ref,i|)`` in minimal
   coordinates ``[q; v]`` (so formulations compare against one reference; quaternion signs
   aligned), against a closed form where the scene has one (``closed_form``), otherwise against
-  DOP853 at rtol = atol = 1e-13, whose convergence is checked against DOP853 at 1e-12: their
-  difference (at least 1e-13 per step taken) is reported as the reference's error estimate,
-  and errors below it are floor values;
+  DOP853 at rtol = atol = 1e-13 with its step bounded to a quarter of a publication period
+  (:data:`REFERENCE_STEPS_PER_PERIOD`), checked against the same with an eighth: their difference
+  (at least :data:`ROUNDOFF_FLOOR`) is the reference's error estimate, its floor. The bound keeps
+  the reference from taking the very steps of a measured run: held commands make every period a
+  fresh start, and a smooth scene is met by one DOP853 step per period at any rtol, so an
+  unbounded reference would agree with the run it measures to the last bit. An error at or below
+  the floor is printed as "≤ floor", never as 0; an error-controlled run that took one step per
+  period is marked so (a tighter or looser rtol gives the same run);
 * ``energy_drift`` — the largest ``|E − E0 − W|`` over the periods divided by the largest of
   ``|E0|, |E|, |W|`` over the run (W = work done by inputs and dissipation),
   ``momentum_drift`` — the largest change of linear
@@ -85,8 +90,13 @@ ATOL_FACTOR = 1.0
 HORIZONS = {'full': 2.0, 'quick': 0.5}
 #: wall seconds after which a run is stopped (status 'budget') and longer runs of that method skipped
 BUDGETS = {'full': 120.0, 'quick': 20.0}
-#: the reference and its convergence check (DOP853)
-REFERENCE_RTOL, CHECK_RTOL = 1e-13, 1e-12
+#: the reference's tolerance (DOP853, rtol = atol), and its step bound: at least this many steps per
+#: publication period (its check takes twice as many), so that it never takes a measured run's steps
+REFERENCE_RTOL, REFERENCE_STEPS_PER_PERIOD = 1e-13, 4
+#: the smallest error estimate a reference is given (round-off of the final state's comparison)
+ROUNDOFF_FLOOR = 1e-15
+#: the closed forms' check (DOP853, unbounded)
+CHECK_RTOL = 1e-12
 #: accuracies for which the markdown names the cheapest run
 TARGETS = (1e-3, 1e-6, 1e-9)
 #: instants (evenly spread) at which outputs (momentum, constraint residual) are sampled
@@ -99,15 +109,17 @@ FIXED = ('euler', 'semi_implicit_euler', 'rk4', 'rosenbrock2')
 
 @dataclass
 class Reference:
-    """The reference final state of a scene: ``kind`` 'closed form' or 'dop853 rtol=1e-13';
-    ``y`` (comparable coordinates); ``error_estimate``: its estimated error (difference to the
-    convergence check run); ``check``: words on how it was checked; ``formulation`` it used."""
+    """The reference final state of a scene: ``kind`` 'closed form' or 'dop853 rtol=1e-13 ...';
+    ``y`` (comparable coordinates); ``error_estimate``: its estimated error, the floor of the errors
+    measured against it (difference to the convergence check run); ``check``: words on how it was
+    checked; ``formulation`` it used; ``steps``: the steps it took (0 for a closed form)."""
 
     kind: str
     y: np.ndarray
     error_estimate: float
     check: str
     formulation: str = ''
+    steps: int = 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -225,13 +237,15 @@ def _momentum(extra) -> np.ndarray | None:
 
 
 def simulate(scene, integrator: str, dt=None, rtol=None, atol=None, horizon=1.0, budget=math.inf,
-             formulation: str = '', sample: bool = True) -> Run:
+             formulation: str = '', sample: bool = True, max_step: float | None = None) -> Run:
     """Run ``scene`` for ``horizon`` s with one integrator setting and measure it (a :class:`Run`).
 
     scene: a loaded Scene; integrator: registry name; dt (fixed) or rtol/atol (adaptive);
     horizon: simulated seconds (rounded to whole publication periods); budget: wall seconds
     before the run is stopped with status 'budget'; formulation: label recorded; sample: also
-    sample outputs for momentum and constraint drift. Never raises for a refused or failed run.
+    sample outputs for momentum and constraint drift; max_step: the longest step (s) an
+    error-controlled integrator may take (the reference's bound; None: unbounded, as ``robodyn run``).
+    Never raises for a refused or failed run.
     """
     from ..integrators import INTEGRATORS
     from ..simulation import SimulationError, Simulator
@@ -253,6 +267,8 @@ def simulate(scene, integrator: str, dt=None, rtol=None, atol=None, horizon=1.0,
         except ValueError as e:
             run.status, run.note = 'refused', str(e)
             return run
+        if max_step is not None:
+            sim.integrator.max_step = float(max_step)
         momentum_ok = getattr(system, 'environment', '') == 'orbit' and not \
             (scene.data.get('commands') or {}).get('base_wrench')
         sample_at = set(np.linspace(0, n, min(SAMPLES, n) + 1).round().astype(int).tolist()) if sample else set()
@@ -317,36 +333,39 @@ def simulate(scene, integrator: str, dt=None, rtol=None, atol=None, horizon=1.0,
 # a scene
 # ---------------------------------------------------------------------------------------------
 def reference(scene, horizon: float, variants=None) -> Reference:
-    """The reference final state of ``scene`` after ``horizon`` s (closed form or DOP853 1e-13).
+    """The reference final state of ``scene`` after ``horizon`` s (closed form, or DOP853 at rtol = atol
+    = :data:`REFERENCE_RTOL` with at least :data:`REFERENCE_STEPS_PER_PERIOD` steps per publication
+    period).
 
-    variants: ``formulations(scene)`` if already built. The closed form is checked against
-    DOP853 at 1e-12; the DOP853 reference against DOP853 at 1e-12 (the difference is its error
-    estimate).
+    variants: ``formulations(scene)`` if already built. The closed form is checked against DOP853 at
+    :data:`CHECK_RTOL`; the DOP853 reference against the same with its step bound halved: their
+    difference (at least :data:`ROUNDOFF_FLOOR`) is its error estimate. Bounded so, the reference
+    cannot take the steps of a measured run (module docstring).
     """
     variants = variants or formulations(scene)
     form, sc = variants[0]
     rate = float(sc.settings.get('publish_rate', 100.0))
     T = max(1, int(round(horizon * rate))) / rate
-    check = simulate(sc, 'dop853', rtol=CHECK_RTOL, atol=CHECK_RTOL, horizon=horizon, formulation=form,
-                     sample=False)
     exact = closed_form(sc)
     if exact is not None:
+        check = simulate(sc, 'dop853', rtol=CHECK_RTOL, atol=CHECK_RTOL, horizon=horizon, formulation=form,
+                         sample=False)
         y = exact(T)
         diff = state_error(check.y, y) if check.y is not None else math.nan
         return Reference('closed form', y, 0.0, f'{exact.description}; DOP853 rtol={CHECK_RTOL:g} agrees to {diff:.2g}',
                          form)
+    bound = 1.0 / (rate * REFERENCE_STEPS_PER_PERIOD)
     ref = simulate(sc, 'dop853', rtol=REFERENCE_RTOL, atol=REFERENCE_RTOL, horizon=horizon, formulation=form,
-                   sample=False)
+                   sample=False, max_step=bound)
+    check = simulate(sc, 'dop853', rtol=REFERENCE_RTOL, atol=REFERENCE_RTOL, horizon=horizon, formulation=form,
+                     sample=False, max_step=bound / 2)
     if ref.y is None or check.y is None:
         raise RuntimeError(f'{scene.name}: the DOP853 reference run failed: {ref.note or check.note}')
     diff = state_error(check.y, ref.y)
-    # when both runs take the same steps (one per publication period, each well inside both
-    # tolerances) they agree exactly; the local errors can still add up to rtol per step
-    floor = REFERENCE_RTOL * max(ref.steps, 1)
-    est = max(diff, floor)
-    return Reference(f'DOP853 rtol=atol={REFERENCE_RTOL:g}', ref.y, est,
-                     f'differs from DOP853 rtol={CHECK_RTOL:g} by {diff:.2g}; error estimate {est:.2g} = max(that, '
-                     f'rtol × {ref.steps} steps)', form)
+    est = max(diff, ROUNDOFF_FLOOR)
+    return Reference(f'DOP853 rtol=atol={REFERENCE_RTOL:g}, steps <= {bound:g} s', ref.y, est,
+                     f'{ref.steps} steps; differs from the same with steps <= {bound / 2:g} s ({check.steps} steps) '
+                     f'by {diff:.2g}; error estimate (floor) {est:.2g}', form, steps=ref.steps)
 
 
 def ladder(scene, mode: str = 'full', integrators=None) -> list:
@@ -540,13 +559,19 @@ def read_csv(path: str) -> list:
         return [Run.from_row(d) for d in csv.DictReader(f)]
 
 
+def error_words(r, floor: float) -> str:
+    """A run's error as printed (:meth:`Run.error_text`: "≤ floor" at or below the reference's floor)."""
+    return r.error_text(floor)
+
+
 def cheapest_line(res: SceneResult, tol: float) -> str:
     """``rk4 dt=0.002`` with its error and cost, or why none qualifies."""
     r = cheapest(res.runs, tol)
     if r is None:
         best = min((x.error for x in res.runs if x.status == 'ok'), default=math.nan)
         return f'none measured (best error {best:.1e})'
-    return (f'{r.label} {r.setting} — error {r.error:.1e}, {r.cpu_per_sim_s:.3g} CPU s per simulated s, '
+    return (f'{r.label} {r.setting} — error {error_words(r, res.reference.error_estimate)}, '
+            f'{r.cpu_per_sim_s:.3g} CPU s per simulated s, '
             f'{r.rhs_per_sim_s:.0f} rhs/s')
 
 
@@ -557,7 +582,9 @@ def markdown(res: SceneResult, png: str | None = None) -> str:
     lines = [f'## {res.scene}', '',
              f'Horizon {res.horizon:g} s in {res.rate:g} Hz publication periods; {res.mode} ladder; reference: '
              f'{ref.kind} ({ref.check}). Error = max_i |y_i − y_ref,i| / (1 + |y_ref,i|) over [q; v] in minimal '
-             'coordinates (a floor value where it is below the reference\'s own error estimate); CPU and wall = '
+             'coordinates ("≤ floor" where it is at or below the reference\'s own error estimate; "~1 step/period": '
+             'an error-controlled run that took about one step per publication period: the period, not rtol, set '
+             'its steps); CPU and wall = '
              'seconds per simulated second on the machine below (single runs: CPU time is the steadier figure '
              'on a shared machine); rhs evals = right-hand-side evaluations (finite-difference Jacobians '
              'included); energy drift = largest |E − E0 − W| over the largest energy scale of the run.', '']
@@ -572,8 +599,9 @@ def markdown(res: SceneResult, png: str | None = None) -> str:
         lines += [f'![work-precision diagram of {res.scene}]({png})', '']
     rows = []
     for r in res.runs:
-        err = _g(r.error, '.1e') + (' (floor)' if r.error_floor and r.status == 'ok' else '')
-        rows.append([r.integrator, r.formulation or '—', r.setting, r.status, err, _g(r.cpu_per_sim_s, '.3g'),
+        err = error_words(r, ref.error_estimate) if r.status == 'ok' else _g(r.error, '.1e')
+        setting = r.setting + (' (~1 step/period)' if r.one_step_per_period(res.rate) else '')
+        rows.append([r.integrator, r.formulation or '—', setting, r.status, err, _g(r.cpu_per_sim_s, '.3g'),
                      _g(r.wall_per_sim_s, '.3g'), r.rhs_evals, r.steps,
                      '?' if r.rejected_steps is None else r.rejected_steps,
                      _g(r.energy_drift, '.1e'), _g(r.momentum_drift, '.1e'), _g(r.constraint_residual, '.1e')])

@@ -38,8 +38,15 @@ PARAMETERS = {
     'scripted_commands': (False, "use the scene's scripted commands instead of the command topics"),
     'start_paused': (False, 'start with simulation time paused; resume with ~/pause (data: false)'),
     'initial_positions': (None, "initial joint positions (nq values; unset = the scene's)"),
-    'initial_velocities': (None, "initial joint velocities (nv values; unset = the scene's)"),
-    'initial_state': (None, "full initial state vector (ny values; overrides the two above)"),
+    'initial_velocities': (None, "initial velocities (nv values; unset = the scene's); a free root's come first, "
+                                 "angular then linear, in its body axes (Featherstone's order, not Twist's)"),
+    'initial_root_linear_velocity': (None, "a free root's initial linear velocity [x, y, z] (m/s) in the axes of "
+                                           "initial_root_velocity_frame; unset = as above"),
+    'initial_root_angular_velocity': (None, "a free root's initial angular velocity [x, y, z] (rad/s) in the axes of "
+                                            "initial_root_velocity_frame; unset = as above"),
+    'initial_root_velocity_frame': ('', "world or body: the axes of the two above (required with them)"),
+    'initial_state': (None, "full initial state vector (ny values; overrides the above): [q; v], a free root's "
+                            "twist angular first in its body axes"),
     'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
     'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
     'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else numba "
@@ -114,6 +121,74 @@ def check_vector(name, v, n, what) -> np.ndarray:
     return arr
 
 
+_ROOT_PARAMS = ('initial_root_linear_velocity', 'initial_root_angular_velocity')
+
+
+def _initial_state_override(p: dict, scene, system, joints: str, y0):
+    """The initial state the parameters give (or ``y0``, the scene's): ``initial_positions`` and
+    ``initial_velocities`` in the coordinates the scene's initial_state uses (minimal ones for the
+    augmented free flyer; the system maps them to its state as the scene loader does), a free root's
+    velocity from ``initial_root_linear_velocity``/``_angular_velocity`` in the axes of
+    ``initial_root_velocity_frame`` (``scene.state.root_twist``), or the full ``initial_state``.
+    A free root's twist given as bare numbers (``initial_velocities``, ``initial_state``) is read
+    angular first in body axes, with a warning (``scene.state.VelocityOrderWarning``)."""
+    import warnings
+
+    from ..scene.state import _velocities, free_root, root_twist, warn_bare_root_twist
+    from ..validation import SceneContext, SceneError
+    root = free_root(system)
+    roots = [p[k] is not None for k in _ROOT_PARAMS]
+    if p['initial_positions'] is not None or p['initial_velocities'] is not None or any(roots):
+        nq0, nv0 = getattr(system, 'initial_state_sizes', (system.nq, getattr(system, 'nv', None)))
+        given = (scene.data or {}).get('initial_state') or {}
+        q0 = given.get('q')
+        v0 = given.get('v')
+        if p['initial_positions'] is not None:
+            q0 = check_vector('initial_positions', p['initial_positions'], nq0, joints)
+        ctx = SceneContext(f'scene {scene.name}')
+        if v0 is not None and p['initial_velocities'] is None:   # the scene's, as its loader read them
+            with warnings.catch_warnings():
+                warnings.simplefilter('ignore')
+                try:
+                    v0 = _velocities(ctx, v0, 'initial_state.v', system, None if q0 is None else np.asarray(q0, float),
+                                     nv0, joints)
+                except SceneError as e:
+                    raise ConfigError(str(e)) from None
+        if p['initial_velocities'] is not None:
+            if nv0 is None:
+                raise ConfigError(f"parameter 'initial_velocities': {type(system).__name__} does not say how many "
+                                  f"velocities it has; set 'initial_state' ({system.ny} values) instead")
+            v0 = check_vector('initial_velocities', p['initial_velocities'], nv0, joints)
+            if root is not None and not any(roots):
+                warn_bare_root_twist(v0[root[2]:root[2] + 6], root[0], "parameter 'initial_velocities'")
+        if any(roots):
+            if root is None:
+                raise ConfigError(f"parameters {', '.join(_ROOT_PARAMS)}: scene {scene.name!r} has no free root "
+                                  f"({type(system).__name__}); give initial_velocities")
+            frame = p['initial_root_velocity_frame']
+            value = {'frame': frame, **{k.split('_')[2]: check_vector(k, p[k], 3, '[x, y, z]').tolist()
+                                        for k, given_ in zip(_ROOT_PARAMS, roots) if given_}}
+            q = np.asarray(q0 if q0 is not None else system.model.neutral(), dtype=float)
+            try:
+                twist = root_twist(ctx, value, 'initial_root_velocity_frame', q[root[1] + 3:root[1] + 7])
+            except SceneError:
+                raise ConfigError(f"parameter 'initial_root_velocity_frame' must be world or body (the axes of "
+                                  f"{' and '.join(_ROOT_PARAMS)}), got {frame!r}") from None
+            v0 = np.zeros(nv0) if v0 is None else np.array(v0, dtype=float)
+            v0[root[2]:root[2] + 6] = twist
+        try:
+            y0 = system.initial_state(None if q0 is None else np.asarray(q0, dtype=float),
+                                      None if v0 is None else np.asarray(v0, dtype=float))
+        except ValueError as e:
+            raise ConfigError(f'initial_positions/initial_velocities: {e}') from None
+    if p['initial_state'] is not None:
+        y0 = check_vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
+        if root is not None and system.nq == system.model.nq:
+            k = system.nq + root[2]
+            warn_bare_root_twist(y0[k:k + 6], root[0], "parameter 'initial_state'")
+    return y0
+
+
 def resolve_config(p: dict, scene) -> Config:
     """Validate raw parameter values ``p`` (name -> value) against ``scene``; scene defaults fill gaps.
 
@@ -163,27 +238,7 @@ def resolve_config(p: dict, scene) -> Config:
     y0 = np.array(scene.y0, dtype=float)
     names = getattr(system, 'joint_names', None)
     joints = ', '.join(names) if names else 'configuration coordinates'
-    if p['initial_positions'] is not None or p['initial_velocities'] is not None:
-        # overrides are in the coordinates the scene's initial_state uses (minimal ones for the
-        # augmented free-flyer); the system maps them to its state, as the scene loader does
-        nq0, nv0 = getattr(system, 'initial_state_sizes', (system.nq, getattr(system, 'nv', None)))
-        given = (scene.data or {}).get('initial_state') or {}
-        q0 = given.get('q')
-        v0 = given.get('v')
-        if p['initial_positions'] is not None:
-            q0 = check_vector('initial_positions', p['initial_positions'], nq0, joints)
-        if p['initial_velocities'] is not None:
-            if nv0 is None:
-                raise ConfigError(f"parameter 'initial_velocities': {type(system).__name__} does not say how many "
-                                  f"velocities it has; set 'initial_state' ({system.ny} values) instead")
-            v0 = check_vector('initial_velocities', p['initial_velocities'], nv0, joints)
-        try:
-            y0 = system.initial_state(None if q0 is None else np.asarray(q0, dtype=float),
-                                      None if v0 is None else np.asarray(v0, dtype=float))
-        except ValueError as e:
-            raise ConfigError(f'initial_positions/initial_velocities: {e}') from None
-    if p['initial_state'] is not None:
-        y0 = check_vector('initial_state', p['initial_state'], system.ny, 'the full state vector')
+    y0 = _initial_state_override(p, scene, system, joints, y0)
     try:   # which integrator, which step, and why, decided once (Config.plan; Config.auto: auto's reason)
         plan, st = plan_run(st, system, y0)
     except ValueError as e:

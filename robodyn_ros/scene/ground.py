@@ -7,16 +7,17 @@ Keys (every one optional but the kind)::
       name: ground                 # default 'ground'
       height: 0.0                  # m: the plane n·x = height in the world (root) frame
       normal: [0, 0, 1]            # its normal (normalised here; the side bodies stay on)
-      stiffness: 2.0e4             # N/m per contact point       } or: time_constant: 0.01 (s)
-      dissipation: 2.0             # s/m (Hunt–Crossley)         }     damping_ratio: 1.0
-      friction: 1.0                # Coulomb μ >= 0
-      slip_speed: 0.01             # m/s: regularisation speed of the friction
+      stiffness: 3.0e4             # N/m per contact point       } or: time_constant: 0.01 (s)
+      dissipation: 5.0             # s/m (Hunt–Crossley)         }     damping_ratio: 1.0
+      friction: 0.8                # Coulomb μ >= 0
+      slip_speed: 0.005            # m/s: regularisation speed of the friction
       links: [FL_foot, ...]        # optional: only these links' <collision> shapes
       contacts:                    # and/or an explicit list (alone: instead of the <collision> shapes):
         - {link: foot, point: [0.0, 0.0, -0.02]}
         - {link: hand, sphere: {center: [0.0, 0.0, -0.07], radius: 0.04}}
 
-Defaults: :data:`DEFAULTS`. ``time_constant`` τ and ``damping_ratio`` ζ (MuJoCo's ``solref``) give the
+Defaults: :data:`DEFAULTS`, the field defaults of :class:`~robodyn_ros.systems.contact.Ground` (set
+there only). ``time_constant`` τ and ``damping_ratio`` ζ (MuJoCo's ``solref``) give the
 mode of the tree resting on its points, each carrying an equal share ``m_c = M / N`` of its mass M
 (N points): ``k = m_c / (τ ζ)²`` (natural frequency ω = 1/(τ ζ)) and ``d = 2 / (g τ)``, so that the
 linearised motion about the rest penetration ``δ0 = m_c g / k`` is ``δ̈ + (2/τ) δ̇ + ω² δ = 0``:
@@ -26,14 +27,19 @@ its impedance at 1). It needs gravity; a tree resting on fewer points than it ha
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from ..systems.contact import Ground
 from ..validation import SceneContext
 from ..validation import key_path as _key
 from .part import Part
 
-#: defaults of the ground's law (stiffness per point, Hunt–Crossley dissipation, Coulomb μ, slip speed)
-DEFAULTS = {'stiffness': 2.0e4, 'dissipation': 2.0, 'friction': 1.0, 'slip_speed': 1e-2}
+#: defaults of the ground's law (stiffness per point, Hunt–Crossley dissipation, Coulomb μ, slip speed):
+#: :class:`Ground`'s own
+DEFAULTS = {f.name: f.default for f in dataclasses.fields(Ground)
+            if f.name in ('stiffness', 'dissipation', 'friction', 'slip_speed')}
 _KEYS = ('kind', 'name', 'height', 'normal', 'stiffness', 'dissipation', 'time_constant', 'damping_ratio',
          'friction', 'slip_speed', 'links', 'contacts')
 
@@ -113,7 +119,7 @@ def attach_ground(ctx: SceneContext, ground: Part, system):
     import warnings
 
     from ..systems.arm import ArmSystem
-    from ..systems.contact import ContactPoint, ContactWarning, Ground, GroundContact, collision_points
+    from ..systems.contact import ContactPoint, ContactWarning, GroundContact, collision_points
     g, path = ground.data, ground.path
     if type(system).__name__ == 'FreeFlyerSystem' and getattr(system, 'environment', '') in ('free_fall', 'orbit'):
         system = ArmSystem(system.model, actuated=list(system.actuated), backend=system.backend)

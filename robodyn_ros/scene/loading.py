@@ -34,7 +34,7 @@ class Scene:
     """A loaded scene: what to simulate, from where, with which commands and settings.
 
     name: scene name; path: file it came from; text: the raw YAML (recorded in MCAP metadata);
-    data: the parsed mapping; system: the System to integrate (an ArmSystem for now);
+    data: the parsed mapping; system: the System to integrate (an ArmSystem, a platform, a free base...);
     y0: (ny,) initial state; script: ``script(t, y) -> {port: (size,) array}`` for the
     commanded ports, or None; settings: simulation defaults (integrator, dt, publish_rate,
     duration, and rtol/atol when given); parts: part names in file order; stop: ``stop(t, y) ->

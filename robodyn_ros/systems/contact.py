@@ -46,13 +46,14 @@ class Ground:
 
     normal (3,): unit normal (the side bodies stay on); height (m); stiffness k (N/m per point);
     dissipation d (s/m, Hunt–Crossley); friction μ (>= 0); slip_speed v_s (m/s) of the regularised
-    Coulomb friction.
+    Coulomb friction. The field defaults are the ``ground`` scene part's defaults (the one place
+    they are set; docs/contact.md states them).
     """
 
     normal: tuple = (0.0, 0.0, 1.0)
     height: float = 0.0
-    stiffness: float = 1e4
-    dissipation: float = 1.0
+    stiffness: float = 2e4
+    dissipation: float = 2.0
     friction: float = 1.0
     slip_speed: float = 1e-2
 
