@@ -27,8 +27,10 @@ setup(
     name=package_name,
     version=_package_xml('version'),
     packages=find_packages(exclude=['test']),
-    # recording/msg: bundled .msg/.json definitions (tf2_msgs/TFMessage) for recordings without tf2_msgs
-    package_data={package_name: ['data/*', 'recording/msg/*/msg/*']},
+    # recording/msg: bundled .msg/.json definitions (tf2_msgs/TFMessage) for recordings without tf2_msgs;
+    # data/example-robot-data: the two robots the bundled scenes a1_stand and solo12_drop need (URDFs, the STL
+    # meshes solo12's URDF names, example-robot-data's licence; 1.6 MB; robodyn_ros.meshes.resolve_uri finds them)
+    package_data={package_name: ['data/*', 'recording/msg/*/msg/*', 'data/example-robot-data/**/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -38,9 +40,10 @@ setup(
     # mcap-ros2-support decodes recordings for check/plot/resim; numba compiles the kernels;
     # dask + distributed run `robodyn sweep` (and the precision ladder) on a local or remote cluster,
     # pyarrow writes its Parquet table; URDF files are read with the standard library (robodyn_ros.urdf);
-    # yourdfpy is a test oracle only
+    # yourdfpy is a test oracle only; websockets serves runs live to Foxglove (robodyn_ros.live: imported
+    # only with robodyn run --live or the node's foxglove_port)
     install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML', 'mcap', 'mcap-ros2-support', 'numba',
-                      'dask', 'distributed', 'pyarrow'],
+                      'dask', 'distributed', 'pyarrow', 'websockets'],
     extras_require={
         'plot': ['matplotlib'],
         'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data',

@@ -5,6 +5,12 @@ recording or a live client: :meth:`CommandPorts.set` checks it against the port'
 finiteness (a refused command is counted and changes nothing), clamps it to the port's effort
 limits (counting the clamped components) and stamps it; :meth:`CommandPorts.held` gives the inputs
 in force at a time, zero once a command is older than the timeout.
+
+A port's kind (``InputPort.kind``) says how it holds: a ``vector`` (efforts, voltages, velocities) as it
+came, zero after the timeout; a ``setpoint`` (position setpoints) as the system makes it
+(``System.accept_input``: a servo's setpoint program), from the initial value the system gives
+(``System.initial_input``: the initial posture), never timing out; a ``message`` (a trajectory) is
+checked by the system and changes what its ``target`` port applies.
 """
 from __future__ import annotations
 
@@ -49,15 +55,21 @@ class CommandPorts:
 
     system: the System whose ``inputs`` (name -> :class:`~robodyn_ros.systems.base.InputPort`: size,
     labels, unit, effort limits) these are; timeout: seconds of simulation time after which an
-    unrefreshed command goes to zero (None = hold forever). ``ports`` maps each name to its CommandPort.
+    unrefreshed command goes to zero (None = hold forever); y, t: the initial state and time, for the values
+    the ports hold before any command (``System.initial_input``; zeros without y). ``ports`` maps each name to
+    its CommandPort.
     """
 
-    def __init__(self, system, timeout: float | None = None):
+    def __init__(self, system, timeout: float | None = None, y=None, t: float = 0.0):
         self.system = system
         self.inputs = inputs = system.inputs
         self.timeout = timeout
-        self.ports = {k: CommandPort(np.zeros(p.size), limit=None if p.limit is None else np.asarray(p.limit, dtype=float))
-                      for k, p in inputs.items()}
+        init = getattr(system, 'initial_input', None) if y is not None else None
+        self.ports = {}
+        for k, p in inputs.items():
+            value, applied = (np.zeros(p.size), None) if init is None else init(k, y, t)
+            self.ports[k] = CommandPort(value, applied=applied,
+                                        limit=None if p.limit is None else np.asarray(p.limit, dtype=float))
 
     def set(self, port: str, values, t: float):
         """Accept a command for ``port`` arriving at time t (s), held until the next one, or raise
@@ -68,6 +80,18 @@ class CommandPorts:
         if port not in self.ports:
             raise CommandError(f'unknown input {port!r}; this system takes {sorted(self.ports)}')
         spec = self.inputs[port]
+        if spec.kind == 'message':   # a structured command (a trajectory) onto what its target port applies
+            target = self.ports[spec.target]
+            try:
+                applied = self.system.accept_input(port, values, float(t), target.applied)
+            except ValueError as e:
+                self.ports[port].rejected += 1
+                raise CommandError(f'{port}: {e}') from None
+            p = self.ports[port]
+            p.value = p.applied = values
+            p.stamp = target.stamp = float(t)
+            target.applied = applied
+            return
         try:
             arr = np.asarray(values, dtype=float).reshape(-1)
         except (TypeError, ValueError):
@@ -84,6 +108,11 @@ class CommandPorts:
             raise CommandError(f'{port}: non-finite value for {bad}; expected {spec.size} finite values '
                                f'({", ".join(spec.labels)}) in {spec.unit}')
         p = self.ports[port]
+        if spec.kind == 'setpoint':   # what the system makes of it (a servo's setpoint program), held
+            p.applied = self.system.accept_input(port, arr, float(t), p.applied)
+            p.value = arr
+            p.stamp = float(t)
+            return
         p.value = arr
         p.applied = arr
         if spec.limit is not None:  # actuator effort limits: clamp, and count the clamped components
@@ -101,7 +130,8 @@ class CommandPorts:
         u = {}
         for k, p in self.ports.items():
             stale = (self.timeout is not None and p.stamp is not None
-                     and t - p.stamp > self.timeout + 1e-12)
+                     and t - p.stamp > self.timeout + 1e-12
+                     and self.inputs[k].kind == 'vector')   # setpoints and trajectories hold
             if stale and not p.timed_out:
                 p.timed_out = True
             u[k] = np.zeros_like(p.value) if p.timed_out else p.applied

@@ -11,7 +11,9 @@ Python objects, so that they can be compiled without a rewrite. Shapes:
 * returned body quantities are (nb, 6) in body coordinates unless the name says ``_world``.
 
 Gravity enters as a fictitious base acceleration ``a0 = -[0; g]`` (book §5.3), so the joint
-wrenches and torques include it.
+wrenches and torques include it. A joint's armature ``a`` (``Model.armature``, rotor inertia reflected
+to the joint) enters the joint space only: ``M + diag(a)``, ``τ += a q̈``, ABA's ``D += a``, kinetic
+energy ``+ ½ a q̇²``; never a body wrench.
 """
 from __future__ import annotations
 
@@ -81,10 +83,10 @@ def rnea_wrenches(model: Model, q, v, a, f_ext=None):
         f[i] = Ii @ ab[i] + crf(vb[i]) @ (Ii @ vb[i])
         if f_ext is not None:
             f[i] -= f_ext[i]
-    tau = np.empty(model.nv)
+    tau = model.armature * a   # the rotors' share; f stays the wrench through the links
     for i in range(nb - 1, -1, -1):
         s0, s1 = model.v_idx[i], model.v_idx[i] + model.nv_j[i]
-        tau[s0:s1] = S[:, s0:s1].T @ f[i]
+        tau[s0:s1] += S[:, s0:s1].T @ f[i]
         p = model.parent[i]
         if p >= 0:
             f[p] += Xup[i].T @ f[i]
@@ -127,7 +129,7 @@ def crba(model: Model, q):
             t0, t1 = model.v_idx[j], model.v_idx[j] + model.nv_j[j]
             H[s0:s1, t0:t1] = F.T @ S[:, t0:t1]
             H[t0:t1, s0:s1] = H[s0:s1, t0:t1].T
-    return H
+    return H + np.diag(model.armature)
 
 
 def aba(model: Model, q, v, tau, f_ext=None):
@@ -164,7 +166,7 @@ def aba(model: Model, q, v, tau, f_ext=None):
         if s1 > s0:
             Si = S[:, s0:s1]
             U[i] = IA[i] @ Si
-            Dinv[i] = np.linalg.inv(Si.T @ U[i])
+            Dinv[i] = np.linalg.inv(Si.T @ U[i] + np.diag(model.armature[s0:s1]))
             u[i] = tau[s0:s1] - Si.T @ pA[i]
             Ia = IA[i] - U[i] @ Dinv[i] @ U[i].T
             pa = pA[i] + Ia @ c[i] + U[i] @ (Dinv[i] @ u[i])
@@ -256,9 +258,10 @@ def body_velocities(model: Model, q, v):
 
 
 def kinetic_energy(model: Model, q, v):
-    """Kinetic energy ``½ Σ v_iᵀ I_i v_i`` (J)."""
+    """Kinetic energy ``½ Σ v_iᵀ I_i v_i + ½ Σ a q̇²`` (J; the second sum: the rotors, armature a)."""
     vb = body_velocities(model, q, v)
-    return 0.5 * float(np.einsum('ni,nij,nj->', vb, model.I, vb))
+    v = np.asarray(v, dtype=float)
+    return 0.5 * float(np.einsum('ni,nij,nj->', vb, model.I, vb)) + 0.5 * float(model.armature @ (v * v))
 
 
 def center_of_mass(model: Model, q):

@@ -88,6 +88,21 @@ MIN_RTOL = 100.0 * _EPS
 GRID_ROUNDOFF_ULPS = 16.0
 
 
+def step_start(t: float) -> float:
+    """The time of a stage at the start of a step from t: ``GRID_ROUNDOFF_ULPS`` ulps after t, so that an input
+    that jumps at t (a trajectory's knot on the step grid: a cubic's acceleration) is read as it acts over the
+    step, from the right, even when round-off puts the grid point a few ulps before the knot."""
+    return t + GRID_ROUNDOFF_ULPS * _EPS * abs(t)
+
+
+def step_end(t: float, h: float) -> float:
+    """The time of a stage at the end of the step from t of length h: ``GRID_ROUNDOFF_ULPS`` ulps before
+    ``t + h``, so that an input jumping there enters the step from the left (as it acts over it). The compiled
+    loops read the same sides with their stages at the grid times themselves (``kernels.servo``, ``OPT_SIDE``)."""
+    te = t + h
+    return te - GRID_ROUNDOFF_ULPS * _EPS * abs(te)
+
+
 class IntegrationError(RuntimeError):
     """Raised when an integration cannot produce a finite state at the requested time.
 
@@ -418,7 +433,7 @@ class ExplicitEuler(FixedStepIntegrator):
 
     def _step(self, f, t, y, h):
         # f's result is copied into _dy before y changes, so f may return (a view of) y.
-        np.multiply(f(t, y), h, out=self._dy)
+        np.multiply(f(step_start(t), y), h, out=self._dy)
         y += self._dy
         return 1
 
@@ -470,7 +485,7 @@ class SemiImplicitEuler(FixedStepIntegrator):
         nq = self.nq
         q = y[:nq]
         v = y[nq:]
-        ydot = f(t, y)
+        ydot = f(step_start(t), y)
         np.multiply(ydot[nq:], h, out=self._dv)  # copy first: ydot may alias y
         v += self._dv
         qd = v if self.qdot is None else self.qdot(q, v)
@@ -483,7 +498,8 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
     """Classical fourth-order Runge-Kutta (Hairer-Norsett-Wanner I, Table II.1.2).
 
     ``k1 = f(t, y)``, ``k2 = f(t + h/2, y + h/2 k1)``, ``k3 = f(t + h/2, y + h/2 k2)``,
-    ``k4 = f(t + h, y + h k3)``, ``y += h/6 (k1 + 2 k2 + 2 k3 + k4)``.
+    ``k4 = f(t + h, y + h k3)``, ``y += h/6 (k1 + 2 k2 + 2 k3 + k4)`` (k1 and k4 read time-dependent inputs on
+    the step's side of the grid: :func:`step_start`, :func:`step_end`).
 
     Args:
         spec: registry entry.
@@ -501,7 +517,7 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
         Y = self._Y
         acc = self._acc
         half = 0.5 * h
-        k = f(t, y)
+        k = f(step_start(t), y)
         acc[:] = k
         np.multiply(k, half, out=Y)
         Y += y
@@ -515,7 +531,7 @@ class ClassicalRungeKutta4(FixedStepIntegrator):
         np.add(acc, k, out=acc)
         np.multiply(k, h, out=Y)
         Y += y
-        k = f(t + h, Y)
+        k = f(step_end(t, h), Y)
         np.add(acc, k, out=acc)
         acc *= h / 6.0
         y += acc
@@ -532,9 +548,13 @@ class Rosenbrock2(FixedStepIntegrator):
     Order 2 for any J (a W-method), L-stable on the part of f that J holds exactly; J = 0 gives
     Heun's method. The method, its stability function and its cost on a mechanical system are in
     :mod:`robodyn_ros.kernels.rosenbrock`; the systems' compiled loops run it there. Here it is the
-    generic form, one LU factorisation of ``I − γhJ`` per step (none when ``jac`` is None). f is
-    held autonomous within a step (the Simulator holds its commands constant over a call), so no
-    ∂f/∂t term is needed.
+    generic form, one LU factorisation of ``I − γhJ`` per step (none when ``jac`` is None). Where f
+    moves with time stiffly (a stiff servo on a moving setpoint), ``dfdt`` gives the time term of the
+    method's non-autonomous form (Verwer et al. 1999, eq. 2.4)::
+
+        (I − γhJ) k1 = f(t, y) + γh f_t,     (I − γhJ) k2 = f(t + h, y + h k1) − 2 k1 − γh f_t
+
+    (any f_t keeps order 2, as any J does; the exact one keeps a stiff mode on its moving equilibrium).
 
     Args:
         spec: registry entry.
@@ -544,11 +564,13 @@ class Rosenbrock2(FixedStepIntegrator):
         gamma: γ, default :data:`GAMMA` (1 − 1/√2); the other L-stable root 1 + 1/√2 is the one the
             compiled loops take in steps with a joint stop in J or a ground contact touching
             (``kernels.rosenbrock.GAMMA_STOP``; ``kernels.arm.arm_implicit_matrix``).
+        dfdt: optional ``dfdt(t, y) -> f_t (n,)``, evaluated once per step at its start; None: 0.
     """
 
-    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None):
+    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None, dfdt=None):
         super().__init__(spec, dt)
         self.jac = jac
+        self.dfdt = dfdt
         self.gamma = GAMMA if gamma is None else float(gamma)
 
     def _allocate(self, n):
@@ -560,16 +582,22 @@ class Rosenbrock2(FixedStepIntegrator):
     def _step(self, f, t, y, h):
         from scipy.linalg import lu_factor, lu_solve
         lu = None
+        ts = step_start(t)   # stage 1 and its J, f_t: inputs on the step's side of the grid (see step_start)
         if self.jac is not None:
-            J = np.asarray(self.jac(t, y), dtype=np.float64)
+            J = np.asarray(self.jac(ts, y), dtype=np.float64)
             lu = lu_factor(self._eye - (self.gamma * h) * J, check_finite=False)
+        ft = None if self.dfdt is None else (self.gamma * h) * np.asarray(self.dfdt(ts, y), dtype=np.float64)
         k1 = self._k1
-        k1[:] = f(t, y)
+        k1[:] = f(ts, y)
+        if ft is not None:
+            k1 += ft
         if lu is not None:
             k1[:] = lu_solve(lu, k1, check_finite=False)
         np.multiply(k1, h, out=self._Y)
         self._Y += y
-        k2 = np.asarray(f(t + h, self._Y), dtype=np.float64) - 2.0 * k1
+        k2 = np.asarray(f(step_end(t, h), self._Y), dtype=np.float64) - 2.0 * k1
+        if ft is not None:
+            k2 -= ft
         if lu is not None:
             k2 = lu_solve(lu, k2, check_finite=False)
         y += h * (1.5 * k1 + 0.5 * k2)
@@ -785,8 +813,9 @@ INTEGRATORS: dict[str, IntegratorSpec] = {s.name: s for s in (
     IntegratorSpec(name='rosenbrock2', kind='fixed', order=2, symplectic=False, implicit=True,
                    projection='step', multistep=False,
                    summary='linearly implicit Rosenbrock-W, order 2, L-stable on the stiff passive forces '
-                           '(damping, friction, joint limits, ground contact, motor electrics), explicit in the rest',
-                   options=('jac', 'gamma'), factory=_fixed(Rosenbrock2)),
+                           '(damping, friction, joint limits, ground contact, motor electrics, joint servos), explicit '
+                           'in the rest',
+                   options=('jac', 'gamma', 'dfdt'), factory=_fixed(Rosenbrock2)),
     IntegratorSpec(name='rk45', kind='adaptive', order=5, symplectic=False, implicit=False,
                    projection='step', multistep=False,
                    summary='Dormand-Prince 5(4) explicit Runge-Kutta (scipy RK45)',

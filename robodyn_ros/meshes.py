@@ -9,8 +9,19 @@ scene graph's node transforms are not applied, so a ``.dae`` whose geometry is p
 sphere around its untransformed vertices: stated, not corrected).
 
 Where: an absolute path, ``file://`` URI, or ``package://<package>/<path>``, found through the ament
-index (a sourced ROS install), the example-robot-data wheel (its package name), or a directory named
-``<package>`` above the URDF file.
+index (a sourced ROS install), the example-robot-data wheel (its package name), the copy of two of
+its robots bundled with this package (:func:`bundled_robot_data_dir`), or a directory named
+``<package>`` above the URDF file. :func:`resolve_uri` is the one place that knows this order: the
+importer, a ground part's meshes, a scene's ``file: package://...`` and a viewer serving the meshes
+of ``robot_description`` all ask it.
+
+The bundled copy (``robodyn_ros/data/example-robot-data``, 1.6 MB, with example-robot-data's
+licence, each robot's README naming its upstream licence, and a README on the selection) holds
+what the bundled scenes ``a1_stand`` and ``solo12_drop`` need from a plain install: ``a1.urdf``
+(its collision shapes are primitives) and ``solo12.urdf`` with the STL meshes it names (its feet's
+collision meshes give the ground contact; the same files are its visuals). A1's visual meshes
+(9.7 MB of COLLADA) are left out: :func:`resolve_uri` raises :class:`MeshError` for them unless
+example-robot-data is installed, and a viewer draws the collision shapes instead.
 """
 from __future__ import annotations
 
@@ -21,7 +32,24 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'bounding_sphere', 'mesh_sphere']
+__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'bounding_sphere', 'mesh_sphere', 'example_robot_data_dir',
+           'bundled_robot_data_dir']
+
+
+def example_robot_data_dir() -> Path | None:
+    """Directory of the URDFs shipped by the ``example-robot-data`` wheel (test extras), or None."""
+    try:
+        from importlib.metadata import PackageNotFoundError, distribution
+        d = distribution('example-robot-data')
+    except (ImportError, PackageNotFoundError):
+        return None
+    p = Path(d.locate_file('cmeel.prefix/share/example-robot-data/robots'))
+    return p if p.is_dir() else None
+
+
+def bundled_robot_data_dir() -> Path:
+    """``robots`` directory of the part of example-robot-data bundled with this package (module docstring)."""
+    return Path(__file__).resolve().parent / 'data' / 'example-robot-data' / 'robots'
 
 
 class MeshError(ValueError):
@@ -41,8 +69,8 @@ def resolve_uri(name: str, urdf_dir: Path | None = None) -> Path:
                 p = base / rest
                 break
         if p is None:
-            raise MeshError(f'{name}: package {pkg!r} not found (no ament index entry, not example-robot-data, no '
-                            f'directory {pkg!r} above the URDF)')
+            raise MeshError(f'{name}: not found: package {pkg!r} has no such file (looked in the ament index, the '
+                            f'installed and the bundled example-robot-data, and directories named {pkg!r} above the URDF)')
     elif '://' in name:
         raise MeshError(f'{name}: only file://, package:// and plain paths are read')
     else:
@@ -62,10 +90,12 @@ def _package_dirs(pkg: str, urdf_dir: Path | None):
             pass
     except ImportError:
         pass
-    from .urdf import example_robot_data_dir
     erd = example_robot_data_dir()
     if erd is not None and pkg == erd.parent.name:
         yield erd.parent
+    own = bundled_robot_data_dir().parent
+    if pkg == own.name and own.is_dir():
+        yield own
     d = urdf_dir
     while d is not None and d != d.parent:
         if d.name == pkg:

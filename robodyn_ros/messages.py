@@ -22,6 +22,12 @@ TOPIC_TYPES = {
     'diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '/tf': 'tf2_msgs/msg/TFMessage',         # see robodyn_ros.tf
     '/tf_static': 'tf2_msgs/msg/TFMessage',  # transient local, once at start
+    'position_commands': 'std_msgs/msg/Float64MultiArray',
+    'velocity_commands': 'std_msgs/msg/Float64MultiArray',
+    'joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
+    'command_joint_names': 'std_msgs/msg/String',   # transient local: the joints of each command topic
+    'joint_trajectory_desired': 'sensor_msgs/msg/JointState',
+    'joint_trajectory_error': 'sensor_msgs/msg/JointState',
 }
 WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 WRENCH_PREFIX = 'constraint_wrenches/'
@@ -43,7 +49,19 @@ def contact_topic(link: str) -> str:
     return wrench_topic(link, CONTACT_PREFIX)
 
 PORT_TOPICS = {'effort': 'effort_commands', 'wheel_voltage': 'wheel_voltage_commands',
-               'base_wrench': 'base_wrench_command'}
+               'base_wrench': 'base_wrench_command', 'position': 'position_commands',
+               'velocity': 'velocity_commands', 'trajectory': 'joint_trajectory'}
+
+
+def command_joint_names(system) -> str:
+    """The ``command_joint_names`` text: one line ``<topic>: [j1, j2, ...]`` per command topic of a system's
+    joint ports (effort, position, velocity; trajectory: the joints it may name), in each topic's order
+    (YAML; what the node logs at start and latches)."""
+    lines = []
+    for port, spec in system.inputs.items():
+        if port in ('effort', 'position', 'velocity', 'trajectory') and spec.labels:
+            lines.append(f'{PORT_TOPICS[port]}: [{", ".join(spec.labels)}]')
+    return '\n'.join(lines)
 
 
 def stamp(t_ns: int) -> dict:
@@ -152,6 +170,7 @@ def output_messages(t_ns: int, out, wrenches: bool = True, tf=None):
             msgs.append((wrench_topic(name), WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
     for link, (frame, w) in out.contacts.items():
         msgs.append((contact_topic(link), WRENCH_TYPE, wrench_stamped(t_ns, frame, w)))
+    msgs.extend(out.messages)
     if tf is not None:
         tf_msg = tf.message(t_ns, out)
         if tf_msg['transforms']:

@@ -106,7 +106,11 @@ class LinkSpec:
     inequality (and warned, :mod:`robodyn_ros.urdf`): :func:`build_model` then does not refuse it;
     mimic: ``(joint, multiplier, offset)``: this 1-DOF joint follows another 1-DOF joint,
     ``q = multiplier · q_joint + offset`` (URDF ``<mimic>``, :func:`mimic_table`); collisions: the
-    link's URDF ``<collision>`` shapes (:class:`Collision`), the geometry a ground part may use.
+    link's URDF ``<collision>`` shapes (:class:`Collision`), the geometry a ground part may use;
+    armature: the joint's rotor inertia reflected to the joint (kg·m² or kg; a spherical joint: on
+    each of its three coordinates), added to the mass matrix's diagonal, ``M + diag(a)`` (MuJoCo's and
+    Pinocchio's ``armature``; the compiled kernels and the numpy reference add it to CRBA, ABA's
+    ``D``, RNEA's ``τ`` and the kinetic energy).
     """
 
     name: str
@@ -132,6 +136,7 @@ class LinkSpec:
     inertia_as_given: bool = False
     mimic: tuple | None = None
     collisions: tuple = ()
+    armature: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -182,6 +187,20 @@ class Model:
     def dof_joint_names(self) -> list:
         """Names of the joints that carry a DOF, in q/v order (1-DOF joints only)."""
         return [self.joint_names[i] for i in range(self.nb) if self.jtype[i] in (REVOLUTE, PRISMATIC)]
+
+    @property
+    def armature(self) -> np.ndarray:
+        """Joint armature (nv,): each joint's ``LinkSpec.armature`` on every one of its velocity
+        coordinates (0 for FREE joints and specs without one)."""
+        cached = self.__dict__.get('_armature')
+        if cached is None:
+            cached = np.zeros(self.nv)
+            for i, s in enumerate(self.specs):
+                if self.jtype[i] in (REVOLUTE, PRISMATIC, SPHERICAL):
+                    cached[self.v_idx[i]:self.v_idx[i] + self.nv_j[i]] = float(getattr(s, 'armature', 0.0))
+            cached.setflags(write=False)
+            self.__dict__['_armature'] = cached
+        return cached
 
     @property
     def friction(self) -> np.ndarray:
@@ -482,6 +501,11 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
         damping += [float(s.damping)] * int(nv_j[i])
         if not (np.isfinite(s.friction) and s.friction >= 0.0):
             raise ModelError(f'{where}: friction must be finite and >= 0, got {s.friction!r}')
+        if not (np.isfinite(s.armature) and s.armature >= 0.0):
+            raise ModelError(f'{where}: armature must be finite and >= 0, got {s.armature!r}')
+        if s.armature and jt not in (REVOLUTE, PRISMATIC, SPHERICAL):
+            raise ModelError(f'{where}: armature applies to revolute, prismatic and spherical joints, not to a '
+                             f'{s.joint_type} joint')
         if s.effort_limit is not None and not (np.isfinite(s.effort_limit) and s.effort_limit > 0.0):
             raise ModelError(f'{where}: effort limit must be a finite number > 0, got {s.effort_limit!r}')
         if s.velocity_limit is not None and not (np.isfinite(s.velocity_limit) and s.velocity_limit > 0.0):

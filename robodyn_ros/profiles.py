@@ -292,6 +292,83 @@ def _pfl_profile(params, path, ctx, system, port):
 COMMAND_PROFILES['pfl'] = _pfl_profile
 
 
+_TRAJECTORY_KEYS = ('joint_names', 'points', 'stamp', 'send_at')
+_POINT_KEYS = ('time_from_start', 'positions', 'velocities', 'accelerations', 'effort')
+
+
+def _trajectory_message(params, path, ctx, system):
+    """``(send_at, message dict)`` of one scripted trajectory (keys of :func:`_trajectory_profile`)."""
+    from .setpoints import TrajectoryError, parse_trajectory, trajectory_message
+    joints = list(system.inputs['trajectory'].labels)
+    names = ctx.names(params['joint_names'], _key(path, 'joint_names')) if 'joint_names' in params else joints
+    ppath = _key(path, 'points')
+    points = []
+    for i, p in enumerate(ctx.sequence(params['points'], ppath)):
+        ip = _key(ppath, i)
+        ctx.mapping(p, ip, required=('time_from_start', 'positions'), optional=_POINT_KEYS[2:])
+        pt = {'time_from_start': ctx.number(p['time_from_start'], _key(ip, 'time_from_start'), minimum=0.0)}
+        for k in _POINT_KEYS[1:]:
+            if k in p:
+                pt[k] = ctx.vector(p[k], _key(ip, k), len(names), f'values (one per joint: {", ".join(names)})')
+        points.append(pt)
+    stamp = ctx.number(params.get('stamp', 0.0), _key(path, 'stamp'), minimum=0.0)
+    send_at = ctx.number(params.get('send_at', 0.0), _key(path, 'send_at'), minimum=0.0)
+    msg = trajectory_message(names, points, stamp)
+    try:
+        parse_trajectory(msg, joints)
+    except TrajectoryError as e:
+        ctx.fail(path, str(e))
+    return send_at, msg
+
+
+def _trajectory_profile(params, path, ctx, system, port):
+    """``trajectory``: trajectory_msgs/JointTrajectory messages on the ``trajectory`` port, each sent at the
+    first period that starts at or after its ``send_at`` (s, default 0; several due in one period: the
+    last), as a controller would publish them on ``joint_trajectory``.
+
+    Keys: ``joint_names`` (default: every position-commanded joint), ``points`` (a list of
+    ``{time_from_start (s), positions, velocities?, accelerations?, effort?}``, one value per joint),
+    ``stamp`` (s of simulation time; 0 = when it is sent: "now"), ``send_at``; or ``messages``: a list
+    of such mappings. The messages are validated here as the Simulator validates them
+    (:func:`robodyn_ros.setpoints.parse_trajectory`); one whose last point is past when it is sent is
+    refused then, and counted, like a controller's.
+    """
+    if port != 'trajectory' or 'trajectory' not in system.inputs:
+        ctx.fail(_key(path, 'profile'), "trajectory needs the 'trajectory' port of an arm with position-commanded "
+                                        'joints (command_interfaces)')
+    if 'messages' in params:
+        ctx.mapping(params, path, required=('profile', 'messages'))
+        items = ctx.sequence(params['messages'], _key(path, 'messages'))
+        if not items:
+            ctx.fail(_key(path, 'messages'), 'needs at least one message')
+        sent = []
+        for i, m in enumerate(items):
+            mp = _key(_key(path, 'messages'), i)
+            ctx.mapping(m, mp, required=('points',), optional=_TRAJECTORY_KEYS)
+            sent.append(_trajectory_message(m, mp, ctx, system))
+    else:
+        ctx.mapping(params, path, required=('profile', 'points'), optional=_TRAJECTORY_KEYS)
+        sent = [_trajectory_message(params, path, ctx, system)]
+    order = sorted(range(len(sent)), key=lambda k: sent[k][0])
+    times = [sent[k][0] for k in order]
+    msgs = [sent[k][1] for k in order]
+    state = {'next': 0, 'last': -np.inf}
+
+    def f(t, y):
+        if t <= state['last']:   # a new run or episode (a reset): send them again
+            state['next'] = 0
+        state['last'] = t
+        due = None
+        while state['next'] < len(times) and times[state['next']] <= t + 1e-12:
+            due = msgs[state['next']]
+            state['next'] += 1
+        return due
+    return f
+
+
+COMMAND_PROFILES['trajectory'] = _trajectory_profile
+
+
 def build_script(ctx: SceneContext, commands, system):
     """``script(t, y) -> {port: array}`` from the ``commands`` section, or None if it is empty."""
     if not isinstance(commands, dict):
@@ -310,8 +387,14 @@ def build_script(ctx: SceneContext, commands, system):
         return None
 
     def script(t, y):
-        """Scripted commands at time t (s) and state y: {port: (size,) array}."""
-        return {port: f(t, y) for port, f in fns.items()}
+        """Scripted commands at time t (s) and state y: {port: (size,) array} (a message port: its message,
+        only at the periods that send one)."""
+        out = {}
+        for port, f in fns.items():
+            value = f(t, y)
+            if value is not None:
+                out[port] = value
+        return out
     script.profiles = fns  # port -> f(t, y), e.g. to reach a controller profile's object
     script.programs = {port: getattr(f, 'program', None) for port, f in fns.items()}  # compiled forms (block path)
     return script

@@ -88,7 +88,7 @@ class Simulator:
         self.t = self._t0
         self.system.reset_episode()
         self.y = self.system.project(self._y0.copy())
-        self.commands = CommandPorts(self.system, self._command_timeout)
+        self.commands = CommandPorts(self.system, self._command_timeout, self.y, self.t)
         self.diag = Diagnostics(energy0=self.system.total_energy(self.y))
         self._work_parts = tuple(getattr(self.system, 'work_components', ()))
         self.diag.work_parts = {k: 0.0 for k in self._work_parts}
@@ -188,6 +188,7 @@ class Simulator:
 
         if integ.name == 'rosenbrock2':   # its W-matrix: the system's passive Jacobian, inputs held over the call
             integ.jac = self._passive_jacobian(u, ny, z0.shape[0])
+            integ.dfdt = self._time_derivative(u, ny, z0.shape[0])
         limit = self._budget.limit(t1 - self.t) if integ.spec.kind == 'adaptive' else None
         z1, st = integ.advance(f, self.t, z0, t1, project=project, max_steps=limit)
         if limit is not None:
@@ -207,6 +208,19 @@ class Simulator:
             out[:ny, :ny] = sys_.passive_jacobian(t, z[:ny], u, h)
             return out
         return jac
+
+    def _time_derivative(self, u, ny, n):
+        """``dfdt(t, z)`` (n,) for rosenbrock2's time term: the system's ``time_derivative`` in the y block
+        (a servo on a moving setpoint), zeros elsewhere; None when the system has none."""
+        sys_ = self.system
+        if sys_.time_derivative(self.t, self.y, u) is None:
+            return None
+
+        def dfdt(t, z):
+            out = np.zeros(n)
+            out[:ny] = sys_.time_derivative(t, z[:ny], u)
+            return out
+        return dfdt
 
     def advance(self, t1: float):
         """Advance to simulation time ``t1`` (s) holding the current inputs; returns the state.

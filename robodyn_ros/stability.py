@@ -62,7 +62,7 @@ import numpy as np
 __all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'STOP_RESOLUTION', 'StepWarning', 'StepAnalysis',
            'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step',
            'preflight', 'diagnose', 'stable_step_limit', 'rosenbrock2_amplification', 'rosenbrock2_step_matrix',
-           'passive_jacobian', 'step_alternatives', 'stiff_mode']
+           'passive_jacobian', 'step_alternatives', 'stiff_mode', 'start_inputs']
 
 #: spurious amplification per step (eq. S3, as ln ρ) above which a fixed step is refused
 REFUSE_GROWTH = 1e-2
@@ -126,9 +126,13 @@ class StepAnalysis:
     extra: dict = field(default_factory=dict)
 
 
-def _zero_inputs(system) -> dict:
-    """Zero commands for every input port of ``system``."""
-    return {k: np.zeros(p.size) for k, p in getattr(system, 'inputs', {}).items()}
+def start_inputs(system, y=None, t: float = 0.0) -> dict:
+    """The inputs in force before any command, at state y and time t: what ``System.initial_input`` applies
+    (zeros, but a servo's hold of the initial posture), zeros where the system does not say."""
+    init = getattr(system, 'initial_input', None)
+    if init is None or y is None:
+        return {k: np.zeros(p.size) for k, p in getattr(system, 'inputs', {}).items()}
+    return {k: init(k, np.asarray(y, dtype=float), t)[1] for k in getattr(system, 'inputs', {})}
 
 
 def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_STEP) -> np.ndarray:
@@ -137,7 +141,7 @@ def linearisation(system, y, u=None, t: float = 0.0, rel_step: float = FD_REL_ST
     system: the System; y: (ny,) state; u: inputs (default zeros); t: time (s); rel_step:
     perturbation of component j is ``rel_step * max(1, |y_j|)``. Costs 2 ny evaluations of f.
     """
-    u = _zero_inputs(system) if u is None else u
+    u = start_inputs(system, y, t) if u is None else u
     y = np.array(y, dtype=float)
     n = y.size
     J = np.empty((n, n))
@@ -252,7 +256,7 @@ def spin_rate(system, y) -> float:
 def passive_jacobian(system, y, u=None, t: float = 0.0, h: float | None = None) -> np.ndarray:
     """The system's implicit Jacobian (ny, ny) at y for step h (``System.passive_jacobian``), zeros when it
     has none."""
-    u = _zero_inputs(system) if u is None else u
+    u = start_inputs(system, y, t) if u is None else u
     fn = getattr(system, 'passive_jacobian', None)
     Jp = fn(t, np.asarray(y, dtype=float), u, h) if fn is not None else None
     n = np.asarray(y).size
@@ -274,7 +278,8 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
     if J is None:
         J = linearisation(system, y, u, t)
     if not np.all(np.isfinite(J)):
-        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite')
+        raise ValueError(f'the linearisation of {type(system).__name__} at the initial state is not finite: '
+                         f'{_not_finite_cause(system, y, J)}')
     if name in LINEARLY_IMPLICIT:
         return _analyse_linearly_implicit(system, name, h, y, u, t, J)
     lam = np.linalg.eigvals(J) if J.size else np.zeros(0, dtype=complex)
@@ -438,7 +443,7 @@ def _singular_joint(system, y) -> str:
     if M.size == 0:   # nothing moves (a fixed-base robot of fixed joints): nothing to be singular
         return ''
     if not np.all(np.isfinite(M)):
-        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)'
+        return 'the mass matrix is not finite (a length, mass or inertia too large to compute with)' + _not_finite_where(model, M)
     d = np.diag(M)
     scale = max(float(np.max(np.abs(d))), 1e-300)
     names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
@@ -462,7 +467,7 @@ def preflight(system, y, t: float = 0.0) -> None:
     A singular mass matrix (a moving joint without inertia about its axis), a constraint system
     the system's solver refuses, or a non-finite derivative are reported with their cause.
     """
-    u = _zero_inputs(system)
+    u = start_inputs(system, y, t)
     try:
         f = np.asarray(system.rhs(t, np.array(y, dtype=float), u), dtype=float)
     except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
@@ -477,6 +482,30 @@ def preflight(system, y, t: float = 0.0) -> None:
     if cause:
         raise ValueError(f'{type(system).__name__}: the equations of motion cannot be solved at the initial '
                          f'state: {cause}')
+
+
+def _not_finite_where(model, M) -> str:
+    """Words naming where a non-finite mass matrix comes from: the links whose spatial inertia (mass,
+    m·c, inertia about the origin) or joint placement is not finite, else the joints of its non-finite
+    diagonal entries."""
+    links = [f'{model.link_names[i]} (its {"spatial inertia" if not np.all(np.isfinite(model.I[i])) else "joint origin"})'
+             for i in range(model.nb) if not (np.all(np.isfinite(model.I[i])) and np.all(np.isfinite(model.Xtree[i])))]
+    if links:
+        return ': link ' + ', '.join(links[:4])
+    names = [model.joint_names[i] for i in range(model.nb) for _ in range(int(model.nv_j[i]))]
+    bad = list(dict.fromkeys(names[k] for k in np.flatnonzero(~np.isfinite(np.diag(M)))))
+    return f': at joint{"s" if len(bad) > 1 else ""} {", ".join(bad[:4])}' if bad else ''
+
+
+def _not_finite_cause(system, y, J) -> str:
+    """Why a linearisation J (ny, ny) is not finite: the joint the mass matrix cannot accelerate
+    (:func:`_singular_joint`), else the state components whose rate derivatives are not finite."""
+    cause = _singular_joint(system, y)
+    if cause:
+        return cause
+    bad = np.flatnonzero(~np.all(np.isfinite(J), axis=0))[:4]
+    return ('the derivative of dy/dt is not finite with respect to ' +
+            ', '.join(_state_words(system, int(k)) for k in bad) if bad.size else 'non-finite entries')
 
 
 def _state_words(system, k: int) -> str:

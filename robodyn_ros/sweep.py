@@ -322,9 +322,11 @@ def execute_run(task: dict) -> dict:
             fd, tmp = tempfile.mkstemp(suffix='.mcap')
             os.close(fd)
             from .runs import DIAGNOSTICS_PERIOD
+            # robodyn run's vectorised path: the same bytes, but for the meshes, which the many recordings of
+            # a sweep reference instead of carrying (an A1's are 9 MB a file; robodyn run records them)
             sinks.append(McapRunSink(tmp, scene, {**st, 'backend': task['backend'], 'mode': 'headless'},
-                                     diagnostics_period=DIAGNOSTICS_PERIOD,
-                                     batch=HEADLESS_BATCH))  # robodyn run's vectorised path: the same bytes
+                                     diagnostics_period=DIAGNOSTICS_PERIOD, batch=HEADLESS_BATCH,
+                                     embed_meshes=False))
         try:
             c0 = time.process_time()
             sim, status, msg = _simulate(scene, st, plan, sinks)

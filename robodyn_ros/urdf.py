@@ -15,7 +15,15 @@ resolved), leniently where the robot is unambiguous and never with a traceback:
   ground contact; they enter no dynamics, so a shape that cannot be read (no geometry, an unknown
   one, a size that is not a positive number) is left out with a note instead of refusing the robot;
 * everything the dynamics reads must be there and be a finite number: a missing mass value or
-  diagonal moment, two ``<inertial>`` in one link, ``nan`` in an origin... is refused.
+  diagonal moment, two ``<inertial>`` in one link, ``nan`` in an origin... is refused; a number with
+  one trailing dot (``-1.57.``) is read as C's ``strtod`` reads it, with one note;
+* a moving rigid body (a link on a moving joint, or the floating root, with the links welded to it)
+  none of whose links has an ``<inertial>`` gets the mass properties of its links' ``<collision>``
+  (else ``<visual>``) shapes as solids of ``density`` (default 1000 kg/m³, MuJoCo's
+  ``inertiafromgeom``; :mod:`robodyn_ros.mass_properties`), with one note naming the links;
+* a mass matrix singular at q = 0 gets the smallest stated joint armature that makes it regular on
+  the joints of its near-null space (:mod:`robodyn_ros.armature`), with one note; ``armature`` may
+  instead be given (0: none).
 
 Notes and warnings are :class:`UrdfWarning` (``warnings.warn``, and :attr:`UrdfRobot.notes`);
 ``robodyn run`` and the ``sim`` node print each once.
@@ -26,8 +34,10 @@ Mapping onto our tree:
   ``prismatic`` -> PRISMATIC, ``fixed`` -> FIXED (kept as a body, so every URDF link has a TF
   frame; the compiled kernels weld it into its parent, as Pinocchio does), ``floating`` -> FREE,
   allowed only from the root link (a ``world`` link with a floating joint is the same as
-  ``floating=True``). ``planar`` (3 DOF in a plane) is refused: the model has no such joint;
-  write it as two prismatic joints and a revolute one.
+  ``floating=True``); ``spherical`` (a URDF extension) -> SPHERICAL, the scene format's ball joint
+  (no axis; its damping acts on each rate; limits, friction and mimic are ignored with a note).
+  ``planar`` (3 DOF in a plane) is refused: the model has no such joint; write it as two prismatic
+  joints and a revolute one.
 * frames: our body frame of a link is the URDF link frame (the joint frame after its motion), so
   joint origins, axes and ``<visual>`` origins carry over unchanged; ``<inertial>`` with an origin
   rpy is rotated into the link frame (``I_link = R I R^T`` about the centre of mass).
@@ -38,7 +48,7 @@ Mapping onto our tree:
 * ``<limit effort>`` becomes the joint's effort limit (commands are clamped to ±effort and the
   clamps counted, see :mod:`robodyn_ros.simulation`); ``effort="0"`` means "no limit given" (the
   ROS convention: many vendor exports write it on every joint) and is read so, with one warning
-  naming the joints; ``lower``/``upper`` become ``LinkSpec.limits`` (reported, exported, checked
+  naming the joints, and so does ``velocity="0"`` (or below); ``lower``/``upper`` become ``LinkSpec.limits`` (reported, exported, checked
   against the initial state; enforced by the joint-limit moments of Huston eq. 20.2.1 only when a
   scene's ``kind: urdf`` part gives ``position_limits``, :func:`robodyn_ros.scene.build_urdf_part`);
   ``lower == upper`` means none given; ``velocity`` (> 0) becomes ``LinkSpec.velocity_limit``: not
@@ -81,48 +91,24 @@ parents, a loop, several roots, an unknown joint type, a moving link whose subtr
 from __future__ import annotations
 
 import math
-import os
-import re
 import warnings
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from .model import COULOMB_VELOCITY, Collision, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
-from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis, rpy_to_R
+from .mass_properties import DENSITY, combine, shape_properties
+from .meshes import example_robot_data_dir
+from .model import COULOMB_VELOCITY, LinkSpec, ModelError, _check_inertia, build_model, resolve_mimics
+from .spatial import R_to_rpy, inertia_parts, mcI, plux, rot_axis
+from .urdf_xml import _TRAILING_READ, UrdfError, UrdfText, UrdfWarning, _Joint, _Link, _load, _parse_document, _parse_robot
 
-__all__ = ['UrdfError', 'UrdfWarning', 'UrdfRobot', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
+__all__ = ['UrdfError', 'UrdfWarning', 'UrdfRobot', 'UrdfText', 'read_urdf', 'COULOMB_VELOCITY', 'example_robot_data_dir']
 
-_MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic'}
-_JOINT_TYPES = ('revolute', 'continuous', 'prismatic', 'fixed', 'floating', 'planar')
-#: the URDF format's elements (children of robot, link, joint, inertial); others are noted and ignored
-_KNOWN = {'robot': {'link', 'joint', 'material', 'transmission', 'gazebo'},
-          'link': {'inertial', 'visual', 'collision'},
-          'joint': {'origin', 'parent', 'child', 'axis', 'calibration', 'dynamics', 'limit', 'mimic',
-                    'safety_controller'},
-          'inertial': {'origin', 'mass', 'inertia'}}
-_XACRO = '{http://www.ros.org/wiki/xacro}'
+_MOVING = {'revolute': 'revolute', 'continuous': 'revolute', 'prismatic': 'prismatic', 'spherical': 'spherical'}
+_JOINT_TYPES = ('revolute', 'continuous', 'prismatic', 'fixed', 'floating', 'planar', 'spherical')
 #: relative tolerance of the inertia checks (of the largest principal moment)
 INERTIA_TOL = 1e-9
-
-
-class UrdfError(ValueError):
-    """A URDF that cannot be simulated: one line ``<file>: <where>: <reason>``.
-
-    where: the link or joint (``joint 'elbow'``, ``link 'b' (joint 'j1')``), or ``line L, column
-    C`` of an XML error; file: the file read, or None for URDF text given without a name (the
-    message is then ``<where>: <reason>``). Attributes ``file``, ``where``, ``reason``.
-    """
-
-    def __init__(self, where: str, reason: str, file: str | None = None):
-        self.where, self.reason, self.file = where, ' '.join(str(reason).split()), file
-        super().__init__(': '.join(x for x in (file, where, self.reason) if x))
-
-
-class UrdfWarning(UserWarning):
-    """Something in a URDF that was read leniently (ignored, or adapted); the message names it."""
 
 
 @dataclass
@@ -145,354 +131,56 @@ class UrdfRobot:
     notes: list = field(default_factory=list)
 
 
-def example_robot_data_dir() -> Path | None:
-    """Directory of the URDFs shipped by the ``example-robot-data`` wheel (test extras), or None."""
-    try:
-        from importlib.metadata import PackageNotFoundError, distribution
-        d = distribution('example-robot-data')
-    except (ImportError, PackageNotFoundError):
-        return None
-    p = Path(d.locate_file('cmeel.prefix/share/example-robot-data/robots'))
-    return p if p.is_dir() else None
-
-
-# ------------------------------------------------------------------------------------------------
-# the document: bytes or text -> the <robot> element
-# ------------------------------------------------------------------------------------------------
-class UrdfText(str):
-    """A str that is URDF text, never a file path (:func:`read_urdf` guesses for a plain str)."""
-
-
-def _load(source, file):
-    """``(data, base_dir, file label)`` of a URDF path, its bytes, or text (a :class:`UrdfText`, or
-    a str that is blank or starts with '<' after a BOM or whitespace); data is bytes for a file (its
-    XML declaration names the encoding), else str."""
-    if isinstance(source, (bytes, UrdfText)):
-        return (source if isinstance(source, bytes) else str(source)), None, file
-    if isinstance(source, os.PathLike) or (isinstance(source, str) and source.strip('\ufeff \t\r\n')
-                                           and not source.lstrip('\ufeff \t\r\n').startswith('<')):
-        p = Path(source)
-        try:
-            return p.read_bytes(), p.resolve().parent, file or str(source)
-        except OSError as e:
-            raise UrdfError('(file)', f'cannot read the URDF file: {e.strerror or e}', file or str(source)) from None
-    return str(source), None, file
-
-
-def _strip_head(data):
-    """Data without the byte-order mark and blank space in front of the first '<'."""
-    if isinstance(data, bytes):
-        if data.startswith((b'\xff\xfe', b'\xfe\xff')):  # UTF-16 with its BOM: decode, parse as text
-            return _strip_head(data.decode('utf-16', errors='replace'))
-        if data.startswith(b'\xef\xbb\xbf'):
-            data = data[3:]
-        return data.lstrip(b' \t\r\n')
-    return data.lstrip('\ufeff \t\r\n')
-
-
-def _parse_document(data, notes) -> ET.Element:
-    """The root element; bytes after its end are ignored with a note. Raises UrdfError with the
-    line and column of the first XML error inside the document."""
-    data = _strip_head(data)
-    if isinstance(data, str):  # text: its declared encoding no longer applies
-        data = re.sub(r'^<\?xml[^>]*\?>', '', data, count=1)
-    parser = ET.XMLPullParser(events=('start', 'end'))
-    try:
-        parser.feed(data)
-        parser.close()
-    except ET.ParseError:
-        pass  # the parser queues the error after the events read before it
-    depth, root, events = 0, None, parser.read_events()
-    try:
-        for ev, el in events:
-            if ev == 'start':
-                root = el if root is None else root
-                depth += 1
-            else:
-                depth -= 1
-                if depth == 0:
-                    break
-    except ET.ParseError as e:
-        line, col = e.position
-        raise UrdfError(f'line {line}, column {col + 1}', f'not well-formed XML: {str(e).split(":")[0]}') from None
-    if root is None or depth != 0:
-        raise UrdfError('(document)', 'not well-formed XML: ' + ('no element found' if root is None else
-                                                                 f'<{root.tag}> is never closed'))
-    if root.tag != 'robot':
-        raise UrdfError('(document)', f'the root element must be <robot>, got <{root.tag}>')
-    try:
-        for _ in events:
-            pass
-    except ET.ParseError as e:  # something after </robot>: ignored
-        line, col = e.position
-        notes.append(f'(document): ignored what follows </robot> from line {line}, column {col + 1} '
-                     f'({str(e).split(":")[0]})')
-    return root
-
-
-# ------------------------------------------------------------------------------------------------
-# elements -> plain values (each failure names the link or joint)
-# ------------------------------------------------------------------------------------------------
-def _floats(el, attr, n, where, default=None):
-    """The attribute as ``n`` finite floats (an array), or ``default`` when absent."""
-    s = el.get(attr) if el is not None else None
-    if s is None:
-        if default is None:
-            raise UrdfError(where, f'<{el.tag}> needs the attribute {attr}=')
-        return np.array(default, dtype=float)
-    parts = s.split()
-    try:
-        x = np.array([float(p) for p in parts], dtype=float)
-    except ValueError:
-        raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected {n} number{"s" if n > 1 else ""}') from None
-    if len(x) != n:
-        raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected {n} numbers, got {len(x)}')
-    if not np.all(np.isfinite(x)):
-        raise UrdfError(where, f'<{el.tag} {attr}="{s[:40]}">: expected finite numbers')
-    return x
-
-
-def _float(el, attr, where, default=None):
-    """The attribute as one finite float, or ``default`` (may be None) when absent."""
-    if el is None or el.get(attr) is None:
-        return default
-    return float(_floats(el, attr, 1, where)[0])
-
-
-def _one(el, tag, where):
-    """The child element ``tag`` (None when absent); two of them are refused (which would count?)."""
-    found = el.findall(tag)
-    if len(found) > 1:
-        raise UrdfError(where, f'{len(found)} <{tag}> elements (one expected)')
-    return found[0] if found else None
-
-
-def _origin(el, where) -> np.ndarray:
-    """Homogeneous transform (4, 4) of an ``<origin xyz rpy>`` element (identity when absent)."""
-    T = np.eye(4)
-    if el is not None:
-        T[:3, :3] = rpy_to_R(_floats(el, 'rpy', 3, where, (0.0, 0.0, 0.0)))
-        T[:3, 3] = _floats(el, 'xyz', 3, where, (0.0, 0.0, 0.0))
-    return T
-
-
-@dataclass
-class _Link:
-    """A parsed ``<link>``: mass (kg), com (3,) and inertia (3, 3) about the com in link axes
-    (None: no ``<inertial>``), and its ``<visual>`` elements as XML text."""
-
-    name: str
-    inertial: tuple | None
-    visuals: tuple
-    collisions: tuple = ()
-
-
-@dataclass
-class _Joint:
-    """A parsed ``<joint>``: origin T (4, 4), axis (3,), limit values (None when absent), dynamics,
-    mimic ``(joint, multiplier, offset)`` or None."""
-
-    name: str
-    type: str
-    parent: str
-    child: str
-    T: np.ndarray
-    axis: np.ndarray
-    effort: float | None = None
-    velocity: float | None = None
-    lower: float | None = None
-    upper: float | None = None
-    damping: float = 0.0
-    friction: float = 0.0
-    mimic: tuple | None = None
-
-
-def _inertial(el, where):
-    """``(mass, com (3,), inertia (3, 3) about the com in link axes)`` of an ``<inertial>``."""
-    T = _origin(_one(el, 'origin', where), where)
-    m_el = _one(el, 'mass', where)
-    mass = _float(m_el, 'value', where) if m_el is not None else None
-    if mass is None:
-        raise UrdfError(where, '<inertial> needs <mass value="..."/>')
-    i_el = _one(el, 'inertia', where)
-    if i_el is None:
-        raise UrdfError(where, '<inertial> needs <inertia ixx=".." iyy=".." izz=".." (ixy ixz iyz)/>')
-    d = [_float(i_el, k, where) for k in ('ixx', 'iyy', 'izz')]
-    if None in d:
-        raise UrdfError(where, '<inertia> needs ixx, iyy and izz')
-    ixy, ixz, iyz = (_float(i_el, k, where, 0.0) for k in ('ixy', 'ixz', 'iyz'))
-    I0 = np.array([[d[0], ixy, ixz], [ixy, d[1], iyz], [ixz, iyz, d[2]]])
-    R = T[:3, :3]
-    Ic = R @ I0 @ R.T
-    return mass, T[:3, 3].copy(), 0.5 * (Ic + Ic.T)
-
-
-def _visuals(elem, base_dir, materials, link) -> tuple:
-    """The ``<visual>`` elements of a link as XML text, each standing alone: relative mesh paths
-    made absolute file:// URIs, a material naming a top-level ``<material>`` given its colour, a
-    nameless material given a name (urdfdom, hence robot_state_publisher and RViz, needs one), a
-    material that is defined nowhere dropped."""
-    out = []
-    for k, v in enumerate(elem.findall('visual')):
-        v = ET.fromstring(ET.tostring(v))
-        for mesh in v.iter('mesh'):
-            fn = mesh.get('filename', '')
-            if base_dir is not None and fn and '://' not in fn:
-                mesh.set('filename', 'file://' + str((base_dir / fn).resolve()))
-        for mat in v.findall('material'):
-            own = mat.find('color') is not None or mat.find('texture') is not None
-            if not own and mat.get('name') in materials:
-                mat.extend(ET.fromstring(ET.tostring(c)) for c in materials[mat.get('name')])
-            elif not own:
-                v.remove(mat)
-                continue
-            if not mat.get('name'):
-                mat.set('name', f'{link}_visual{k}')
-        out.append(ET.tostring(v, encoding='unicode').strip())
-    return tuple(out)
-
-
-#: collision geometry -> its size attributes, in Collision.size order
-_SHAPES = {'sphere': ('radius',), 'box': ('size',), 'cylinder': ('radius', 'length'), 'capsule': ('radius', 'length'),
-           'mesh': ()}
-
-
-def _collisions(elem, base_dir, where, notes) -> tuple:
-    """The ``<collision>`` shapes of a link (:class:`robodyn_ros.model.Collision`); one that cannot be
-    read is left out with a note (collision shapes enter no dynamics: only a ground part uses them)."""
-    out = []
-    for k, c in enumerate(elem.findall('collision')):
-        what = f'{where} <collision> number {k + 1}'
-        geom = c.find('geometry')
-        shapes = [g for g in (geom if geom is not None else []) if isinstance(g.tag, str)]
-        if len(shapes) != 1 or shapes[0].tag not in _SHAPES:
-            found = ', '.join(f'<{g.tag}>' for g in shapes) or 'nothing'
-            notes.append(f'{what}: left out: its <geometry> holds {found} (one of '
-                         f'{", ".join(f"<{t}>" for t in _SHAPES)} expected)')
-            continue
-        g = shapes[0]
-        try:
-            T = _origin(_one(c, 'origin', what), what)
-            if g.tag == 'box':
-                size = tuple(float(x) for x in _floats(g, 'size', 3, what))
-            else:
-                size = tuple(float(_floats(g, a, 1, what)[0]) for a in _SHAPES[g.tag])
-            scale = tuple(float(x) for x in _floats(g, 'scale', 3, what, (1.0, 1.0, 1.0))) if g.tag == 'mesh' \
-                else (1.0, 1.0, 1.0)
-        except UrdfError as e:
-            notes.append(f'{what}: left out: {e.reason}')
-            continue
-        if any(x <= 0.0 for x in size) or any(x == 0.0 for x in scale):
-            notes.append(f'{what}: left out: <{g.tag}> sizes must be positive, got {list(size or scale)}')
-            continue
-        mesh = ''
-        if g.tag == 'mesh':
-            mesh = g.get('filename', '')
-            if not mesh:
-                notes.append(f'{what}: left out: <mesh> without a filename')
-                continue
-            if base_dir is not None and '://' not in mesh:
-                mesh = str((base_dir / mesh).resolve())
-        out.append(Collision(kind=g.tag, origin=T, size=size, mesh=mesh, scale=scale))
-    return tuple(out)
-
-
-def _joint(e, where) -> _Joint:
-    """A parsed ``<joint>`` (its name, type, parent and child already checked)."""
-    lim, dyn, mim = _one(e, 'limit', where), _one(e, 'dynamics', where), _one(e, 'mimic', where)
-    j = _Joint(name=e.get('name'), type=e.get('type'), parent=e.find('parent').get('link'),
-               child=e.find('child').get('link'), T=_origin(_one(e, 'origin', where), where),
-               axis=_floats(_one(e, 'axis', where), 'xyz', 3, where, (1.0, 0.0, 0.0)))
-    if lim is not None:
-        j.effort, j.velocity = _float(lim, 'effort', where), _float(lim, 'velocity', where)
-        j.lower, j.upper = _float(lim, 'lower', where), _float(lim, 'upper', where)
-    if dyn is not None:
-        j.damping, j.friction = _float(dyn, 'damping', where, 0.0), _float(dyn, 'friction', where, 0.0)
-    if mim is not None:
-        if not mim.get('joint'):
-            raise UrdfError(where, '<mimic> needs joint="..."')
-        j.mimic = (mim.get('joint'), _float(mim, 'multiplier', where, 1.0), _float(mim, 'offset', where, 0.0))
-    return j
-
-
-def _parse_robot(root, base_dir, notes, default_name):
-    """``(name, links {name: _Link} in file order, joints [_Joint])`` of the ``<robot>`` element."""
-    unknown = {}
-
-    def note_unknown(el, level, path):
-        for c in el:
-            if not isinstance(c.tag, str):
-                continue  # comments, processing instructions
-            if c.tag.startswith(_XACRO):
-                raise UrdfError(f'{path}<xacro:{c.tag[len(_XACRO):]}>',
-                                'an unexpanded xacro macro: run xacro on the file first (xacro robot.urdf.xacro > '
-                                'robot.urdf)')
-            if c.tag not in _KNOWN[level]:
-                unknown[f'{path}<{c.tag}>'] = unknown.get(f'{path}<{c.tag}>', 0) + 1
-    note_unknown(root, 'robot', '')
-    materials = {m.get('name'): list(m) for m in root.findall('material') if m.get('name')}
-    links = {}
-    for k, e in enumerate(root.findall('link')):
-        name = e.get('name')
-        if not name:
-            raise UrdfError(f'<link> number {k + 1}', 'needs a name attribute')
-        where = f'link {name!r}'
-        if name in links:
-            raise UrdfError(where, 'duplicate link name')
-        note_unknown(e, 'link', '<link>/')
-        in_el = _one(e, 'inertial', where)
-        if in_el is not None:
-            note_unknown(in_el, 'inertial', '<inertial>/')
-        links[name] = _Link(name, _inertial(in_el, where) if in_el is not None else None,
-                            _visuals(e, base_dir, materials, name), _collisions(e, base_dir, where, notes))
-    joints = []
-    for k, e in enumerate(root.findall('joint')):
-        name = e.get('name')
-        if not name:
-            raise UrdfError(f'<joint> number {k + 1}', 'needs a name attribute')
-        where = f'joint {name!r}'
-        if not e.get('type'):
-            raise UrdfError(where, 'needs a type attribute')
-        for end in ('parent', 'child'):
-            el = _one(e, end, where)
-            if el is None or not el.get('link'):
-                raise UrdfError(where, f'missing <{end} link="..."/>')
-        note_unknown(e, 'joint', '<joint>/')
-        joints.append(_joint(e, where))
-    if unknown:
-        notes.append('(document): ignored elements that are not URDF: ' +
-                     ', '.join(f'{t}' + (f' x{n}' if n > 1 else '') for t, n in unknown.items()))
-    return root.get('name') or default_name, links, joints
-
-
 # ------------------------------------------------------------------------------------------------
 # the robot: parsed links and joints -> checked LinkSpecs
 # ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Options:
+    """What :func:`read_urdf` was asked beyond the file: density (kg/m³) of the solids inferred for
+    moving links without ``<inertial>`` (0: none inferred); armature: 'auto', a number for every
+    moving joint, or ``{joint: value}``."""
+
+    density: float = DENSITY
+    armature: object = 'auto'
+
+
 def read_urdf(source, floating: bool = False, locked: dict | None = None, file: str | None = None,
-              base_dir=None) -> UrdfRobot:
+              base_dir=None, density: float = DENSITY, armature='auto') -> UrdfRobot:
     """Read a URDF and check that it can be simulated.
 
     source: a file path, the file's bytes, or the URDF text; floating: give the root link a FREE
     (6-DOF) joint; locked: joint name -> position (rad or m) of joints to freeze as FIXED (e.g.
     gripper fingers, or ``<mimic>`` joints); file: the name messages give the source (default:
     the path, or none for text); base_dir: where relative mesh paths start for bytes or text (a
-    path's own directory otherwise). Returns a :class:`UrdfRobot`; raises :class:`UrdfError` (one
-    line); issues a :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
+    path's own directory otherwise); density: kg/m³ of the solids a moving link without
+    ``<inertial>`` is inferred to be (its collision, else visual, shapes; 0: none inferred, the link
+    is massless); armature: ``'auto'`` (the smallest :data:`robodyn_ros.armature.LADDER` value on the
+    joints of a mass matrix singular at q = 0, with a note; none where M is regular), a number >= 0
+    (every moving joint; 0: none) or ``{joint: value}``. Returns a :class:`UrdfRobot`; raises
+    :class:`UrdfError` (one line); issues a :class:`UrdfWarning` per note (also in ``UrdfRobot.notes``).
     """
     data, own_dir, label = _load(source, file)
     base_dir = own_dir if base_dir is None else Path(base_dir)
-    notes = []
+    notes, trailing = [], []
+    token = _TRAILING_READ.set(trailing)
     try:
-        robot = _read(data, base_dir, label, floating, dict(locked or {}), notes)
+        robot = _read(data, base_dir, label, floating, dict(locked or {}), notes, _Options(float(density), armature))
     except UrdfError as e:
         raise UrdfError(e.where, e.reason, label) from None
+    finally:
+        _TRAILING_READ.reset(token)
+    if trailing:
+        seen = list(dict.fromkeys(f'{w} {t}' for w, t in trailing))
+        notes.insert(0, f'{len(seen)} number{"s" if len(seen) > 1 else ""} with a trailing dot read as C\'s strtod '
+                        f'reads {"them" if len(seen) > 1 else "it"} (the dot ignored): ' + ', '.join(seen[:6]) +
+                     (f' and {len(seen) - 6} more' if len(seen) > 6 else ''))
     for n in notes:
         warnings.warn(UrdfWarning(f'{label}: {n}' if label else n), stacklevel=2)
     robot.notes = [f'{label}: {n}' if label else n for n in notes]
     return robot
 
 
-def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
+def _read(data, base_dir, label, floating, locked, notes, opts: _Options) -> UrdfRobot:
     """:func:`read_urdf` without the file name in its errors and notes."""
     xml_root = _parse_document(data, notes)
     default_name = Path(label).stem if label else 'robot'
@@ -538,7 +226,8 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
             (links[root].inertial is None or links[root].inertial[0] == 0.0):
         floating, root = True, children[root][0]
         free_joint = parent_of.pop(root).name
-    specs, no_inertial, no_effort = [], {n for n, lk in links.items() if lk.inertial is None}, []
+    _infer_inertials(links, _inferable(links, parent_of, root, floating), base_dir, opts.density, notes)
+    specs, no_inertial, no_effort, no_velocity = [], {n for n, lk in links.items() if lk.inertial is None}, [], []
     for lname in _depth_first(root, children):
         lk = links[lname]
         if lname == root:
@@ -555,8 +244,16 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
                                    'write it as two prismatic joints and one revolute joint')
         if j.type not in _JOINT_TYPES:
             raise UrdfError(where, f'unknown joint type {j.type!r}; supported: revolute, continuous, prismatic, '
-                                   'fixed, floating (root only)')
-        s = _spec(lk, j, 'fixed' if j.type == 'fixed' else _MOVING[j.type], j.name, no_effort)
+                                   'fixed, spherical, floating (root only)')
+        if j.type == 'spherical':
+            unused = [w for w, given in (('<limit effort>', j.effort), ('<limit velocity>', j.velocity),
+                                         ('<limit lower>', j.lower), ('<limit upper>', j.upper),
+                                         ('<dynamics friction>', j.friction or None), ('<mimic>', j.mimic))
+                      if given is not None]
+            if unused:
+                notes.append(f'{where}: a spherical joint (3 DOF, no axis): {", ".join(unused)} ignored; its '
+                             '<dynamics damping> acts on each of its three rates')
+        s = _spec(lk, j, 'fixed' if j.type == 'fixed' else _MOVING[j.type], j.name, no_effort, no_velocity)
         if j.name in locked and j.type != 'fixed':
             s = _lock(s, j.name, locked[j.name])
         elif j.mimic is not None and j.type != 'fixed':
@@ -572,6 +269,9 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
     if no_effort:
         notes.append(f'<limit effort="0"> read as "no effort limit given" (the ROS convention) on '
                      f'{len(no_effort)} joint{"s" if len(no_effort) > 1 else ""}: {", ".join(no_effort)}')
+    if no_velocity:
+        notes.append(f'<limit velocity="0"> (or below) read as "no velocity limit given", as effort="0" is, on '
+                     f'{len(no_velocity)} joint{"s" if len(no_velocity) > 1 else ""}: {", ".join(no_velocity)}')
     for s in specs:  # before lumping: a negative mass is refused wherever it is
         if s.mass < 0.0:
             raise UrdfError(f'link {s.name!r} (joint {s.joint!r})', f'mass must be >= 0, got {s.mass!r}')
@@ -584,9 +284,116 @@ def _read(data, base_dir, label, floating, locked, notes) -> UrdfRobot:
         raise UrdfError(where, reason) if reason else UrdfError(f'robot {name!r}', str(e)) from None
     bare = _massless(specs, no_inertial, resolve_mimics(specs))
     if bare:
-        return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare)
+        return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare, opts)
+    specs = _with_armature(specs, opts.armature, floating, root, name, notes)
     vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
     return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
+
+
+def _inferable(links: dict, parent_of: dict, root: str, floating: bool) -> list:
+    """The links whose mass :func:`_infer_inertials` infers: those of a moving rigid body (a link on a
+    moving joint, or the floating root, with the links welded to it by fixed joints) none of whose links
+    has an ``<inertial>`` (a body whose mass the file puts on a welded link, as ANYmal's ``base_inertia``
+    for its ``base``, keeps the file's mass)."""
+    def head(n):
+        while n in parent_of and parent_of[n].type == 'fixed':
+            n = parent_of[n].parent
+        return n
+    group = {}
+    for n in links:
+        group.setdefault(head(n), []).append(n)
+    out = []
+    for h, members in group.items():
+        moving = (h == root and floating) or (h in parent_of and parent_of[h].type in _MOVING)
+        if moving and all(links[n].inertial is None for n in members):
+            out += members
+    return out
+
+
+def _infer_inertials(links: dict, moving: list, base_dir, density: float, notes) -> None:
+    """Give each link of ``moving`` (:func:`_inferable`; links: name -> :class:`_Link`, modified in place)
+    the mass properties of its ``<collision>`` shapes (else its ``<visual>`` shapes) as solids of
+    ``density`` kg/m³ (:mod:`robodyn_ros.mass_properties`), as MuJoCo's ``inertiafromgeom`` does; one
+    note names them. A link with no shape stays massless (:func:`_massless` then judges its joint);
+    a mesh that cannot be read is refused, naming the link (its mass would be a guess)."""
+    if not density > 0.0:
+        return
+    done = []
+    for n in moving:
+        lk = links[n]
+        if lk.inertial is not None:
+            continue
+        shapes, source = (lk.collisions, 'collision') if lk.collisions else (lk.visual_shapes, 'visual')
+        if not shapes:
+            continue
+        parts = []
+        for c in shapes:
+            verts = None
+            if c.kind == 'mesh':
+                from .meshes import MeshError, mesh_vertices, resolve_uri
+                try:
+                    verts = mesh_vertices(resolve_uri(c.mesh, base_dir)) * np.asarray(c.scale, dtype=float)
+                except MeshError as e:
+                    raise UrdfError(f'link {n!r}', f'has no <inertial>, and its <{source}> mesh cannot be read to '
+                                                   f'infer one ({e}); give the link an <inertial>') from None
+            try:
+                m, com, Ic = shape_properties(c.kind, c.size, density, verts)
+            except ValueError as e:
+                raise UrdfError(f'link {n!r}', f'has no <inertial>, and its <{source}> {c.kind} gives no volume to '
+                                               f'infer one from ({e}); give the link an <inertial>') from None
+            parts.append((m, com, Ic, np.asarray(c.origin)[:3, :3], np.asarray(c.origin)[:3, 3]))
+        m, com, Ic = combine(parts)
+        lk.inertial = (m, com, Ic)
+        done.append(f'{n} {_g(m)} kg ({len(parts)} {source} shape{"s" if len(parts) > 1 else ""})')
+    if done:
+        notes.append(f'{len(done)} moving link{"s" if len(done) > 1 else ""} without <inertial>: mass and inertia '
+                     f'inferred from {"their" if len(done) > 1 else "its"} geometry as solids of density '
+                     f'{_g(density)} kg/m³ (as MuJoCo\'s inertiafromgeom; meshes by their convex hull): '
+                     + ', '.join(done) + '; give the links an <inertial> for their real values')
+
+
+def _with_armature(specs, armature, floating: bool, root: str, name: str, notes) -> list:
+    """The specs with joint armature (:mod:`robodyn_ros.armature`): ``'auto'`` adds the smallest
+    :data:`~robodyn_ros.armature.LADDER` value to the joints of a mass matrix singular at q = 0, with a
+    note (none where M is regular, or where no value is enough: the preflight then refuses the robot,
+    naming the joints); a number goes on every moving joint, a mapping on the joints it names."""
+    from . import armature as arm
+    takes = [s.joint for s in specs if s.joint_type in ('revolute', 'prismatic', 'spherical')]
+    if isinstance(armature, str) and armature == 'auto':
+        if not takes:
+            return specs
+        model = build_model(specs, root='__urdf_world__' if floating else root, name=name)
+        found = arm.regularising_armature(model)
+        if found is None or found[0] is None:
+            return specs
+        a, joints, (w0, w1) = found
+        js = f'joint{"s" if len(joints) > 1 else ""} {", ".join(joints)}'
+        notes.append(f'the mass matrix is singular at q = 0 (eigenvalues {w0:.3g} .. {w1:.3g}: a motion of {js} '
+                     f'meets no inertia there): armature {a:g} kg·m² (kg for a prismatic joint) '
+                     f'added to {"them" if len(joints) > 1 else "it"}, the smallest of {", ".join(f"{x:g}" for x in arm.LADDER)} '
+                     f'that makes M regular (rotor inertia, as real joints have; none in the URDF); give the part '
+                     f'armature: to choose it (0: none)')
+        given = {j: a for j in joints}
+    elif isinstance(armature, dict):
+        given = {}
+        for j, a in armature.items():
+            if j not in takes:
+                raise UrdfError(f'armature joint {j!r}', f'not a moving (revolute, prismatic or spherical) joint; '
+                                                          f'those are {takes}')
+            given[j] = a
+    else:
+        given = {j: armature for j in takes}
+    out = []
+    for s in specs:
+        a = given.get(s.joint, 0.0)
+        try:
+            a = float(a)
+        except (TypeError, ValueError):
+            raise UrdfError(f'armature joint {s.joint!r}', f'expected a number >= 0, got {a!r}') from None
+        if not (math.isfinite(a) and a >= 0.0):
+            raise UrdfError(f'armature joint {s.joint!r}', f'expected a finite number >= 0, got {a!r}')
+        out.append(replace(s, armature=a) if a else s)
+    return out
 
 
 def _physical(s: LinkSpec) -> bool:
@@ -670,9 +477,10 @@ def _depth_first(root, children):
     return out
 
 
-def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
+def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort, no_velocity=None) -> LinkSpec:
     """LinkSpec of link ``lk`` hanging from joint ``j`` (None for the root); joints whose
-    ``<limit effort="0">`` is read as no limit are appended to no_effort."""
+    ``<limit effort="0">`` (``velocity="0"``) is read as no limit are appended to no_effort
+    (no_velocity). A spherical joint keeps its damping only (:func:`_read` notes the rest)."""
     mass, com, Ic = lk.inertial if lk.inertial is not None else (0.0, np.zeros(3), np.zeros((3, 3)))
     kw = dict(name=lk.name, joint=jname, parent=None, joint_type=jtype, mass=mass, com=tuple(com), inertia=Ic,
               visuals=lk.visuals, collisions=lk.collisions)
@@ -683,6 +491,10 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
               origin_rpy=tuple(R_to_rpy(j.T[:3, :3])))
     if jtype == 'fixed':
         return LinkSpec(**kw)
+    if jtype == 'spherical':
+        if j.damping < 0.0:
+            raise UrdfError(jw, f'<dynamics damping> must be >= 0, got {j.damping!r}')
+        return LinkSpec(**kw, damping=j.damping)
     kw.update(axis=tuple(float(x) for x in j.axis), damping=j.damping, friction=j.friction)
     for k in ('damping', 'friction'):
         if kw[k] < 0.0:
@@ -694,8 +506,10 @@ def _spec(lk: _Link, j: _Joint | None, jtype, jname, no_effort) -> LinkSpec:
             no_effort.append(j.name)
         else:
             kw['effort_limit'] = j.effort
-    if j.velocity is not None and j.velocity > 0.0:  # reported only; <= 0 (written by some exporters) = none
+    if j.velocity is not None and j.velocity > 0.0:  # reported only
         kw['velocity_limit'] = j.velocity
+    elif j.velocity is not None and no_velocity is not None:   # <= 0 (written by some exporters): none given
+        no_velocity.append(j.name)
     if j.type != 'continuous' and (j.lower is not None or j.upper is not None):
         lo, hi = j.lower or 0.0, j.upper or 0.0
         if lo < hi:  # URDF: lower == upper means "no limits given" for some exporters
@@ -735,6 +549,10 @@ def _lock(s: LinkSpec, name: str, q) -> LinkSpec:
     if s.limits is not None and not s.limits[0] <= q <= s.limits[1]:
         raise UrdfError(where, f'position {q!r} is outside its limits {list(s.limits)}')
     R0 = np.asarray(s.origin_R, dtype=float)
+    if s.joint_type == 'spherical':   # locked at its identity orientation only (a position is one number)
+        if q != 0.0:
+            raise UrdfError(where, f'a spherical joint locks at its zero (identity) orientation only, got {q!r}')
+        return replace(s, joint_type='fixed', damping=0.0)
     a = np.asarray(s.axis, dtype=float)
     na = np.linalg.norm(a)
     if not na > 1e-9:
@@ -776,14 +594,14 @@ def _massless(specs, no_inertial, mimics) -> list:
             (' (nor have those of the joints that mimic it)' if s.joint in followers else '') + \
             '; its joint would have no inertia to accelerate'
         if s.name in no_inertial:
-            out.append((s, where, f'missing <inertial> on a moving link{rest} (give it an <inertial> or make the '
-                                  'joint fixed)'))
+            out.append((s, where, f'missing <inertial> on a moving link, and no <collision> or <visual> geometry to '
+                                  f'infer one from{rest} (give it an <inertial> or make the joint fixed)'))
         else:
             out.append((s, where, f'zero-mass moving link{rest} (give it a mass or make the joint fixed)'))
     return out
 
 
-def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) -> UrdfRobot:
+def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare, opts) -> UrdfRobot:
     """The robot read again with the massless moving joints of ``bare`` (:func:`_massless`) locked as
     fixed joints at 0 (or the limit nearest 0), and the joints that mimic them with them, with one
     note naming them (vendor URDFs carry such joints: a hand's massless finger links, a sensor on a
@@ -800,7 +618,7 @@ def _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare) 
         raise UrdfError(where, reason)
     fresh = []
     try:
-        robot = _read(data, base_dir, label, floating, {**locked, **at}, fresh)
+        robot = _read(data, base_dir, label, floating, {**locked, **at}, fresh, opts)
     except UrdfError:
         raise UrdfError(where, reason) from None
     names = ', '.join(f'{j} at {q:.6g}' for j, q in at.items())

@@ -1,12 +1,15 @@
 """``robodyn bench urdf``: the example-robot-data table (docs/urdf_robots.md) parsed: one row per
 installed URDF, counts in its summary equal to its rows, a reason on every refusal, DOF equal to
-Pinocchio's; and the script itself on a few robots."""
+Pinocchio's; the script itself on a few robots; and (marked ``urdf_table``, a step of its own in
+``.ci/run``) the whole table run again, every row and count compared with the committed file."""
 from __future__ import annotations
 
+import argparse
 import re
 from pathlib import Path
 
 import pinocchio as pin
+import pytest
 
 from robodyn_ros.bench import urdf as bench_urdf
 from robodyn_ros.urdf import example_robot_data_dir
@@ -91,7 +94,8 @@ def test_the_script_on_four_robots_tabulates_runs_refusals_and_their_words(tmp_p
     solo = example_robot_data_dir() / by['solo12'][1]
     assert by['solo12'][2:4] == (pin.buildModelFromUrdf(str(solo)).nv, 'runs')  # on a fixed base, as robodyn run
     assert by['double_pendulum_simple'][2:4] == (2, 'runs')
-    assert by['double_pendulum_simple'][4] == '`effort="0" read as no limit (2 joints)`'
+    assert by['double_pendulum_simple'][4] == ('`effort="0" read as no limit (2 joints)`; '
+                                               '`velocity="0" read as no limit (2 joints)`')
     assert by['ur3'][3] == 'refused' and by['ur3'][4] == "`robot 'ur3': no <link> element: nothing to simulate`"
     # xarm7's damping (2-10 N·m·s/rad on light links, |λ| = 1.6e5 1/s) is stiff at 1 ms: auto runs it implicitly
     assert by['xarm7'][3] == 'runs' and by['xarm7'][5] == 'rosenbrock2', by['xarm7']
@@ -112,3 +116,23 @@ def test_readme_and_docs_urdf_quote_the_table_counts():
         assert m, f
         assert tuple(int(x) for x in m.groups()) == (counts['total'], counts['runs'], counts.get('with rk4', 0),
                                                      counts.get('with rosenbrock2', 0), stiff, other), f
+
+
+@pytest.mark.urdf_table
+def test_the_whole_table_run_now_gives_the_committed_rows_and_counts(tmp_path, capsys):
+    """Every example-robot-data URDF through ``robodyn run FILE --duration 0.2`` (``robodyn bench urdf``,
+    two at a time): the counts of this run (runs, by integrator, refusals by cause) and each row (DOF,
+    verdict, integrator, the reason or warnings printed) equal those of docs/urdf_robots.md, whose counts
+    README.md and docs/urdf.md quote (test_readme_and_docs_urdf_quote_the_table_counts)."""
+    out = tmp_path / 'table.md'
+    args = bench_urdf.add_arguments(argparse.ArgumentParser()).parse_args(['--out', str(out), '--jobs', '2'])
+    assert bench_urdf.main(args) == 0
+    counts, rows = parse(out.read_text())
+    _consistent(counts, rows)
+    assert len(rows) == 69 and counts['runs'] == sum(r[3] == 'runs' for r in rows)
+    committed_counts, committed = parse(DOC.read_text())
+    assert counts == committed_counts, (counts, committed_counts)
+    assert len(committed) == len(rows)
+    for now, then in zip(rows, committed):
+        assert now == then, (now, then)
+    capsys.readouterr()

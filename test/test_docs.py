@@ -33,15 +33,8 @@ FIG = r'(?<![\w.])[−-]?([0-9]+(?:\.[0-9]+)?(?:e[-−+]?[0-9]+)?)'
 #: how far above its figure a printed bound may lie (the tests' ~100x rule, with room for a bound
 #: shared by several cases); a lower bound ("tested > x") as far below
 RATIO = 1000.0
-#: figures beside a bound that breaks the rule in the rooms other helpers are rewriting (docs/integrators.md,
-#: docs/urdf*.md): ``(file, figure, bound)``, to be fixed there; none elsewhere
-PENDING = {
-    # '2.2e-11 rad from the exact solution over 2 s at RK4 1 ms (tested < 1e-9)': the bound is read as the
-    # step's; the figure must stand just before its bound
-    ('urdf.md', 1.0, 1e-9),
-    # '... to ≤ 3e-15 (both tested < 1e-10)': a bound 3e4 times its figure
-    ('urdf.md', 3e-15, 1e-10),
-}
+#: figures beside a bound that breaks the rule, to be fixed: ``(file, figure, bound)``; none now
+PENDING = set()
 
 
 def _number(text: str) -> float:

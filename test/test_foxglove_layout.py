@@ -1,26 +1,37 @@
-"""config/foxglove/robodyn_layout.json: a Foxglove Studio layout that opens a recording as a person
-wants to see it (the robot in a 3D panel, plots of joints, wrenches and energy drift).
+"""Foxglove layouts (``robodyn layout``, :mod:`robodyn_ros.layout`) against recordings of every bundled
+scene and of URDF robots: no panel is empty.
 
-Checked against a recording of the default scene (``make run``'s stanford_arm, 0.2 s headless):
-the file is valid JSON in Foxglove's exported-layout shape (``configById`` + a split tree naming
-every panel once), each panel's config uses only keys Foxglove's panels know (taken from Foxglove
-Studio's sources: the 3D panel's ``RendererConfig``/``CameraState``, the Plot panel's
-``PlotConfig``/``PlotPath``), the 3D panel shows ``/robot_description`` with the camera a few
-metres from the robot, and every message path of every plot resolves to numbers in the recorded
-messages (a small evaluator of the path syntax the layout uses: fields, ``[i]``, ``[:]`` and
-``{key=="..."}`` filters).
+For each scene a short recording is made (the recorder ``robodyn run`` uses). The layout made from
+the scene equals the one made from its recording; it is a layout in Foxglove's exported shape
+(``configById`` + a split tree naming every panel once), each panel's config uses only keys
+Foxglove Studio's panels know (from its sources: the 3D panel's ``RendererConfig``/``CameraState``,
+the Plot panel's ``PlotConfig``/``PlotPath``, the Publish panel's config); the 3D panel shows topics
+the recording has, follows a frame it has; and every message path of every plot resolves to numbers
+in the recorded messages (a small evaluator of the path syntax the layouts use: fields, ``[i]``,
+``[:]`` and ``{key=="..."}`` filters). The bundled ``config/foxglove/robodyn_layout.json`` is the
+stanford_arm layout.
 """
 from __future__ import annotations
 
 import json
+import math
 import re
-import subprocess
-import sys
+import warnings
 from pathlib import Path
 
 import pytest
 
-LAYOUT = Path(__file__).resolve().parents[1] / 'config' / 'foxglove' / 'robodyn_layout.json'
+from robodyn_ros.layout import MAX_LINES, layout, layout_text, recording_info, scene_info
+from robodyn_ros.recording import cdr
+from robodyn_ros.recording.reader import read_messages
+from robodyn_ros.recording.run_sink import McapRunSink
+from robodyn_ros.runs import plan_run, resolve_settings
+from robodyn_ros.scene import list_scenes, load_scene
+from robodyn_ros.simulation import Simulator, run_headless
+
+REPO = Path(__file__).resolve().parents[1]
+LAYOUT = REPO / 'config' / 'foxglove' / 'robodyn_layout.json'
+SCENES = [name for name, _ in list_scenes()]
 
 TOP_KEYS = {'configById', 'globalVariables', 'userNodes', 'playbackConfig', 'layout'}
 SPLIT_KEYS = {'first', 'second', 'direction', 'splitPercentage'}
@@ -34,6 +45,7 @@ SCENE_KEYS = {'enableStats', 'backgroundColor', 'labelScaleFactor', 'ignoreColla
               'syncCamera', 'topicsVisible'}
 SCENE_TRANSFORM_KEYS = {'editable', 'showLabel', 'labelSize', 'axisScale', 'lineWidth', 'lineColor',
                         'enablePreloading'}
+FRAME_KEYS = {'visible', 'frameLocked', 'xyzOffset', 'rpyCoefficient'}
 GRID_KEYS = {'visible', 'frameLocked', 'label', 'instanceId', 'layerId', 'frameId', 'size', 'divisions', 'lineWidth',
              'color', 'position', 'rotation', 'order'}
 PUBLISH_KEYS = {'type', 'poseTopic', 'pointTopic', 'poseEstimateTopic', 'poseEstimateXDeviation',
@@ -42,27 +54,46 @@ PLOT_KEYS = {'title', 'paths', 'minYValue', 'maxYValue', 'showXAxisLabels', 'sho
              'legendDisplay', 'showPlotValuesInLegend', 'isSynced', 'xAxisVal', 'xAxisPath', 'sidebarDimension',
              'followingViewWidth', PANEL_TITLE}
 PLOT_PATH_KEYS = {'value', 'enabled', 'timestampMethod', 'label', 'color', 'showLine'}
+PUBLISH_PANEL_KEYS = {'topicName', 'datatype', 'buttonText', 'buttonTooltip', 'buttonColor', 'advancedView', 'value',
+                      PANEL_TITLE}
+
+
+def _record(path, scene, duration=0.06):
+    """A short recording of ``scene`` as robodyn run makes it (diagnostics every period)."""
+    plan, st = plan_run(resolve_settings(scene, duration=duration), scene.system, scene.y0)
+    sim = Simulator(scene.system, scene.y0, plan=plan)
+    sink = McapRunSink(path, scene, {**st, 'mode': 'headless'}, diagnostics_period=0.01, batch=8)
+    try:
+        run_headless(sim, duration, st['rate'], scene.script, [sink])
+    finally:
+        sink.close()
+    return path
+
+
+def _urdf_robots():
+    from robodyn_ros.urdf import example_robot_data_dir
+    d = example_robot_data_dir()
+    return [d / 'ur_description' / 'urdf' / 'ur5_robot.urdf', d / 'solo_description' / 'robots' / 'solo12.urdf']
 
 
 @pytest.fixture(scope='module')
-def layout():
-    return json.loads(LAYOUT.read_text())
-
-
-@pytest.fixture(scope='module')
-def recording(tmp_path_factory):
-    """topic -> [decoded message] of a 0.2 s stanford_arm recording."""
-    out = tmp_path_factory.mktemp('fox') / 'arm.mcap'
-    p = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'run', 'stanford_arm', '--duration', '0.2',
-                        '--record', str(out)], capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stdout + p.stderr
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    msgs = {}
-    with open(out, 'rb') as f:
-        for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-            msgs.setdefault(channel.topic, []).append(msg)
-    return msgs
+def runs(tmp_path_factory):
+    """name -> (scene layout info, recording path, topic -> [decoded message]) for every bundled scene
+    and two example-robot-data URDFs."""
+    tmp = tmp_path_factory.mktemp('layouts')
+    out = {}
+    sources = [(n, n) for n in SCENES] + [(p.stem, str(p)) for p in _urdf_robots()]
+    assert len(sources) == len(SCENES) + 2 >= 19
+    for name, src in sources:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            scene = load_scene(src)
+            path = _record(tmp / f'{name}.mcap', scene)
+        msgs = {}
+        for topic, _, _, msg in read_messages(path):
+            msgs.setdefault(topic, []).append(msg)
+        out[name] = (scene_info(scene), path, msgs)
+    return out
 
 
 def _panels(node):
@@ -73,38 +104,6 @@ def _panels(node):
     assert node['direction'] in ('row', 'column')
     assert 0 < node.get('splitPercentage', 50) < 100
     return _panels(node['first']) + _panels(node['second'])
-
-
-def test_layout_is_a_foxglove_layout_naming_each_panel_once(layout):
-    assert set(layout) == TOP_KEYS
-    ids = _panels(layout['layout'])
-    assert sorted(ids) == sorted(layout['configById']) and len(set(ids)) == len(ids)
-    kinds = [i.split('!')[0] for i in ids]
-    assert kinds.count('3D') == 1 and kinds.count('Plot') == 4 and set(kinds) == {'3D', 'Plot'}
-    assert all(re.fullmatch(r'[A-Za-z0-9]+![a-z0-9]+', i) for i in ids), ids
-    assert layout['playbackConfig'] == {'speed': 1}
-
-
-def test_3d_panel_shows_the_robot_description_with_the_camera_on_the_robot(layout, recording):
-    cfg = layout['configById']['3D!robodyn']
-    assert set(cfg) <= THREE_D_KEYS
-    cam = cfg['cameraState']
-    assert set(cam) == CAMERA_KEYS
-    assert 1.0 <= cam['distance'] <= 6.0 and cam['near'] < 0.1      # a few metres, not Foxglove's 20 m
-    assert cam['target'] == [0, 0, 0] and max(abs(x) for x in cam['targetOffset']) <= 1.0
-    assert cfg['followMode'] in FOLLOW_MODES
-    assert set(cfg['scene']) <= SCENE_KEYS and set(cfg['scene']['transforms']) <= SCENE_TRANSFORM_KEYS
-    assert set(cfg['publish']) == PUBLISH_KEYS
-    # the URDF layer of the recorded /robot_description is switched on (Foxglove hides topics by default)
-    assert cfg['topics'] == {'/robot_description': {'visible': True}}
-    assert '/robot_description' in recording and '<robot' in recording['/robot_description'][0].data
-    for layer in cfg['layers'].values():
-        assert layer['layerId'] == 'foxglove.Grid' and set(layer) <= GRID_KEYS
-    # no display frame is forced: Foxglove picks base_link, else odom, whichever the recording has
-    assert 'followTf' not in cfg
-    parents = {t.header.frame_id for m in recording['/tf'] for t in m.transforms}
-    children = {t.child_frame_id for m in recording['/tf'] for t in m.transforms}
-    assert 'base_link' in parents - children and {'link1', 'link6'} <= children   # base_link: the root
 
 
 def _resolve(msg, path):
@@ -129,19 +128,96 @@ def _resolve(msg, path):
     return values
 
 
-def test_every_plot_path_resolves_to_numbers_in_a_recording(layout, recording):
-    topics = sorted(recording, key=len, reverse=True)
-    n = 0
-    for pid, cfg in layout['configById'].items():
-        if not pid.startswith('Plot!'):
-            continue
-        assert set(cfg) <= PLOT_KEYS and cfg['xAxisVal'] == 'timestamp' and cfg['paths']
+def _check_shape(lay, live=False):
+    assert set(lay) == TOP_KEYS and lay['playbackConfig'] == {'speed': 1}
+    ids = _panels(lay['layout'])
+    assert sorted(ids) == sorted(lay['configById']) and len(set(ids)) == len(ids)
+    kinds = [i.split('!')[0] for i in ids]
+    assert kinds.count('3D') == 1 and kinds.count('Plot') == 4 and kinds.count('Publish') == (1 if live else 0)
+    assert all(re.fullmatch(r'[A-Za-z0-9]+![a-z0-9]+', i) for i in ids), ids
+    return ids
+
+
+@pytest.mark.parametrize('name', SCENES + ['ur5_robot', 'solo12'])
+def test_the_layout_of_a_scene_fits_its_recording(runs, name):
+    info, path, msgs = runs[name]
+    lay = layout(info)
+    assert lay == layout(recording_info(path))      # the scene's layout is its recordings' layout
+    _check_shape(lay)
+    cfg = lay['configById']['3D!robodyn']
+    assert set(cfg) <= THREE_D_KEYS and set(cfg['cameraState']) == CAMERA_KEYS
+    assert 1.0 <= cfg['cameraState']['distance'] <= 20.0 and cfg['followMode'] in FOLLOW_MODES
+    assert set(cfg['scene']) <= SCENE_KEYS and set(cfg['scene']['transforms']) <= SCENE_TRANSFORM_KEYS
+    assert set(cfg['publish']) == PUBLISH_KEYS
+    for layer in cfg['layers'].values():
+        assert layer['layerId'] == 'foxglove.Grid' and set(layer) <= GRID_KEYS
+    # the shown topics are recorded: the robot, and on a ground its markers (touching points after the drop)
+    assert set(cfg['topics']) <= set(msgs) and '/robot_description' in cfg['topics']
+    assert all(v == {'visible': True} for v in cfg['topics'].values())
+    assert ('/markers' in cfg['topics']) == ('/markers' in msgs) == bool(info.contacts)
+    # the hidden axes and the followed frame are frames of the recording's /tf and /tf_static
+    frames = {t.child_frame_id for k in ('/tf', '/tf_static') for m in msgs.get(k, []) for t in m.transforms} | \
+        {t.header.frame_id for k in ('/tf', '/tf_static') for m in msgs.get(k, []) for t in m.transforms}
+    keys = {k[len('frame:'):] for k in cfg['transforms']}
+    assert keys == frames and all(set(v) <= FRAME_KEYS for v in cfg['transforms'].values())
+    assert cfg.get('followTf') is None or cfg['followTf'] in frames
+    assert (cfg.get('followTf') is not None) == ('/odom' in msgs)
+
+
+@pytest.mark.parametrize('name', SCENES + ['ur5_robot', 'solo12'])
+def test_no_plot_of_a_scene_is_empty(runs, name):
+    info, path, msgs = runs[name]
+    lay = layout(info)
+    topics = sorted(msgs, key=len, reverse=True)
+    plots = [p for p in lay['configById'] if p.startswith('Plot!')]
+    assert len(plots) == 4
+    for pid in plots:
+        cfg = lay['configById'][pid]
+        assert set(cfg) <= PLOT_KEYS and cfg['xAxisVal'] == 'timestamp'
+        assert 1 <= len(cfg['paths']) <= 3 * MAX_LINES
         for p in cfg['paths']:
             assert set(p) <= PLOT_PATH_KEYS and p['enabled'] is True
             assert p['timestampMethod'] == 'receiveTime'     # = the recording's log time = simulation time
             topic = next(t for t in topics if p['value'].startswith(t + '.'))
-            values = [x for m in recording[topic] for x in _resolve(m, p['value'][len(topic):])]
-            assert values, p['value']
-            assert all(isinstance(x, (int, float)) or float(x) == float(x) for x in values), p['value']
-            n += 1
-    assert n >= 19
+            values = [x for m in msgs[topic] for x in _resolve(m, p['value'][len(topic):])]
+            assert len(values) == len(msgs[topic]) >= 1, p['value']   # one number per message
+            # numbers (diagnostics values are numeric strings, which Foxglove plots as numbers)
+            assert all(isinstance(x, (int, float)) or math.isfinite(float(x)) for x in values), p['value']
+    # the joints plotted are named (the legend), as many as there are (up to MAX_LINES)
+    positions = lay['configById']['Plot!positions']['paths']
+    assert [p['label'] for p in positions] == info.joints[:MAX_LINES]
+
+
+@pytest.mark.parametrize('name', ['stanford_arm', 'mobile_manipulator', 'unfried_free_flyer', 'a1_stand'])
+def test_a_live_layout_publishes_a_zero_command_of_the_first_command_topic(runs, name):
+    info, _, _ = runs[name]
+    lay = layout(info, live=True)
+    _check_shape(lay, live=True)
+    pub = lay['configById']['Publish!command']
+    assert set(pub) <= PUBLISH_PANEL_KEYS
+    topic, type_name, n = info.commands[0]
+    assert pub['topicName'] == topic and pub['datatype'] == type_name
+    msg = json.loads(pub['value'])
+    data = cdr.decode(type_name, cdr.encode(type_name, msg))   # a message of that type, all zero
+    if 'data' in data:
+        assert list(data['data']) == [0.0] * n and n > 0
+    else:
+        assert data['header']['frame_id'] == 'base_link' and data['wrench']['force'] == {'x': 0.0, 'y': 0.0, 'z': 0.0}
+
+
+def test_the_bundled_layout_is_the_stanford_arm_layout(runs):
+    info, _, _ = runs['stanford_arm']
+    assert LAYOUT.read_text() == layout_text(info)
+    cfg = json.loads(LAYOUT.read_text())['configById']
+    # the arm's shoulder and boom: the reactions plot names joint2 and joint3
+    assert {p['value'] for p in cfg['Plot!reactions']['paths']} == \
+        {f'/constraint_wrenches/joint{j}.wrench.force.{a}' for j in (2, 3) for a in 'xyz'}
+
+
+def test_robodyn_layout_writes_the_layout_of_a_recording_and_refuses_a_missing_one(runs, tmp_path):
+    from robodyn_ros.cli import main
+    _, path, _ = runs['betancur_platform']
+    out = tmp_path / 'platform.json'
+    assert main(['layout', str(path), '--out', str(out)]) == 0
+    assert json.loads(out.read_text()) == layout(recording_info(path))
+    assert main(['layout', str(tmp_path / 'missing.mcap')]) == 2

@@ -23,7 +23,10 @@ MIMIC_ROBOTS = ['panda_description/urdf/panda.urdf', 'pr2_description/urdf/pr2.u
                 'tiago_pro_description/robots/tiago_pro.urdf', 'talos_data/robots/talos_full_v2.urdf',
                 'baxter_description/urdf/baxter.urdf']
 #: relative agreement with Pinocchio (measured worst: see the test's printout)
-TOL = 1e-10
+#: worst relative differences allowed: against Pinocchio's model reduced by hand (measured 7.9e-14), and
+#: against Pinocchio's own mimic model (measured 2.3e-15); docs/urdf.md prints both beside these bounds
+TOL = 1e-11
+TOL_MIMIC_MODEL = 1e-12
 
 
 def _scene(path, backend='numba'):
@@ -173,7 +176,7 @@ def test_coupled_dynamics_equals_pinocchios_own_mimic_model(rel_path):
         theirs = np.array([ar[pr.joints[pr.getJointId(n)].idx_v] for n in b.ind])
         worst = max(worst, rel(ours, theirs))
     print(rel_path, 'worst relative difference to Pinocchio mimic=True:', worst)
-    assert worst < TOL
+    assert worst < TOL_MIMIC_MODEL
 
 
 # ------------------------------------------------------------------------------------------------

@@ -10,9 +10,11 @@ slow, obvious way to record the same run, kept in test/ on purpose:
   path, no template);
 - each is handed to ``mcap.Writer.add_message`` one at a time (``McapSink.write`` with the
   direct-record path switched off), so chunks, message indexes and statistics are mcap's own;
-- what is recorded, and in which order, is spelled out below: ``robot_description`` and
-  ``/tf_static`` at the start, each scripted command as it is applied, then per publication
-  joint_states, odom, constraint wrenches, /tf, /clock and, every diagnostics period, diagnostics.
+- what is recorded, and in which order, is spelled out below: ``robot_description`` (its meshes
+  embedded as data: URIs, ``assets.embed_meshes``: tested in test_assets) and ``/tf_static`` at the
+  start, each scripted command as it is applied, then per publication joint_states, odom,
+  constraint wrenches, /tf, /clock, on a ground the markers (a MarkerArray dict built here from the
+  touching points) and, every diagnostics period, diagnostics.
 
 Each run is made twice in separate simulations (fast sink alone, oracle alone) and the files are
 compared. Digests of old files are deliberately not stored: the recorded numbers may change for
@@ -27,6 +29,7 @@ import numpy as np
 import pytest
 
 from robodyn_ros import messages as M
+from robodyn_ros.assets import embed_meshes
 from robodyn_ros.recording import cdr
 from robodyn_ros.recording.mcap_sink import McapSink
 from robodyn_ros.recording.run_sink import HEADLESS_BATCH, McapRunSink, resolve, run_metadata
@@ -65,7 +68,11 @@ class OracleSink:
     def on_start(self, sim):
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic('/robot_description', M.TOPIC_TYPES['robot_description'], qos='transient_local')
-        self.write('robot_description', M.string(sim.system.urdf()), t_ns)
+        self.write('robot_description', M.string(embed_meshes(sim.system.urdf())[0]), t_ns)
+        self.weight = None
+        if getattr(sim.system, 'contact', None) is not None:
+            self.weight = sim.system.model.total_mass() * float(np.linalg.norm(sim.system.model.gravity))
+            self.world = sim.system.contact.frame
         if self.record_tf:
             from robodyn_ros.tf import TfTree
             self.tf = TfTree(sim.system)
@@ -89,6 +96,9 @@ class OracleSink:
         for topic, type_name, msg in M.output_messages(t_ns, out, self.wants_wrenches, self.tf):
             self.write(topic, msg, t_ns, type_name)
         self.write('/clock', M.clock(t_ns), t_ns)
+        if self.weight is not None:
+            self.write('markers', _marker_array(t_ns, self.world, self.weight, out.contact_points), t_ns,
+                       'visualization_msgs/msg/MarkerArray')
         if t >= self.next_diag - 1e-9:
             self.write('diagnostics', M.diagnostic_array(t_ns, 'robodyn_ros: simulation', 0, 'running',
                                                          sim.diagnostics_values()), t_ns)
@@ -96,6 +106,27 @@ class OracleSink:
 
     def close(self):
         self.writer.close()
+
+
+def _marker_array(t_ns, frame, weight, points) -> dict:
+    """The markers message as the recording module describes it: a DELETEALL, then (when points touch)
+    a sphere list of the touching points and an arrow per point along its force, 0.5 m at the weight."""
+    sec, nsec = divmod(t_ns, 1_000_000_000)
+    header = {'stamp': {'sec': sec, 'nanosec': nsec}, 'frame_id': frame}
+
+    def marker(ns, mid, mtype, action, scale, color, points):
+        return {'header': header, 'ns': ns, 'id': mid, 'type': mtype, 'action': action,
+                'pose': {'orientation': {'w': 1.0}}, 'scale': dict(zip('xyz', scale)),
+                'color': dict(zip('rgba', color)), 'points': [dict(zip('xyz', p)) for p in points]}
+    out = [marker('', 0, 0, 3, (0, 0, 0), (0, 0, 0, 0), [])]
+    if len(points):
+        d = 0.04 * 0.5
+        out.append(marker('contact_points', 0, 7, 0, (d, d, d), (1.0, 0.55, 0.0, 1.0), points[:, :3]))
+        for i, p in enumerate(points):
+            tip = p[:3] + 0.5 / weight * p[3:]
+            out.append(marker('contact_forces', i, 0, 0, (0.25 * d, 0.5 * d, 0.75 * d), (0.85, 0.1, 0.1, 1.0),
+                              [p[:3], tip]))
+    return {'markers': out}
 
 
 def _record(path, name, sink_cls, duration, rate=None, chunk_size=None, integrator='rk4', dt=2e-3, batch=0, **kw):

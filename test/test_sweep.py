@@ -676,3 +676,36 @@ def test_ctrl_c_reaches_the_main_thread_even_when_python_misses_it():
     assert signal.getsignal(signal.SIGINT) is old and not c.active
     fd = signal.set_wakeup_fd(old_fd)
     assert fd == old_fd        # the wakeup file before it is back
+
+
+def test_a_local_workers_heartbeat_to_a_closed_scheduler_is_not_logged_but_its_other_errors_are():
+    """The worker preload's filter (pool.dask_setup) drops the one record a worker logs when its
+    heartbeat finds the client's scheduler closed (Ctrl-C once printed it with a traceback); any
+    other error of distributed.worker still reaches the handler."""
+    import logging
+
+    from robodyn_ros import pool
+    seen = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            seen.append(record.getMessage())
+
+    log = logging.getLogger('robodyn-test.heartbeat-filter')
+    log.propagate = False
+    log.addHandler(Keep())
+    log.addFilter(pool._ClosedSchedulerHeartbeat())
+    try:
+        raise OSError('Stream is closed')
+    except OSError:
+        # the message distributed/worker.py logs from Worker.heartbeat (read from its source, so that
+        # a new wording in distributed fails here instead of printing tracebacks again)
+        import inspect
+
+        from distributed.worker import Worker
+        msg = 'Failed to communicate with scheduler during heartbeat.'
+        assert msg in inspect.getsource(Worker.heartbeat)
+        log.exception(msg)
+        log.exception('Compute Failed')
+    log.error('Worker stream died during communication: %s', 'tcp://127.0.0.1:1')
+    assert seen == ['Compute Failed', 'Worker stream died during communication: tcp://127.0.0.1:1']

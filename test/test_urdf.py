@@ -163,10 +163,12 @@ MALFORMED = [
                                      _joint('j1', 'a', 'b')),
      "link 'b' (joint 'j1'): zero-mass moving link at a leaf"),
     ('missing inertial on a moving leaf', _robot(_link('a'), _link('b', ''), _joint('j1', 'a', 'b')),
-     "link 'b' (joint 'j1'): missing <inertial> on a moving link at a leaf"),
+     "link 'b' (joint 'j1'): missing <inertial> on a moving link, and no <collision> or <visual> geometry to infer "
+     "one from at a leaf"),
     ('massless moving link above a massless fixed leaf',
      _robot(_link('a'), _link('b', ''), _link('c', ''), _joint('j1', 'a', 'b'), _joint('j2', 'b', 'c', 'fixed', '')),
-     "link 'b' (joint 'j1'): missing <inertial> on a moving link whose subtree has no mass"),
+     "link 'b' (joint 'j1'): missing <inertial> on a moving link, and no <collision> or <visual> geometry to infer "
+     "one from whose subtree has no mass"),
     ('inertia not positive semi-definite',
      _robot(_link('a'), _link('b', '<inertial><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0.2" '
                                    'ixz="0" iyz="0"/></inertial>'), _joint('j1', 'a', 'b')),

@@ -389,16 +389,18 @@ def test_a_massless_hand_is_locked_with_one_note_and_the_rest_moves_as_pinocchio
 def test_a_robot_whose_only_moving_joints_are_massless_is_still_refused():
     """Locking every joint would leave nothing to simulate: the refusal names the first joint."""
     text = _robot(_link('a'), '<link name="b"/>', _joint('j1', 'a', 'b'))
-    with pytest.raises(UrdfError, match=r"link 'b' \(joint 'j1'\): missing <inertial> on a moving link at a leaf"):
+    with pytest.raises(UrdfError, match=r"link 'b' \(joint 'j1'\): missing <inertial> on a moving link, and no "
+                                        r"<collision> or <visual> geometry to infer one from at a leaf"):
         read_urdf(text)
 
 
-def test_aligned_axes_with_no_inertia_between_them_are_refused_naming_the_joints(tmp_path):
+def test_aligned_axes_with_no_inertia_between_them_get_armature_or_are_refused_naming_the_joints(tmp_path):
     """icub's neck at q = 0: two joints about the same line with a link of zero inertia between them
     (a point mass on the axis), so one motion of the pair meets no inertia: the mass matrix is singular
     (Pinocchio's CRBA of the same file has the zero eigenvalue too) and its accelerations would be
-    round-off. ``robodyn run`` refuses in one line naming both joints, exit 2; turned by 0.5 rad, the
-    same robot runs."""
+    round-off. By default the importer gives the two joints the smallest armature that makes M regular,
+    with one warning, and ``robodyn run`` runs it; a scene asking for no armature is refused in one line
+    naming both joints, exit 2; turned by 0.5 rad, the same robot runs without armature."""
     point = '<inertial><mass value="0.1"/><inertia ixx="0" iyy="0" izz="0" ixy="0" ixz="0" iyz="0"/></inertial>'
     lim = '<limit effort="10" lower="-3" upper="3" velocity="9"/>'
     text = _robot(_link('a'), f'<link name="b">{point}</link>', _link('c'),
@@ -409,11 +411,17 @@ def test_aligned_axes_with_no_inertia_between_them_are_refused_naming_the_joints
     assert w[0] < 1e-15 * w[-1]
     f = tmp_path / 'neck.urdf'
     f.write_text(text)
-    p = subprocess.run(ROBODYN + ['run', str(f), '--duration', '0.01'], capture_output=True, text=True, timeout=120)
+    p = subprocess.run(ROBODYN + ['run', str(f), '--duration', '0.01'], capture_output=True, text=True, timeout=600)
+    warned = [ln for ln in p.stderr.splitlines() if 'armature' in ln]
+    assert p.returncode == 0 and len(warned) == 1 and 'joints roll, yaw meets no inertia' in warned[0], p.stderr
+    scene = tmp_path / 'neck.yaml'
+    scene.write_text(f'name: neck\nparts:\n  - {{kind: urdf, name: neck, file: {f}, armature: 0}}\n')
+    p = subprocess.run(ROBODYN + ['run', str(scene), '--duration', '0.01'], capture_output=True, text=True,
+                       timeout=600)
     lines = [ln for ln in p.stderr.splitlines() if not ln.startswith('robodyn: warning')]
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert 'the mass matrix is singular' in lines[0] and 'roll' in lines[0] and 'yaw' in lines[0], lines
-    sc = parse_scene('name: x\nparts:\n  - kind: urdf\n    name: r\n    urdf: |\n      '
+    sc = parse_scene('name: x\nparts:\n  - kind: urdf\n    name: r\n    armature: 0\n    urdf: |\n      '
                      + text.replace('<joint name="yaw" type="revolute"><parent link="b"/><child link="c"/>',
                                     '<joint name="yaw" type="revolute"><parent link="b"/><child link="c"/>'
                                     '<origin rpy="0 0.5 0"/>') + '\n')

@@ -13,6 +13,9 @@ this machine) with a probe node in this process, and returns table rows; it prin
   receiving the ``joint_states`` it produced (one control period of integration included),
   at publish_rate 100 Hz (10 RK4 steps per period) and 1000 Hz (1 step): median and 95th
   percentile over ``n`` round trips.
+- command-to-display latency of a viewer: the same round trip over the node's Foxglove WebSocket
+  (``foxglove_port``): a client in this process publishes ``effort_commands`` and waits for the
+  ``joint_states`` message-data frame the command produced (lockstep, 100 Hz).
 """
 from __future__ import annotations
 
@@ -20,6 +23,8 @@ import re
 import signal
 import subprocess
 import tempfile
+import time
+
 import numpy as np
 
 SCENE = 'stanford_arm'
@@ -135,6 +140,72 @@ def _lockstep_latency(publish_rate: float, n: int) -> dict:
                      f'includes {steps} rk4 step{"s" if steps > 1 else ""} of {SCENE}'}
 
 
+def _live_latency(publish_rate: float, n: int) -> dict:
+    """Round trips command -> joint_states over the node's Foxglove WebSocket (lockstep); returns the row."""
+    import json
+    import socket
+    import struct
+
+    from websockets.sync.client import connect
+
+    from ..nodes.probe import Domain, start_sim
+    from ..recording import cdr
+    with socket.create_server(('127.0.0.1', 0)) as s:
+        port = s.getsockname()[1]
+    dom = Domain()
+    proc = start_sim(dom, {'scene': SCENE, 'mode': 'lockstep', 'publish_rate': float(publish_rate),
+                           'foxglove_port': port, **INTEGRATOR})
+    lat = []
+    try:
+        end = time.monotonic() + 120
+        while True:   # the node serves once it has started
+            try:
+                conn = connect(f'ws://127.0.0.1:{port}', subprotocols=['foxglove.websocket.v1'], max_size=None)
+                ws = conn.__enter__()
+                break
+            except OSError:
+                if time.monotonic() > end or proc.poll() is not None:
+                    raise RuntimeError('the sim node did not serve') from None
+                time.sleep(0.1)
+        js = None
+        while js is None:
+            frame = ws.recv(timeout=60)
+            if isinstance(frame, str) and json.loads(frame)['op'] == 'advertise':
+                js = next((c['id'] for c in json.loads(frame)['channels'] if c['topic'] == '/joint_states'), None)
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [{'id': 1, 'channelId': js}]}))
+        ws.send(json.dumps({'op': 'advertise', 'channels': [{'id': 1, 'topic': '/effort_commands', 'encoding': 'cdr',
+                                                             'schemaName': 'std_msgs/msg/Float64MultiArray'}]}))
+        payload = struct.pack('<BI', 1, 1) + cdr.encode('std_msgs/msg/Float64MultiArray', {'data': [0.0] * 6})
+
+        def next_state(after):
+            while True:
+                frame = ws.recv(timeout=60)
+                if isinstance(frame, bytes) and frame[0] == 1:
+                    t = struct.unpack_from('<Q', frame, 5)[0]
+                    if after is None or t > after:
+                        return t
+        t = next_state(None)   # the initial state (the last message, on subscribing)
+        for _ in range(n):
+            t0 = time.perf_counter()
+            ws.send(payload)
+            t = next_state(t)
+            lat.append(time.perf_counter() - t0)
+        conn.__exit__(None, None, None)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        dom.release()
+    lat = np.array(lat) * 1e3
+    return {'figure': 'command -> displayed joint_states latency (Foxglove WebSocket)', 'mode': 'lockstep',
+            'publish_rate_hz': publish_rate, 'value': round(float(np.median(lat)), 3), 'unit': 'ms (median)',
+            'notes': f'p95 {np.percentile(lat, 95):.3f} ms, min {lat.min():.3f} ms over {n} round trips: a client '
+                     f'publishes effort_commands on the node\'s foxglove_port and waits for the joint_states frame'}
+
+
 def bench_node(duration: float = 20.0, round_trips: int = 300) -> list:
     """Rows ``{figure, mode, publish_rate_hz, value, unit, notes}`` of the node benchmark.
 
@@ -143,4 +214,5 @@ def bench_node(duration: float = 20.0, round_trips: int = 300) -> list:
     """
     rtf100 = _max_mode_rtf(100.0, duration)
     return [_max_mode_rtf(1000.0, duration), rtf100, _dds_account(100.0, duration, rtf100),
-            _lockstep_latency(100.0, round_trips), _lockstep_latency(1000.0, round_trips)]
+            _lockstep_latency(100.0, round_trips), _lockstep_latency(1000.0, round_trips),
+            _live_latency(100.0, round_trips)]

@@ -36,6 +36,11 @@ CAUSES = [('stiff', 'stiff at the default step (needs an implicit integrator)', 
           ('other', 'other', r'')]
 #: warnings condensed for the notes column: (pattern, words)
 NOTES = [(r'<limit effort="0">.* on (\d+) joint', 'effort="0" read as no limit ({} joints)'),
+         (r'<limit velocity="0">.* on (\d+) joint', 'velocity="0" read as no limit ({} joints)'),
+         (r'a motion of joints? (.*?) meets no inertia there\): armature (\S+) ', 'armature {1} kg·m² on {0} (M singular at q = 0)'),
+         (r'(\d+) moving links? without <inertial>: .*? density (\S+) kg', '{} links: inertia inferred from geometry at {} kg/m³'),
+         (r'(\d+) numbers? with a trailing dot', '{} numbers with a trailing dot read as strtod does'),
+         (r"joint '([^']*)': a spherical joint", 'spherical joint {}'),
          (r"link '([^']*)' .*accepted as given", 'inertia of {} breaks the triangle inequality: kept as given'),
          (r"link '([^']*)' .*balanced as MuJoCo", 'inertia of {} balanced'),
          (r'with no mass below .*?locked as fixed: (.*?)(?:, with the (?:\d+ joints that mimic|joint that mimics) \w+)? \((\d+) joints? in all\)',
@@ -90,7 +95,7 @@ def dof(path) -> tuple:
             r = read_urdf(path)
     except UrdfError:
         return None, 0
-    return (sum({'revolute': 1, 'prismatic': 1, 'free': 6}.get(s.joint_type, 0) for s in r.specs),
+    return (sum({'revolute': 1, 'prismatic': 1, 'spherical': 3, 'free': 6}.get(s.joint_type, 0) for s in r.specs),
             sum(s.mimic is not None for s in r.specs))
 
 
@@ -158,7 +163,8 @@ def markdown(rows: list, backend: str) -> str:
            f'Every URDF of example-robot-data {version("example-robot-data")} run as it is: '
            f'`robodyn run FILE --duration {DURATION:g}` with default settings (integrator auto at 1 ms: rk4 where '
            f'nothing is stiff, rosenbrock2 where passive forces are; backend {backend}). '
-           'Made by `robodyn bench urdf --out docs/urdf_robots.md` (part of `make bench`).', '',
+           'Made by `robodyn bench urdf --out docs/urdf_robots.md` (part of `make bench`); CI runs the whole table '
+           '(`pytest -m urdf_table`, which `.ci/run` runs) and compares every row and count with this file.', '',
            f'**{len(runs)} of {len(rows)} run** (' +
            ', '.join(f'{sum(r.method == m for r in runs)} with {m}' for m in by_method) + '). Refused: ' +
            (', '.join(f'{n} {words}' for _, words, n in by_cause if n) or 'none') + '.' +

@@ -12,7 +12,7 @@ import importlib
 import os
 import sys
 
-SUBCOMMANDS = ['run', 'check', 'scenes', 'resim', 'replay', 'plot', 'bench', 'advise', 'sweep', 'warm']
+SUBCOMMANDS = ['run', 'check', 'scenes', 'resim', 'replay', 'plot', 'layout', 'bench', 'advise', 'sweep', 'warm']
 
 
 class _Version(argparse.Action):

@@ -46,7 +46,8 @@ def _relative(topic: str, namespace: str) -> str:
 def _is_state(rel: str) -> bool:
     # /tf and /tf_static (absolute; 'tf' relative to an empty namespace) are derived from the
     # state (robodyn_ros.tf): compared too
-    return (rel in ('joint_states', 'odom') or rel.startswith(('constraint_wrenches/', 'contact_wrenches/'))
+    return (rel in ('joint_states', 'odom', 'joint_trajectory_desired', 'joint_trajectory_error')
+            or rel.startswith(('constraint_wrenches/', 'contact_wrenches/', 'imu/', 'ft/'))
             or rel.lstrip('/') in ('tf', 'tf_static'))
 
 

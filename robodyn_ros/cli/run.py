@@ -1,6 +1,7 @@
 """``robodyn run``: a headless run of a scene with its scripted commands, recorded to MCAP."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -34,6 +35,9 @@ def add_parser(sub):
                         'inf: none)')
     p.add_argument('--no-wrenches', action='store_true', help='do not compute or record constraint wrenches')
     p.add_argument('--no-tf', action='store_true', help='do not record /tf and /tf_static')
+    p.add_argument('--no-embed-meshes', action='store_true',
+                   help='record robot_description with its package:// mesh references (by default it carries the '
+                        'meshes as data: URIs, so that Foxglove draws them without ROS: 9 MB for the A1)')
     p.add_argument('--backend', choices=('numpy', 'numba', 'generated'), default=None,
                    help='dynamics kernels (default: $ROBODYN_BACKEND, else numba: generic, compiled once per '
                         'install; generated: specialised per model, compiled once per model and cached)')
@@ -41,23 +45,74 @@ def add_parser(sub):
                    help='URDF file only: enforce its <limit lower upper> with joint-limit moments of stiffness K '
                         '(N·m/rad or N/m) and damping C (N·m·s/rad or N·s/m), return spring (default) or none '
                         '(Huston eq. 20.2.1; a scene file gives position_limits on its kind: urdf part)')
+    p.add_argument('--command-interface', choices=('effort', 'position', 'velocity'), default=None,
+                   help='URDF file only: every actuated joint takes this command (position: held setpoints and '
+                        'joint_trajectory, tracked by a joint servo; a scene file gives command_interfaces on '
+                        'its part)')
     p.add_argument('--diagnostics-period', type=float, default=DIAGNOSTICS_PERIOD,
                    help=f'simulated seconds between recorded diagnostics messages (default {DIAGNOSTICS_PERIOD:g})')
+    live = p.add_argument_group('live', 'watch and steer the run in Foxglove (a Foxglove WebSocket server)')
+    live.add_argument('--live', action='store_true',
+                      help='serve the run on a Foxglove WebSocket, paced to real time x --rate-factor; clients may '
+                           'publish commands, call reset and pause, set rate_factor; Ctrl-C stops (the recording '
+                           'is kept)')
+    live.add_argument('--port', type=int, default=None, help='--live: TCP port (default 8765; 0: any free one)')
+    live.add_argument('--host', default=None, help='--live: address to serve on (default 127.0.0.1: this machine only)')
+    live.add_argument('--rate-factor', type=float, default=None,
+                      help='--live: simulated seconds per wall second (default 1; 0: as fast as possible)')
+    live.add_argument('--start-paused', action='store_true',
+                      help='--live: wait at t = 0 until a client calls pause with data: false')
     return p
+
+
+#: --live defaults
+LIVE_PORT, LIVE_HOST = 8765, '127.0.0.1'
 
 
 def main(args) -> int:
     """Run, record, print a summary; exit 1 with the cause if the simulation fails.
 
-    Imports what the run uses when it uses it (the recorder only with ``--record``), so a short
-    run starts fast (``robodyn bench startup``)."""
+    Imports what the run uses when it uses it (the recorder only with ``--record``, the live server
+    only with ``--live``), so a short run starts fast (``robodyn bench startup``)."""
+    live_opts = [o for o, v in (('--port', args.port), ('--host', args.host), ('--rate-factor', args.rate_factor),
+                                ('--start-paused', args.start_paused or None)) if v is not None]
+    if live_opts and not args.live:
+        print(f'robodyn run: {", ".join(live_opts)} only with --live', file=sys.stderr)
+        return 2
+    sock = None
+    if args.live:   # first: a port in use is refused before anything runs
+        from ..live.run import check_rate_factor
+        from ..live.server import LivePortError, bind
+        try:
+            rate_factor = check_rate_factor(1.0 if args.rate_factor is None else args.rate_factor)
+        except ValueError as e:
+            print(f'robodyn run: --rate-factor: {e}', file=sys.stderr)
+            return 2
+        try:
+            sock = bind(args.host or LIVE_HOST, LIVE_PORT if args.port is None else args.port)
+        except LivePortError as e:
+            print(f'robodyn run: --live: {e}; choose another with --port', file=sys.stderr)
+            return 2
+    try:
+        return _run(args, sock, rate_factor if args.live else None)
+    finally:
+        if sock is not None:
+            sock.close()
+
+
+def _run(args, sock, rate_factor) -> int:
+    """The run once the live port (if any) is bound."""
     from ..scene import SceneError, load_scene
     from ..simulation import SimulationError, Simulator, run_headless
     from ..systems.base import backend_scope, tools_backend
     if args.record:
         from ..recording.target import RecordPathError, check_record_path
         try:  # before anything is simulated: never overwrite silently, never fail at the end
-            check_record_path(args.record, overwrite=args.overwrite)
+            also = ()
+            if args.live:   # a client's reset continues the recording in <stem>-1.mcap, ...
+                from ..recording.target import episode_files
+                also = episode_files(args.record)
+            check_record_path(args.record, overwrite=args.overwrite, also=also)
         except RecordPathError as e:
             print(f'robodyn run: {e}', file=sys.stderr)
             return 2
@@ -77,7 +132,7 @@ def main(args) -> int:
             return 2
     try:
         with backend_scope(backend):
-            scene = load_scene(args.scene, position_limits=limits)
+            scene = load_scene(args.scene, position_limits=limits, command_interface=args.command_interface)
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
@@ -90,12 +145,15 @@ def main(args) -> int:
     except ValueError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
+    if args.live:
+        return _run_live(args, sock, rate_factor, scene, st, sim)
     sinks = []
     if args.record:
         from ..recording.run_sink import HEADLESS_BATCH, McapRunSink
         sinks.append(McapRunSink(args.record, scene, {**st, 'mode': 'headless'},
                                  record_wrenches=not args.no_wrenches, record_tf=not args.no_tf,
-                                 diagnostics_period=args.diagnostics_period, batch=HEADLESS_BATCH))
+                                 diagnostics_period=args.diagnostics_period, batch=HEADLESS_BATCH,
+                                 embed_meshes=not args.no_embed_meshes))
     w0, c0 = time.perf_counter(), time.process_time()
     status = 0
     try:
@@ -109,3 +167,106 @@ def main(args) -> int:
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
     return status
+
+
+def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
+    """``--live``: serve, pace, steer (:mod:`robodyn_ros.live.run`); episodes after a client's reset."""
+    import signal
+
+    from ..live.run import LiveReset, LiveRun, LiveStop
+    from ..live.server import LiveServer, LiveTap
+    from ..live.steering import RATE_FACTOR, SERVICES, Steering, trigger_response
+    from ..nodes.ports import command_topics, command_values
+    from ..recording.run_sink import HEADLESS_BATCH, McapRunSink, resolve
+    from ..recording.target import episode_path
+    from ..simulation import SimulationError, run_headless
+    try:
+        commands = {resolve(topic): (port, t) for port, (topic, t) in command_topics(scene.system).items()}
+    except ValueError as e:
+        print(f'robodyn run: --live: {e}', file=sys.stderr)
+        return 2
+    steering = Steering(commands, command_values)
+    server = LiveServer(sock, f'robodyn_ros: {scene.name}', steering, services=SERVICES,
+                        parameters={RATE_FACTOR: rate_factor}).start()
+    steering.advertise(server)
+    live = LiveRun(server, steering, command_values, rate_factor=rate_factor, paused=args.start_paused)
+    print(f'live         {server.url}  (Foxglove: Open connection > Foxglove WebSocket)'
+          + ('; paused: call pause with data false to start' if args.start_paused else ''), flush=True)
+    layout_path = _live_layout(scene)
+    if layout_path:
+        print(f'layout       {layout_path}  (Foxglove: Layouts > Import from file)', flush=True)
+    tap = LiveTap(server)
+    recorders = []
+
+    def recorder(episode):
+        path = episode_path(args.record, episode) if args.record else None
+        r = McapRunSink(path, scene, {**st, 'mode': 'headless'}, record_wrenches=not args.no_wrenches,
+                        record_tf=not args.no_tf, diagnostics_period=args.diagnostics_period, batch=HEADLESS_BATCH,
+                        taps=(tap,), embed_meshes=not args.no_embed_meshes)
+        recorders.append(r)
+        return r
+
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: _second_interrupt(steering, signum))
+    w0, c0 = time.perf_counter(), time.process_time()
+    status, episode, stopped = 0, 0, False
+    try:
+        while True:
+            live.recorder = rec = recorder(episode)
+            try:
+                run_headless(sim, st['duration'], st['rate'], live.script(scene.script), [rec, live], stop=scene.stop)
+                break
+            except LiveReset as r:
+                rec.close()
+                sim.reset()
+                live.owned.clear()
+                episode += 1
+                live.recorder = None
+                r.reply(trigger_response(True, f'reset to the initial state at t={sim.t:g} s'
+                                         + (f'; recording continues in {episode_path(args.record, episode)}'
+                                            if args.record else '')))
+            finally:
+                rec.close()
+    except LiveStop:
+        stopped = True
+    except SimulationError as e:
+        print(f'robodyn run: simulation stopped: {e}', file=sys.stderr)
+        status = 1
+    finally:
+        wall, cpu = time.perf_counter() - w0 - live.paused_wall, time.process_time() - c0
+        signal.signal(signal.SIGINT, previous)
+        for r in recorders:
+            r.close()
+        server.close()
+    record = episode_path(args.record, episode) if args.record else None
+    print(summary(scene, sim, st, wall, record, recorders, cpu=cpu))
+    print(f'live         {server.clients_seen} client{"s" if server.clients_seen != 1 else ""} served'
+          + (f'; stopped by Ctrl-C at t={sim.t:.3f} s' if stopped else '')
+          + (f'; {live.refused} client commands refused' if live.refused else '')
+          + (f'; {server.dropped} messages dropped for slow clients' if server.dropped else ''))
+    return status
+
+
+def _second_interrupt(steering, signum):
+    """Ctrl-C: stop at the next period boundary; a second one stops at once (the recording is still finished)."""
+    if steering.stop_requested:
+        raise KeyboardInterrupt
+    steering.request_stop()
+
+
+def _live_layout(scene) -> str | None:
+    """Write the scene's live layout (:mod:`robodyn_ros.layout`) to the temporary directory; its path
+    (the same for the same scene, replaced atomically), or None when it cannot be written."""
+    import tempfile
+
+    from ..layout import layout_text, scene_info
+    d = os.path.join(tempfile.gettempdir(), 'robodyn_layouts')
+    path = os.path.join(d, f'{scene.name}.live.json')
+    try:
+        os.makedirs(d, exist_ok=True)
+        tmp = f'{path}.{os.getpid()}'
+        with open(tmp, 'w') as f:
+            f.write(layout_text(scene_info(scene), live=True))
+        os.replace(tmp, path)
+    except OSError:
+        return None
+    return path

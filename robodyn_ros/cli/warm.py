@@ -58,11 +58,13 @@ def _scene_runs(scratch):
     from ..scene import list_scenes, load_scene
     runs = [(name, lambda name=name: load_scene(name)) for name, _ in list_scenes()]
 
-    def urdf_robot(variant):
+    def urdf_robot(variant, command_interface=None):
         """stanford_arm's arm as a URDF file: as it is, with Coulomb friction and effort limits on
         every joint (the right-hand side of URDF robots with ``<dynamics friction>``), with its last
         joint following the one before (``<mimic>``: the coupled dynamics), with stiff joint damping
-        (integrator auto runs it with rosenbrock2, the linearly implicit step), or both."""
+        (integrator auto runs it with rosenbrock2, the linearly implicit step), or both; the plain one also with
+        every joint position-commanded (the joint servo in rk4's stages; the bundled xarm7_trajectory scene runs
+        it in rosenbrock2's)."""
         path = os.path.join(scratch, f'robot_{variant.replace(", ", "_")}.urdf')
         if not os.path.exists(path):
             m = load_scene('stanford_arm').system.model
@@ -82,9 +84,10 @@ def _scene_runs(scratch):
                 specs = m.specs
             with open(path, 'w') as f:
                 f.write(to_urdf(build_model(specs, gravity=m.gravity, name=m.name, root=m.root)))
-        return load_scene(path)
+        return load_scene(path, command_interface=command_interface)
     return runs + [(f'stanford_arm as URDF{"" if v == "plain" else ", " + v}', lambda v=v: urdf_robot(v))
-                   for v in ('plain', 'friction', 'mimic', 'damped', 'damped, mimic')]
+                   for v in ('plain', 'friction', 'mimic', 'damped', 'damped, mimic')] + \
+        [('stanford_arm as URDF, position', lambda: urdf_robot('plain', 'position'))]
 
 
 def warm_scene(load, backend, scratch) -> None:
@@ -116,8 +119,16 @@ def _ordered(labels) -> list:
     return heavy + [lb for lb in labels if lb not in heavy]
 
 
+def _cannot_run() -> tuple:
+    """The exceptions of a scene that cannot be loaded or run (its one-line message says why)."""
+    from ..scene import SceneError
+    from ..simulation import SimulationError
+    return SceneError, SimulationError, ValueError, OSError
+
+
 def _warm_in_worker(label: str, backend: str) -> tuple:
-    """One run in a worker process: ``(label, seconds, kernel signatures this process compiled for it)``."""
+    """One run in a worker process: ``(label, seconds, kernel signatures this process compiled for it,
+    why it could not run or '')``."""
     import tempfile
     import time
     import warnings
@@ -128,8 +139,11 @@ def _warm_in_worker(label: str, backend: str) -> tuple:
     with tempfile.TemporaryDirectory(prefix='robodyn-warm-') as scratch, warnings.catch_warnings():
         warnings.simplefilter('ignore')
         load = dict(_scene_runs(scratch))[label]
-        warm_scene(load, backend, scratch)
-    return label, time.perf_counter() - t, len(compiled_here()) - n0
+        try:
+            warm_scene(load, backend, scratch)
+        except _cannot_run() as e:
+            return label, time.perf_counter() - t, len(compiled_here()) - n0, ' '.join(str(e).split())
+    return label, time.perf_counter() - t, len(compiled_here()) - n0, ''
 
 
 def _jobs(requested) -> int:
@@ -145,7 +159,8 @@ def _jobs(requested) -> int:
 
 def main(args) -> int:
     """Warm every scene (in ``--jobs`` workers, then a loading pass here); print one line per scene and
-    a total; 1 when the kernels are unavailable, 2 for an unknown scene."""
+    a total; 1 when the kernels are unavailable, 2 for an unknown scene or when a scene cannot be loaded
+    or run (one line each on stderr, the others warmed all the same)."""
     import multiprocessing
     import tempfile
     import time
@@ -174,26 +189,43 @@ def main(args) -> int:
         if wanted:
             runs = [(lb, load) for lb, load in runs if lb in wanted]
         jobs = min(_jobs(getattr(args, 'jobs', None)), len(runs))
-        n_workers = 0
+        n_workers, failed = 0, []
+
+        def fail(label, why):
+            failed.append(label)
+            print(f'robodyn warm: {label}: not warmed: {why}', file=sys.stderr, flush=True)
         if jobs > 1:
             ctx = multiprocessing.get_context('spawn')   # a fresh interpreter: no LLVM state forked
             with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
                 futures = [pool.submit(_warm_in_worker, lb, backend) for lb in _ordered([lb for lb, _ in runs])]
                 for f in as_completed(futures):
-                    label, dt, n = f.result()
+                    label, dt, n, why = f.result()
                     n_workers += n
-                    if not args.quiet:
+                    if why:
+                        fail(label, why)
+                    elif not args.quiet:
                         print(f'{label:32s} {dt:6.1f} s, {n} kernel signatures compiled (worker)', flush=True)
         n0 = 0
         for label, load in runs:   # here: loads what the workers compiled, compiles what they did not leave
+            if label in failed:
+                continue
             t = time.perf_counter()
-            warm_scene(load, backend, scratch)
+            try:
+                warm_scene(load, backend, scratch)
+            except _cannot_run() as e:   # a scene that cannot run: say so, go on
+                fail(label, ' '.join(str(e).split()))
+                continue
             n = len(compiled_here())
             if not args.quiet and (jobs == 1 or n > n0):
                 print(f'{label:32s} {time.perf_counter() - t:6.1f} s, {n - n0} kernel signatures compiled',
                       flush=True)
             n0 = n
     where = f'{jobs} processes: {n_workers} in the workers, {n0} after them' if jobs > 1 else 'one process'
+    if failed:
+        print(f'robodyn warm: {len(failed)} scene{"s" if len(failed) > 1 else ""} could not be warmed '
+              f'({", ".join(failed)}); {n_workers + n0} kernel signatures compiled for the others in '
+              f'{time.perf_counter() - t0:.1f} s ({where})', file=sys.stderr)
+        return 2
     print(f'robodyn warm: {n_workers + n0} kernel signatures compiled in {time.perf_counter() - t0:.1f} s '
           f'({where}; {backend} backend; cache {kernels.CACHE_DIR})')
     return 0

@@ -60,7 +60,7 @@ try:
     if not NUMBA:
         raise ImportError("No module named 'numba'")
     from . import (arm, augmented, contact, diffdrive, fixed_step, frames, freeflyer, linalg,  # noqa: F401
-                   prescribed, profiles, tree)
+                   prescribed, profiles, sensors, servo, tree)
     AVAILABLE = True
     UNAVAILABLE_REASON = ''
 except ImportError as _e:  # the compiled path is off: the systems use the numpy reference
@@ -111,7 +111,15 @@ def merge_fixed(model: Model) -> dict:
     return {'parent': np.array(parent, dtype=np.int64), 'jtype': model.jtype[keep], 'axis': model.axis[keep],
             'Xtree': np.array(Xtree).reshape(-1, 6, 6), 'I': np.array([I[i] for i in keep]).reshape(-1, 6, 6),
             'q_idx': model.q_idx[keep], 'v_idx': model.v_idx[keep], 'gravity': model.gravity,
+            'armature': body_armature(model)[keep],
             'host': np.array([new[host[i]] for i in range(nb)], dtype=np.int64), 'Xh': np.array(Xh).reshape(-1, 6, 6)}
+
+
+def body_armature(model: Model) -> np.ndarray:
+    """Each body's joint armature (nb,) (``Model.armature`` is per velocity coordinate; a joint's
+    coordinates share one value; 0 for FIXED and FREE joints)."""
+    arm = np.asarray(model.armature, dtype=float)
+    return np.array([arm[model.v_idx[i]] if model.nv_j[i] else 0.0 for i in range(model.nb)], dtype=float)
 
 
 def pack_model(model: Model, merge: bool = False):
@@ -119,13 +127,16 @@ def pack_model(model: Model, merge: bool = False):
 
     Column layout in :mod:`robodyn_ros.kernels.tree`: per body parent, joint type, q and v
     index, +z-axis flag; axis, Xtree as (E, r), mass, m·com, rotational inertia about the body
-    origin; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
+    origin, joint armature; the last row of mf holds gravity. merge: weld FIXED bodies into their parents
     (:func:`merge_fixed`).
     """
     from ..model import PRISMATIC as _PRISMATIC
     from ..model import REVOLUTE as _REVOLUTE
-    a = merge_fixed(model) if merge else {k: getattr(model, k) for k in
-                                          ('parent', 'jtype', 'axis', 'Xtree', 'I', 'q_idx', 'v_idx', 'gravity')}
+    if merge:
+        a = merge_fixed(model)
+    else:
+        a = {k: getattr(model, k) for k in ('parent', 'jtype', 'axis', 'Xtree', 'I', 'q_idx', 'v_idx', 'gravity')}
+        a['armature'] = body_armature(model)
     nb = len(a['parent'])
     mi = np.zeros((nb, 5), dtype=np.int64)
     mi[:, 0] = a['parent']
@@ -134,7 +145,7 @@ def pack_model(model: Model, merge: bool = False):
     mi[:, 3] = a['v_idx']
     mi[:, 4] = [int(a['jtype'][i] in (_REVOLUTE, _PRISMATIC) and tuple(a['axis'][i]) == (0.0, 0.0, 1.0))
                 for i in range(nb)]
-    mf = np.zeros((nb + 1, 28))
+    mf = np.zeros((nb + 1, 29))
     for i in range(nb):
         X = a['Xtree'][i]
         E = X[:3, :3]
@@ -147,6 +158,7 @@ def pack_model(model: Model, merge: bool = False):
         mf[i, 15] = I[5, 5]
         mf[i, 16:19] = (hx[2, 1], hx[0, 2], hx[1, 0])
         mf[i, 19:28] = I[:3, :3].reshape(-1)
+        mf[i, 28] = a['armature'][i]
     mf[nb, 0:3] = a['gravity']
     return np.ascontiguousarray(mi), np.ascontiguousarray(mf)
 
@@ -172,7 +184,7 @@ class CompiledModel:
         self.mi_r, self.mf_r = pack_model(model, merge=True)
         self.nb, self.nq, self.nv = model.nb, model.nq, model.nv
         self.damping = np.ascontiguousarray(model.damping, dtype=float).reshape(self.nv)
-        from ..urdf import COULOMB_VELOCITY
+        from ..model import COULOMB_VELOCITY
         self.friction = np.ascontiguousarray(model.friction, dtype=float).reshape(self.nv)
         self.v_s = float(COULOMB_VELOCITY)   # regularisation speed of the Coulomb friction (kernels.passive)
         from ..model import limit_table
@@ -288,24 +300,50 @@ class CompiledModel:
         tree.normalize_into(self.mi, q)
         return q
 
-    def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last) -> int:
+    def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last, t0=0.0, srv=None) -> int:
         """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``arm.integrate_arm``).
 
         method: a key of :data:`FUSED_METHODS`; z (nq + nv + 1,) float64, modified in place;
-        tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid. Returns the
-        index of the first non-finite step or -1.
+        tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid; t0: the time of
+        its first step (s); srv: None, or a joint servo (:mod:`.servo`) evaluated at every stage.
+        Returns the index of the first non-finite step or -1.
         """
         run = arm.integrate_arm if self.gen is None else self.gen.integrate_arm
         return run(self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, self.lim, tau_app, self.nq,
-                   FUSED_METHODS[method], z, float(dt), int(n_full), float(h_last), self.cpl, self.con)
+                   FUSED_METHODS[method], z, float(dt), int(n_full), float(h_last), self.cpl, self.con, float(t0), srv)
 
-    def passive_jacobian(self, q, v, h=None):
+    def servo_state(self, srv, t, q, v):
+        """``(out (ns, 6), power)``: the joint servo (:mod:`.servo`) at time t and (q, v): per servo joint
+        q*, q̇*, q̈*, the feed-forward torque, the applied torque and its saturation flag
+        (``servo.servo_state``), and its power (W)."""
+        out = np.empty((srv[0].shape[0], 6))
+        W = tree.workspace(self.nb)
+        P = servo.servo_state(self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, srv, float(t),
+                              np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float), W, out)
+        return out, P
+
+    def sensor_readings(self, q, v, qdd, imu, ft, f_ext=None):
+        """``(imu (ni, 15), ft (nf, 6))``: IMU and force-torque readings at (q, v, q̈) (``sensors.sensor_readings``;
+        imu (ni,) body indices of the full tree, ft (nf, 2) [joint's body, frame body]; f_ext (nb, 6) the
+        external body forces of the dynamics, e.g. a ground's)."""
+        fe, has = (self._zf, False) if f_ext is None else (np.ascontiguousarray(f_ext, dtype=float), True)
+        imu = np.ascontiguousarray(imu, dtype=np.int64)
+        ft = np.ascontiguousarray(ft, dtype=np.int64).reshape(-1, 2)
+        out_imu = np.empty((imu.shape[0], sensors.NIMU))
+        out_ft = np.empty((ft.shape[0], 6))
+        sensors.sensor_readings(self.mi, self.mf, np.ascontiguousarray(q, dtype=float),
+                                np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qdd, dtype=float), fe,
+                                has, imu, ft, out_imu, out_ft)
+        return out_imu, out_ft
+
+    def passive_jacobian(self, q, v, h=None, t=0.0, srv=None):
         """``(D, K)`` (nv, nv) of the linearly implicit step at (q, v), tangent coordinates, as
         ``arm.arm_rosenbrock_step`` assembles them: the damping ``−∂τ_p/∂v`` and stiffness ``−∂τ_p/∂q`` of the
         passive forces (``arm.passive_jacobian``: damping, friction slope, joint-limit moments on their
         branches at (q, v)), on a ground the contacts' ``D_c, K_c`` (``contact.contact_jacobian``, as
         ``arm.contact_bias_mass`` adds them) and, with a step h (s), the gravity stiffness ``∂g/∂q`` of the
-        1-DOF joints (``tree.gravity_stiffness_ws``)."""
+        1-DOF joints (``tree.gravity_stiffness_ws``); with a joint servo srv (:mod:`.servo`), its kp, kd on
+        the joints it does not saturate at time t (``servo.servo_jacobian_add``)."""
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
         if self.con is not None:
@@ -315,6 +353,9 @@ class CompiledModel:
             D = np.zeros((self.nv, self.nv))
             K = np.zeros((self.nv, self.nv))
         arm.passive_jacobian(self.damping, self.friction, self.v_s, self.lim, q, v, q, False, D, K)
+        if srv is not None:
+            out, _ = self.servo_state(srv, t, q, v)
+            servo.servo_jacobian_add(srv, np.ascontiguousarray(out[:, 5]), D, K)
         if h is not None:
             G = np.empty((self.nv, self.nv))
             tree.gravity_stiffness_into(self.mi_r, self.mf_r, q, G)
@@ -343,7 +384,7 @@ class CompiledSystem:
         if self.km is not None:
             self.tree = (self.km.mi, self.km.mf, self.km.mi_r, self.km.mf_r)
         else:
-            mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 28))
+            mi, mf = np.zeros((1, 5), dtype=np.int64), np.zeros((2, 29))
             self.tree = (mi, mf, mi, mf)
         self.stat = np.zeros(4)
         self._evaluate, self._project, self._integrate = fixed_step.ENTRY_POINTS[self.kind]

@@ -21,6 +21,7 @@ from .linalg import chol_solve, cholesky
 from .passive import add_coulomb_friction, friction_jacobian_add
 from .profiles import CMD_GRAVITY_SINE, CMD_NONE, CMD_PD_HOLD, command_eval
 from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_rhs, stage_velocity
+from .servo import SW_SAT, servo_forces_add, servo_jacobian_add, servo_side, servo_state, servo_time_rate
 from ..model import SPHERICAL
 from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
@@ -64,7 +65,7 @@ def arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv):
 
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx):
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx, t, srv):
     """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v − F tanh(v/v_s) +
     τ_lim``;
     for ``z = [q, v, W, W_lim]`` also ``vᵀ τ_lim`` (the joint-limit work on its own).
@@ -76,7 +77,9 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
     dynamics (:func:`.coupled.coupled_fd_ws`, scratch cs) instead of ABA. con: None, or the packed
     ground contacts (:mod:`.contact`) whose body forces (into the scratch fx (nb, 6)) enter ABA; then
     ``z`` ends with the contact work ``W_c`` (``[q, v, W(, W_lim), W_c]``), whose rate is their power
-    (also part of W's). (ArmSystem.rhs, .input_power and .work_component_powers of the reference path.)
+    (also part of W's). srv: None, or the joint servo (:mod:`.servo`), whose torques at time t (s) join
+    τ and whose power joins W's. (ArmSystem.rhs, .input_power and .work_component_powers of the
+    reference path.)
     """
     q = z[:nq]
     v = z[nq:nq + nv]
@@ -85,6 +88,8 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
     else:
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:z.shape[0] - 1], dz, tauv)
+    if srv is not None:   # before W holds q's transforms: the feed-forward's RNEA uses W
+        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
     transforms(mi, mf, q, W)
     if cpl is not None:   # a None argument prunes this branch at compile time: no coupled code for other trees
         coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
@@ -101,7 +106,7 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
 
 
 @njit(**_JIT)
-def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con):
+def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, con, t0, srv):
     """Integrate ``z = [q, v, W]`` (or ``[q, v, W, W_lim]``, see :func:`arm_rhs`) in place over
     ``n_full`` steps of dt and one of h_last (if > 0).
 
@@ -111,20 +116,22 @@ def integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, d
     stage, ``y += h/6 acc``; symplectic Euler: ``[v, W] += h f[nq:]``, then ``q += h q̇(q,
     v_new)``); free-joint quaternions are renormalised and mimic joints set from their sources
     (cpl: None, or see :func:`arm_rhs`) after every step, as the Simulator's projection does.
-    con: None, or the ground contacts of :func:`arm_rhs`. Returns the index of the first step whose
-    result is non-finite (z then holds that result), or -1.
+    con: None, or the ground contacts of :func:`arm_rhs`. t0: the time (s) of the first step (step k starts
+    at ``t0 + k dt``); srv: None, or the joint servo of :func:`arm_rhs`, evaluated at each stage's time.
+    Returns the index of the first step whose result is non-finite (z then holds that result), or -1.
     """
     if cpl is None:
         return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, None, None,
-                         con)
+                         con, t0, srv)
     nv = damping.shape[0]
     nr = nv - cpl[0].shape[0]
     cs = (np.zeros((nv, nv)), np.zeros(nv), np.zeros((nr, nr)), np.zeros((nr, nr)), np.zeros(nr), np.zeros(nr))
-    return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, None)
+    return arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, None,
+                     t0, srv)
 
 
 @njit(**_JIT)
-def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, con):
+def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl, cs, con, t0, srv):
     """The steps of :func:`integrate_arm` (cs: the coupled dynamics' scratch, None with cpl)."""
     nb = mi.shape[0]
     fx = np.zeros((nb, 6))
@@ -146,21 +153,27 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
     n_steps = n_full + (1 if h_last > 0.0 else 0)
     for k in range(n_steps):
         h = dt if k < n_full else h_last
+        t = t0 + k * dt   # the reference integrator's step times (integrators.FixedStepIntegrator._advance)
+        servo_side(srv, 1.0)   # a servo's setpoints: a knot on the step grid is read from this step's side
         if method == M_RK4:
             half = 0.5 * h
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
+            servo_side(srv, 0.0)
             for a in range(n):
                 acc[a] = K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + half,
+                    srv)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * half + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + half,
+                    srv)
             for a in range(n):
                 acc[a] = (acc[a] + K[a]) + K[a]
                 Y[a] = K[a] * h + z[a]
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx)
+            servo_side(srv, -1.0)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, K, tauv, W, cpl, cs, con, fx, t + h, srv)
             h6 = h / 6.0
             for a in range(n):
                 z[a] += (acc[a] + K[a]) * h6
@@ -173,7 +186,7 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
                 while taken < 0.0:
                     taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs,
                                                 splits < MAX_SPLITS, W, K, Y, acc, tauv, vec, mat, cpl, cs, red,
-                                                con, fx, cj)
+                                                con, fx, cj, t + (h - rest), srv)
                     if taken == -math.inf:
                         break
                     if taken < 0.0:
@@ -184,16 +197,17 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
                     break
                 rest = 0.0 if hs >= rest else rest - hs
         elif method == M_SEMI_IMPLICIT_EULER:
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
             for a in range(nq, n):
                 z[a] += K[a] * h
             qdot_into(mi, z[:nq], z[nq:nq + nv], qd)
             for a in range(nq):
                 z[a] += qd[a] * h
         else:
-            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx)
+            arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, K, tauv, W, cpl, cs, con, fx, t, srv)
             for a in range(n):
                 z[a] += K[a] * h
+        servo_side(srv, 0.0)
         normalize_into(mi, z[:nq])
         if cpl is not None:
             couple_into(cpl[0], z[:nq], z[nq:nq + nv])
@@ -378,13 +392,16 @@ def contact_stage_jacobian(mi, mf, con, touching, Dc, K2, cj, W):
 
 
 @njit(**_JIT)
-def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red, touching):
+def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red, touching, srv,
+                        sat):
     """The iteration matrix ``A = M + γh D + γ²h² K`` (R5) of :func:`arm_rosenbrock_step` and its Cholesky
     factor, into ``mat = [H (= M, given), D, K, A, L, G (given)]``: D, K from :func:`passive_jacobian`
     (stops at the stage configuration qs too with use_qs), when ``touching`` > 0 points touch a ground the
     contacts' ``D_c, K_c`` (``mat[6], mat[7]``: :func:`contact_bias_mass`, :func:`contact_stage_jacobian`),
     plus the gravity stiffness G = ∂g/∂q of the 1-DOF joints (:func:`arm_bias_mass`), which is dropped
-    when A is not positive definite with it (a load above its axis stiff enough to matter at this step).
+    when A is not positive definite with it (a load above its axis stiff enough to matter at this step),
+    and the joint servo's kp, kd on the joints not saturated at the step's start (srv: None, or
+    :mod:`.servo`; sat (ns,) their flags, :func:`.servo.servo_jacobian_add`).
     Returns the γ of the step: ``GAMMA`` (1 − 1/√2), or ``GAMMA_STOP`` (1 + 1/√2) when a joint stop is in J
     or a contact touches (docs/contact.md: the friction's sign flips with the small root), whose law switches
     its damper within a step (:mod:`robodyn_ros.kernels.rosenbrock`); 0.0 when A is not positive definite
@@ -407,6 +424,8 @@ def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs
                 Dm[a, b] = mat[6][a, b]
                 Km[a, b] = G[a, b] + mat[7][a, b]
     stops = passive_jacobian(damping, friction, v_s, lim, q, v, qs, use_qs, Dm, Km)
+    if srv is not None:
+        servo_jacobian_add(srv, sat, Dm, Km)
     gamma = GAMMA_STOP if stops or touching > 0 else GAMMA
     if factor_stage_matrix(H, Dm, Km, gamma * h, A, L, cpl, red):
         return gamma
@@ -457,7 +476,7 @@ def solve_stage(L, Km, gh, force, bq, kv, tmp, cpl, red):
 #: sub-steps a step may be cut into where it enters stiff stops (then the stops join J at once)
 MAX_SPLITS = 16
 #: rows of the vector (nv,) and matrix (nv, nv) work arrays of :func:`arm_rosenbrock_step`
-ROS_VECTORS, ROS_MATRICES = 10, 9
+ROS_VECTORS, ROS_MATRICES = 13, 9
 
 
 @njit(**_JIT)
@@ -496,7 +515,7 @@ def retract(mi, simple, q, dq, h, out):
 
 @njit(**_JIT)
 def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, h, split, W, dz, Y, k1, tauv, vec,
-                        mat, cpl, cs, red, con, fx, cj):
+                        mat, cpl, cs, red, con, fx, cj, t, srv):
     """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R6)) of an arm,
     ``z = [q, v, W(, W_lim)]`` in place. Returns h when taken; ``−s`` (z untouched) when the step meets a
     stiff stop it should enter as a shorter step s (with split; :func:`limit_event`: the caller takes s,
@@ -515,8 +534,10 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     independent joints (:func:`factor_stage_matrix`, :func:`solve_stage`; red: their work arrays) and
     f(Y) is the coupled dynamics. On a ground (con, fx: see :func:`arm_rhs`; ``z`` ends with W_c) the
     contacts' forces are in the residual r and their ``D_c, K_c`` in J (:func:`contact_bias_mass`; cj: its
-    scratch). dz, Y, k1 (n,), tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv): work
-    arrays.
+    scratch). The step starts at time t (s); a joint servo (srv, :mod:`.servo`) is in the residual at t and
+    in the stage-2 forces at t + h, its kp, kd in J while not saturated at zₙ, and its time rate ``F_t`` in the
+    stages (``+γh F_t`` in stage 1, ``−γh F_t`` in stage 2: ROS2's non-autonomous form). dz, Y, k1 (n,),
+    tauv (nv,): scratch; vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv): work arrays.
     """
     n = z.shape[0]
     q = z[:nq]
@@ -528,6 +549,14 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
     else:
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:n - 1], dz, tauv)
+    sat, Ft, rr = vec[10], vec[11], vec[12]
+    if srv is not None:   # the servo at (t, zₙ): its torques, its saturation flags and time rate for J and the stages
+        servo_side(srv, 1.0)
+        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
+        ns = srv[0].shape[0]
+        for a in range(ns):
+            sat[a] = srv[5][SW_SAT, a]
+        servo_time_rate(srv, Ft)
     for a in range(nq + nv, n):
         k1[a] = dz[a]
     k1[nq + nv] = P
@@ -548,10 +577,15 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     stops_checked = False
     for attempt in range(3):   # again with the stops the stage point met (limit_event), the contacts it touches
         gh = h * arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, Y[:nq], use_qs, W, mat, cpl, red,
-                                     touching)
+                                     touching, srv, sat)
         if gh == 0.0:
             return -math.inf
-        solve_stage(L, Km, gh, r, stiffness_rate(mi, simple, con, q, fq, vec[9]), kv1, x, cpl, red)
+        if srv is None:
+            solve_stage(L, Km, gh, r, stiffness_rate(mi, simple, con, q, fq, vec[9]), kv1, x, cpl, red)
+        else:
+            for a in range(nv):
+                rr[a] = r[a] + gh * Ft[a]
+            solve_stage(L, Km, gh, rr, stiffness_rate(mi, simple, con, q, fq, vec[9]), kv1, x, cpl, red)
         tangent_rate(mi, simple, q, kv1, kq1)
         for a in range(nv):
             kq1[a] = fq[a] + gh * kq1[a]
@@ -568,7 +602,9 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
             Y[nq + a] = v[a] + h * kv1[a]
         for a in range(nq + nv, n):
             Y[a] = z[a] + h * k1[a]
-        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx)
+        servo_side(srv, -1.0)   # stage 2 at the step's end
+        arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, Y, dz, tauv, W, cpl, cs, con, fx, t + h, srv)
+        servo_side(srv, 0.0)
         if con is None or attempt == 2:
             break
         ty = contact_stage_jacobian(mi, mf, con, touching, mat[6], mat[8], cj, W)
@@ -580,6 +616,9 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
         fq[a] += C21 * kq1[a]                       # bq of stage 2
         x[a] = dz[nq + a] + C21 * kv1[a]            # bv of stage 2
     mat_vec(H, x, r)                                # M bv
+    if srv is not None:
+        for a in range(nv):
+            r[a] -= gh * Ft[a]
     solve_stage(L, Km, gh, r, stiffness_rate(mi, simple, con, q, fq, vec[9]), kv2, x, cpl, red)
     tangent_rate(mi, simple, q, kv2, kq2)
     for a in range(nv):
@@ -596,7 +635,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
 
 @njit(**_JIT)
 def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, method, z, dt, t_start, n_full, h_last,
-                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs):
+                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs, t_end, srv, SVs):
     """K publication periods of an arm in one call: per period k the scripted command at its
     start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), clamped to the
     effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``,
@@ -607,7 +646,10 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
     :func:`.contact.point_body_forces`) -- the numbers the Simulator's per-period path computes with
     the same functions. con: None, or the ground contacts (:func:`arm_rhs`; z then ends with W_c), with
     cpo = ``(body_of, link_of)`` (each point's body of the full tree and its link's row in Cs) and the
-    links' contact wrenches ``Cs[k]`` (nl, 6) (:func:`.contact.link_wrenches`).
+    links' contact wrenches ``Cs[k]`` (nl, 6) (:func:`.contact.link_wrenches`). srv: None, or a joint
+    servo (:mod:`.servo`) held over the K periods (its setpoint program fixed), whose torques at each
+    period's end ``t_end[k]`` join ``TAUs[k]`` (its joints take no B u) and the wrenches' τ, with its
+    desired values in ``SVs[k]`` (ns, 6) (:func:`.servo.servo_state`).
 
     z: ``[q, v, W(, W_lim)(, W_c)]`` in place; u (n,) the command held before period 0. Returns
     ``(k, code)``: code 0 after all K periods; 1: the command of period k is non-finite (not
@@ -628,6 +670,7 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
     dz = np.empty(n)
     tauv = np.empty(nv)
     zf = np.zeros((mi.shape[0], 6))
+    Wr = workspace(mi_r.shape[0])
     for k in range(K):
         if kind != CMD_NONE:
             if kind == CMD_GRAVITY_SINE or (kind == CMD_PD_HOLD and P[3, 0] != 0.0):
@@ -647,7 +690,7 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
             tau_app[r] = acc
         # (the block path declines trees with mimic joints: ArmSystem.fused_periods)
         if integrate_arm(mi_r, mf_r, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full[k],
-                         h_last[k], None, con) >= 0:
+                         h_last[k], None, con, t_start[k], srv) >= 0:
             return k, 2
         for a in range(n):
             Zs[k, a] = z[a]
@@ -655,6 +698,10 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
             Us[k, i] = u[i]
         for r in range(nv):
             TAUs[k, r] = tau_app[r]
+        if srv is not None:   # the servo's torques at the period's end: the effort its joints publish
+            servo_state(mi_r, mf_r, damping, friction, v_s, srv, t_end[k], z[:nq], z[nq:nq + nv], Wr, SVs[k])
+            for j in range(srv[0].shape[0]):
+                TAUs[k, srv[0][j, 0]] += SVs[k, j, 4]
         if con is not None:   # the contacts at the period's end: per link, and (for the joint wrenches) per body
             Pc = contact_points(con, mi_r, mf_r, z[:nq], z[nq:nq + nv])
             link_wrenches(con[0], Pc, cpo[1], Cs[k])
@@ -662,6 +709,9 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
                 point_body_forces(mi, mf, z[:nq], Pc, cpo[0], zf)
         if want_f:
             arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:nw], dz, tauv)
+            if srv is not None:
+                for j in range(srv[0].shape[0]):
+                    tauv[srv[0][j, 0]] += SVs[k, j, 4]
             _, f = joint_wrenches(mi, mf, z[:nq], z[nq:nq + nv], tauv, zf, con is not None)
             for b in range(f.shape[0]):
                 for c in range(6):

@@ -345,7 +345,8 @@ def _gravity_stiffness(Z, a, E, S, IC, vidx) -> dict:
 
 def crba_source(model) -> str | None:
     """Source of ``crba(q, H)``: the joint-space inertia matrix M(q) (nv, nv) by the composite-rigid-body
-    algorithm (book Table 6.2), specialised to ``model``; every entry written; None for FREE/SPHERICAL trees."""
+    algorithm (book Table 6.2) with the joints' armature on its diagonal, specialised to ``model``; every
+    entry written; None for FREE/SPHERICAL trees."""
     a = _merged_or_none(model)
     if a is None:
         return None
@@ -369,7 +370,7 @@ def crba_source(model) -> str | None:
         if int(a['jtype'][i]) == FIXED:
             continue
         F = [Z.sp([(1.0, IC[i][x][y], S[i][y]) for y in range(6)]) for x in range(6)]
-        H[vidx[i], vidx[i]] = Z.sp([(1.0, S[i][x], F[x]) for x in range(6)])
+        H[vidx[i], vidx[i]] = Z.sp([(1.0, S[i][x], F[x]) for x in range(6)], float(a['armature'][i]))
         j = i
         while int(a['parent'][j]) >= 0:
             F = _xforce_T(Z, E[j], r[j], F)
@@ -387,7 +388,8 @@ def crba_source(model) -> str | None:
 
 
 def aba_source(model) -> str | None:
-    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model``, or None (FREE or SPHERICAL
+    """Python source of ``aba(q, v, tau, qdd)`` specialised to ``model`` (a joint's armature added to its
+    ``d``, as in :func:`robodyn_ros.kernels.tree.aba_ws`), or None (FREE or SPHERICAL
     joints, or a joint whose articulated inertia ``d = Sᵀ IA S`` is the constant 0: its mass matrix is
     singular everywhere, which the generic kernels' caller reports)."""
     a = _merged_or_none(model)
@@ -418,7 +420,7 @@ def aba_source(model) -> str | None:
         else:
             vi = int(a['v_idx'][i])
             U[i] = [Z.sp([(1.0, IA[i][x][y], S[i][y]) for y in range(6)]) for x in range(6)]
-            d[i] = Z.sp([(1.0, S[i][x], U[i][x]) for x in range(6)])
+            d[i] = Z.sp([(1.0, S[i][x], U[i][x]) for x in range(6)], float(a['armature'][i]))   # + the armature
             if isinstance(d[i], float) and d[i] == 0.0:
                 return None  # no inertia about this axis in any configuration: the generic kernels (and the
                 #              simulator's preflight, which names the joint) take the model
@@ -464,13 +466,16 @@ def aba_source(model) -> str | None:
 _RHS = '''
 
 @njit(**_JIT)
-def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx):
+def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx, t, srv):
     """``dz/dt`` for ``z = [q, v, W]`` or ``[q, v, W, W_lim]`` with the specialised ``aba`` (see arm.arm_rhs;
-    a tree with mimic joints or ground contacts is never specialised, so cpl, cs, con and fx go unused)."""
+    a tree with mimic joints or ground contacts is never specialised, so cpl, cs, con and fx go unused; the
+    joint servo srv at time t is arm.py's)."""
     q = z[:nq]
     v = z[nq:nq + nv]
     qdot_into(mi, q, v, dz[:nq])
     P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv)
+    if srv is not None:
+        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
     aba(q, v, tauv, dz[nq:nq + nv])
     dz[nq + nv] = P
 
@@ -513,15 +518,15 @@ def module_source(model) -> str | None:
 def _key(model) -> str:
     """Hash of everything the generated code depends on: packed model, generator, the kernels it
     imports or copies (tree.py, arm.py, profiles.py, fixed_step.py, coupled.py, passive.py, rosenbrock.py,
-    linalg.py, contact.py)."""
-    from . import arm, contact, coupled, fixed_step, linalg, pack_model, passive, profiles, rosenbrock, tree
+    linalg.py, contact.py, servo.py)."""
+    from . import arm, contact, coupled, fixed_step, linalg, pack_model, passive, profiles, rosenbrock, servo, tree
     mi, mf = pack_model(model, merge=True)
     h = hashlib.sha256()
     with open(__file__, 'rb') as f:
         generator = f.read()
     for part in (mi.tobytes(), mf.tobytes(), VERSION.encode(), *(inspect.getsource(m).encode() for m in
                                                                   (tree, arm, profiles, fixed_step, coupled,
-                                                                   passive, rosenbrock, linalg, contact)),
+                                                                   passive, rosenbrock, linalg, contact, servo)),
                  generator):
         h.update(part)
     return h.hexdigest()[:20]
@@ -535,7 +540,7 @@ def specialize(model):
 
     Returns None for trees with FREE or SPHERICAL joints. The module has ``aba(q, v, tau, qdd)``,
     ``integrate_arm(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n_full, h_last, cpl,
-    con)`` with the arguments of :func:`robodyn_ros.kernels.arm.integrate_arm` (mi/mf: the merged packing) and
+    con, t0, srv)`` with the arguments of :func:`robodyn_ros.kernels.arm.integrate_arm` (mi/mf: the merged packing) and
     ``run_arm_periods`` with those of :func:`robodyn_ros.kernels.arm.run_arm_periods`.
     """
     key = _key(model)

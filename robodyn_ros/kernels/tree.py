@@ -26,7 +26,9 @@ Packed model (built by :func:`robodyn_ros.kernels.pack_model`):
   ``Rz(q)``, ``U = IA[:, 2]``, ``Sᵀ f = f_z`` are used; 0 otherwise);
 * ``mf`` float64 (nb + 1, NF): per body ``AX`` axis (3), ``ET`` Xtree's E (9, row major),
   ``RT`` Xtree's r (3), ``MASS``, ``HV`` = m c (3), ``IB`` rotational inertia about the body
-  origin (9, row major); the extra last row holds gravity (3,) in columns ``0:3``.
+  origin (9, row major), ``ARM`` the joint's armature (rotor inertia reflected to the joint, kg·m² or
+  kg, on each of its velocity coordinates: ``M + diag(a)``, MuJoCo's and Pinocchio's ``armature``); the extra last row
+  holds gravity (3,) in columns ``0:3``.
 
 Work array ``W`` (nb + 1, NW): row i < nb holds body i's ``E_`` (9, Xup's E row major), ``R_``
 (3, Xup's r), ``V_`` velocity, ``C_`` = v × vJ, ``P_`` bias force pA (RNEA: the joint wrench f),
@@ -50,7 +52,7 @@ from .jit import njit
 # columns of mi
 PARENT, JTYPE, QIDX, VIDX, AXK = 0, 1, 2, 3, 4
 # columns of mf
-AX, ET, RT, MASS, HV, IB, NF = 0, 3, 12, 15, 16, 19, 28
+AX, ET, RT, MASS, HV, IB, ARM, NF = 0, 3, 12, 15, 16, 19, 28, 29
 # columns of a body row of W
 E_, R_, V_, C_, P_, U_, UV_, A_, IA_, D_, E0_, R0_ = 0, 9, 12, 18, 24, 30, 36, 42, 48, 84, 85, 94
 # columns of the scratch row of W
@@ -439,11 +441,11 @@ def chol6_solve(W, ar, ac, br, bc, xr, xc):
 
 
 @njit(**_JIT)
-def spherical_articulated(W, i, tau, s, propagate):
+def spherical_articulated(W, i, tau, s, propagate, arm):
     """ABA pass 2 at a spherical joint i (``S = [1; 0]``, book Table 7.1 with a 3-column S).
 
     ``U = IA S`` = the first three columns of IA (into ``W[i, U3_]``, 6x3 row major),
-    ``D = Sᵀ IA S`` = IA's upper-left 3x3 block, inverted explicitly (cofactors; it is
+    ``D = Sᵀ IA S + arm 1`` = IA's upper-left 3x3 block plus the armature, inverted explicitly (cofactors; it is
     symmetric positive definite for a body with mass) into ``W[i, DI3_]``, ``u = τ - Sᵀ pA``
     into ``W[i, UV_:UV_+3]``. With propagate: ``Ia = IA - U D⁻¹ Uᵀ`` overwrites ``W[i, IA_]``
     and ``pa = pA + Ia c + U D⁻¹ u`` goes to ``W[s_, S2_]``.
@@ -452,8 +454,8 @@ def spherical_articulated(W, i, tau, s, propagate):
     for a in range(6):
         for k in range(3):
             W[i, U3_ + 3 * a + k] = W[i, IA_ + 6 * a + k]
-    d00, d01, d02 = W[i, IA_], W[i, IA_ + 1], W[i, IA_ + 2]
-    d11, d12, d22 = W[i, IA_ + 7], W[i, IA_ + 8], W[i, IA_ + 14]
+    d00, d01, d02 = W[i, IA_] + arm, W[i, IA_ + 1], W[i, IA_ + 2]
+    d11, d12, d22 = W[i, IA_ + 7] + arm, W[i, IA_ + 8], W[i, IA_ + 14] + arm
     c00 = d11 * d22 - d12 * d12
     c01 = d02 * d12 - d01 * d22
     c02 = d01 * d12 - d02 * d11
@@ -493,7 +495,9 @@ def spherical_articulated(W, i, tau, s, propagate):
 def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
     """Articulated-body forward dynamics (book Table 7.1) into qdd (nv,).
 
-    tau (nv,) generalised forces; fext (nb, 6) external body forces (used if has_fext).
+    tau (nv,) generalised forces; fext (nb, 6) external body forces (used if has_fext). A joint's
+    armature a (``mf[:, ARM]``) adds to its ``D = Sᵀ IA S`` only: the rotor turns with the joint
+    rate but passes no inertia on to the parent.
     """
     nb = mi.shape[0]
     s_ = nb  # scratch row
@@ -533,6 +537,7 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
                     W[i, U_ + a] = W[i, b] * k0 + W[i, b + 1] * k1 + W[i, b + 2] * k2
                 di = k0 * W[i, U_ + o] + k1 * W[i, U_ + o + 1] + k2 * W[i, U_ + o + 2]
                 ui = tau[s] - (k0 * W[i, P_ + o] + k1 * W[i, P_ + o + 1] + k2 * W[i, P_ + o + 2])
+            di += mf[i, ARM]                # D = Sᵀ IA S + armature (the rotor's inertia)
             W[i, D_] = di
             W[i, UV_] = ui
             if p >= 0:
@@ -558,7 +563,7 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
                     W[s_, S2_ + a] = W[i, P_ + a] + W[i, UV_ + a]
                 xforce_T_add(W, i, s_, S2_, p, P_)
         elif jt == SPHERICAL:
-            spherical_articulated(W, i, tau, s, p >= 0)
+            spherical_articulated(W, i, tau, s, p >= 0, mf[i, ARM])
             if p >= 0:  # W[i, IA_] now holds Ia, W[s_, S2_] pa
                 xinertia_T_add(W, i, i, IA_, p, IA_, i, U_, 0.0)
                 xforce_T_add(W, i, s_, S2_, p, P_)
@@ -611,7 +616,8 @@ def rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W):
     """Recursive Newton–Euler (book Table 5.1) into tau (nv,); joint wrenches left in ``W[:, P_]``.
 
     ``W[i, P_:P_+6]`` is the force the parent exerts on body i through joint i, in body i
-    coordinates at its origin (see :func:`robodyn_ros.dynamics.rnea_wrenches`).
+    coordinates at its origin (see :func:`robodyn_ros.dynamics.rnea_wrenches`). A joint's armature
+    a adds ``a q̈`` to its tau, not to the wrench: the rotor's torque never passes through the link.
     """
     nb = mi.shape[0]
     s_ = nb
@@ -640,6 +646,10 @@ def rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W):
                 W[i, P_ + a] -= fext[i, a]
     for i in range(nb - 1, -1, -1):
         project_force(mi, mf, W, i, P_, i, tau, 0)
+        if mf[i, ARM] != 0.0:
+            s = mi[i, VIDX]
+            for k in range(joint_nv(mi[i, JTYPE])):
+                tau[s + k] += mf[i, ARM] * acc[s + k]
         p = mi[i, PARENT]
         if p >= 0:
             xforce_T_add(W, i, i, P_, p, P_)
@@ -679,7 +689,8 @@ def rbi_T_add(W, i, sr, sc, dr, dc):
 
 @njit(**_JIT)
 def crba_ws(mi, mf, H, W):
-    """Composite-rigid-body joint-space inertia (book Table 6.2) into H (nv, nv) (C order), zeroed by caller.
+    """Composite-rigid-body joint-space inertia (book Table 6.2) into H (nv, nv) (C order), zeroed by caller;
+    a joint's armature is added to its diagonal entries (``M + diag(a)``).
 
     Composite inertias ``IC`` are kept in the 10-number rigid form at ``W[i, IA_:IA_+10]``
     (:func:`rbi_T_add`); ``F = IC S`` per joint column, carried to the root by ``Xupᵀ``.
@@ -730,8 +741,9 @@ def crba_ws(mi, mf, H, W):
             W[s_, o + 3] = m * u0 - (h1 * w2 - h2 * w1)
             W[s_, o + 4] = m * u1 - (h2 * w0 - h0 * w2)
             W[s_, o + 5] = m * u2 - (h0 * w1 - h1 * w0)
-        for k in range(ni):                 # diagonal block S_iᵀ F
+        for k in range(ni):                 # diagonal block S_iᵀ F, plus the armature
             project_force(mi, mf, W, s_, FC_ + 6 * k, i, Hf, (s + k) * nv)
+            H[s + k, s + k] += mf[i, ARM]
         j = i
         while mi[j, PARENT] >= 0:
             for k in range(ni):             # F = Xup[j]ᵀ F
@@ -783,7 +795,8 @@ def world_kinematics_ws(mi, mf, v, W):
 
 @njit(**_JIT)
 def energies_ws(mi, mf, q, v, W):
-    """``(kinetic, potential)`` (J): ``½ Σ vᵢᵀ Iᵢ vᵢ`` and ``-gᵀ Σ mᵢ cᵢ`` (world coms).
+    """``(kinetic, potential)`` (J): ``½ Σ vᵢᵀ Iᵢ vᵢ + ½ Σ a q̇²`` (the rotors' share, armature a) and
+    ``-gᵀ Σ mᵢ cᵢ`` (world coms).
 
     The world poses and body velocities come from :func:`world_kinematics_ws`.
     """
@@ -796,6 +809,9 @@ def energies_ws(mi, mf, q, v, W):
         rigid_inertia_times(mf, i, W, i, V_, s_, S2_)
         for a in range(6):
             kin += W[i, V_ + a] * W[s_, S2_ + a]
+        s = mi[i, VIDX]
+        for k in range(joint_nv(mi[i, JTYPE])):
+            kin += mf[i, ARM] * v[s + k] * v[s + k]
         m = mf[i, MASS]
         h0, h1, h2 = mf[i, HV], mf[i, HV + 1], mf[i, HV + 2]
         # m (p + R c) = m r0 + E0ᵀ h

@@ -49,10 +49,30 @@ PARAMETERS = {
                             "twist angular first in its body axes"),
     'diagnostics_period': (1.0, 'simulated seconds between diagnostics messages'),
     'publish_tf': (True, 'publish (and record) /tf and /tf_static; without tf2_msgs they are only recorded'),
+    'command_interface': ('', "a URDF robot (robot_description_file or the robot_description topic): effort, "
+                              "position or velocity commands for every actuated joint; '' = effort"),
+    'sensors': ('', "a URDF robot: its sensors as a YAML list (as a scene's sensors key), e.g. "
+                    "'[{kind: imu, link: base_link}]'; '' = none"),
     'backend': ('', "dynamics kernels: numpy, numba or generated; '' = $ROBODYN_BACKEND, else numba "
                     '(generic, compiled once per install); generated = specialised per model, compiled '
                     'once per model and cached'),
+    'foxglove_port': (0, 'serve the run live on a Foxglove WebSocket at this TCP port (0 = off); clients see '
+                         'every recorded topic and may publish commands, call reset and pause, set rate_factor'),
+    'foxglove_host': ('127.0.0.1', 'address the Foxglove WebSocket serves on (127.0.0.1: this machine only)'),
+    'embed_meshes': (True, "the recorded (and live) robot_description carries its meshes as data: URIs, so that "
+                           "a viewer without ROS draws them; the robot_description topic keeps package:// URIs"),
 }
+
+
+def check_live(p: dict) -> tuple:
+    """``(host, port)`` of the live server from parameters ``foxglove_host``/``foxglove_port`` (port 0:
+    off), or ConfigError naming the parameter."""
+    port, host = p.get('foxglove_port', 0), p.get('foxglove_host', '127.0.0.1')
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise ConfigError(f"parameter 'foxglove_port' must be a TCP port 1..65535 (0: no live server), got {port!r}")
+    if not isinstance(host, str) or not host:
+        raise ConfigError(f"parameter 'foxglove_host' must be an address (e.g. 127.0.0.1), got {host!r}")
+    return host, port
 
 
 class ConfigError(ValueError):
@@ -83,6 +103,7 @@ class Config:
     backend: str = ''
     auto: str = ''   # why integrator auto chose ``integrator`` ('' when the settings named it)
     step_budget: float | None = None
+    embed_meshes: bool = True
     plan: object = None   # the run's IntegratorPlan (runs.plan_run): the Simulator is built from it
 
     def settings(self, namespace: str) -> dict:
@@ -214,7 +235,7 @@ def resolve_config(p: dict, scene) -> Config:
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
-    for name in ('scripted_commands', 'start_paused', 'publish_tf', 'overwrite'):
+    for name in ('scripted_commands', 'start_paused', 'publish_tf', 'overwrite', 'embed_meshes'):
         if not isinstance(p[name], bool):
             raise ConfigError(f'parameter {name!r} must be true or false, got {p[name]!r}')
     if p['scripted_commands'] and mode == 'lockstep':
@@ -254,7 +275,28 @@ def resolve_config(p: dict, scene) -> Config:
                   record=p['record'], scripted_commands=p['scripted_commands'], start_paused=p['start_paused'],
                   diagnostics_period=check_number('diagnostics_period', p['diagnostics_period'], positive=True),
                   y0=y0, publish_tf=p['publish_tf'], backend=check_backend(p.get('backend', '')),
-                  step_budget=st.get('step_budget'), plan=plan)
+                  step_budget=st.get('step_budget'), plan=plan, embed_meshes=p.get('embed_meshes', True))
+
+
+def urdf_options(raw: dict) -> dict:
+    """The ``command_interface`` and ``sensors`` parameters as ``load_scene``/``urdf_scene_text`` keywords
+    (for a URDF robot; a scene file gives them itself); ConfigError for a bad value."""
+    import yaml
+    ci, sensors = raw.get('command_interface', ''), raw.get('sensors', '')
+    if not isinstance(ci, str) or ci not in ('', 'effort', 'position', 'velocity'):
+        raise ConfigError(f"parameter 'command_interface' must be effort, position or velocity ('' = effort), "
+                          f'got {ci!r}')
+    if not isinstance(sensors, str):
+        raise ConfigError(f"parameter 'sensors' must be a YAML list text, got {sensors!r}")
+    items = None
+    if sensors.strip():
+        try:
+            items = yaml.safe_load(sensors)
+        except yaml.YAMLError as e:
+            raise ConfigError(f"parameter 'sensors': not YAML: {e}") from None
+        if not isinstance(items, list):
+            raise ConfigError(f"parameter 'sensors' must be a YAML list of sensors, got {sensors!r}")
+    return {'command_interface': ci or None, 'sensors': items}
 
 
 def check_backend(value) -> str:

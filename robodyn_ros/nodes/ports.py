@@ -22,11 +22,14 @@ def _field(msg, name):
 def command_values(port: str, msg) -> list:
     """The value vector a command message carries for ``port``.
 
-    port: 'effort' or 'wheel_voltage' (std_msgs/Float64MultiArray: ``data`` after
-    ``layout.data_offset``) or 'base_wrench' (geometry_msgs/WrenchStamped in ``base_link``:
-    ``[fx, fy, fz, tx, ty, tz]``). Raises :class:`CommandError` for a port without a topic
-    mapping or a wrench in another frame (this node does not transform frames).
+    port: 'effort', 'wheel_voltage', 'position' or 'velocity' (std_msgs/Float64MultiArray: ``data``
+    after ``layout.data_offset``), 'base_wrench' (geometry_msgs/WrenchStamped in ``base_link``:
+    ``[fx, fy, fz, tx, ty, tz]``) or 'trajectory' (trajectory_msgs/JointTrajectory: the message as a
+    dict, :func:`trajectory_dict`, validated by the Simulator). Raises :class:`CommandError` for a port
+    without a topic mapping or a wrench in another frame (this node does not transform frames).
     """
+    if port == 'trajectory':
+        return trajectory_dict(msg)
     if port == 'base_wrench':
         frame = _field(_field(msg, 'header'), 'frame_id')
         if frame not in BASE_WRENCH_FRAMES:
@@ -39,6 +42,23 @@ def command_values(port: str, msg) -> list:
         offset = int(_field(_field(msg, 'layout'), 'data_offset'))
         return list(_field(msg, 'data'))[offset:]
     raise CommandError(f'input port {port!r} has no command topic; known: {sorted(PORT_TYPES)}')
+
+
+def trajectory_dict(msg) -> dict:
+    """A trajectory_msgs/JointTrajectory (rclpy message, decoded dict or mcap_ros2 object) as the message
+    dict the recorder encodes (``messages.py``'s layout), its numbers as float arrays."""
+    import numpy as np
+
+    def stamp(x):
+        return {'sec': int(_field(x, 'sec')), 'nanosec': int(_field(x, 'nanosec'))}
+    header = _field(msg, 'header')
+    points = []
+    for p in _field(msg, 'points'):
+        points.append({k: np.array(list(_field(p, k)), dtype=float)
+                       for k in ('positions', 'velocities', 'accelerations', 'effort')})
+        points[-1]['time_from_start'] = stamp(_field(p, 'time_from_start'))
+    return {'header': {'stamp': stamp(_field(header, 'stamp')), 'frame_id': str(_field(header, 'frame_id'))},
+            'joint_names': [str(n) for n in _field(msg, 'joint_names')], 'points': points}
 
 
 def command_topics(system) -> dict:

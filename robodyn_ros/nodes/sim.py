@@ -39,8 +39,9 @@ import numpy as np
 from .. import messages as M
 from ..recording import cdr
 from ..recording.run_sink import output_records
+from ..recording.target import episode_path
 from ..simulation import CommandError, SimulationError, Simulator
-from .config import PARAMETERS, ConfigError, check_backend, check_number, resolve_config
+from .config import PARAMETERS, ConfigError, check_backend, check_live, check_number, resolve_config, urdf_options
 from .ports import command_topics, command_values
 
 NODE_NAME = 'robodyn_sim'
@@ -65,14 +66,6 @@ def _finite_outputs(out) -> bool:
     if out.odom is not None:
         arrays += list(out.odom.values())
     return bool(np.isfinite(np.concatenate([np.asarray(a, dtype=float).reshape(-1) for a in arrays])).all())
-
-
-def _episode_path(path: str, episode: int) -> str:
-    """Recording file of the ``episode``-th reset: ``run.mcap`` -> ``run-1.mcap``, ..."""
-    if episode == 0:
-        return path
-    root, ext = os.path.splitext(path)
-    return f'{root}-{episode}{ext or ".mcap"}'
 
 
 def _import_msg(type_name: str):
@@ -109,8 +102,15 @@ def make_node_class():
                                   f"got {urdf_file!r}")
             if not isinstance(raw['scene'], str):
                 raise ConfigError(f"parameter 'scene' must be a scene name or path, got {raw['scene']!r}")
+            self.live = None   # the live server's pieces (_start_live), when foxglove_port is set
+            self._live_sock = self._bind_live(raw)   # a port in use is refused before the scene loads
             # scene:='' without a URDF file: the robot is the URDF another node publishes
             self.external_description = not raw['scene'] and not urdf_file
+            urdf_opts = urdf_options(raw)   # command_interface, sensors: for a URDF robot
+            if not (urdf_file or self.external_description) and any(v is not None for v in urdf_opts.values()):
+                raise ConfigError("parameters 'command_interface' and 'sensors' apply to a URDF robot "
+                                  "(robot_description_file, or scene:=''); a scene file gives command_interfaces "
+                                  'on its part and a sensors list')
             from ..systems.base import backend_scope
             with backend_scope(check_backend(raw['backend'])):
                 if self.external_description:
@@ -118,11 +118,13 @@ def make_node_class():
                     text = self._read_robot_description(check_number('robot_description_timeout',
                                                                 raw['robot_description_timeout'], positive=True))
                     try:
-                        self.scene = parse_scene(urdf_scene_text(text=text), file='robot_description')
+                        self.scene = parse_scene(urdf_scene_text(text=text, **urdf_opts), file='robot_description')
                     except SceneError as e:
                         raise ConfigError(f'the URDF on robot_description cannot be simulated: {e}') from None
+                elif urdf_file:
+                    self.scene = load_scene(urdf_file, **urdf_opts)
                 else:
-                    self.scene = load_scene(urdf_file or raw['scene'])
+                    self.scene = load_scene(raw['scene'])
             self.cfg = cfg = resolve_config(raw, self.scene)
             self.namespace = self.get_namespace()
             try:
@@ -155,6 +157,7 @@ def make_node_class():
             for link in out0.contacts:   # the ground's wrench on each link that has contact points
                 topic = M.contact_topic(link)
                 self.pub[topic] = self.create_publisher(_import_msg(M.WRENCH_TYPE), topic, 10)
+            self._control_publishers(out0)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                                  reliability=ReliabilityPolicy.RELIABLE)
             self.description = M.string(self.scene.system.urdf())
@@ -178,6 +181,8 @@ def make_node_class():
             self.subs = []
             if not cfg.scripted_commands:
                 for port, (topic, type_name) in command_topics(self.scene.system).items():
+                    if self.scene.system.inputs[port].kind == 'vector' and not self.scene.system.inputs[port].size:
+                        continue   # a port with nothing to command (an arm whose joints all take positions)
                     self.subs.append(self.create_subscription(
                         _import_msg(type_name), topic, lambda msg, port=port: self._on_command(port, msg), 10))
 
@@ -193,6 +198,9 @@ def make_node_class():
                 if static['transforms']:
                     self.pub['/tf_static'].publish(M.fill(self.pub['/tf_static'].msg_type(), static))
             self._tf_layouts = {}
+            self._publish_command_joint_names(latched)
+            self._markers_setup()
+            self._start_live()
             self._refresh_subscribers()
             self._open_recording()
             self._commanded = False     # lockstep: a command has arrived since the last (re)start
@@ -209,11 +217,33 @@ def make_node_class():
                 + (f' x{cfg.rate_factor:g}' if cfg.mode == 'realtime' else '')
                 + (', scripted commands' if cfg.scripted_commands else
                    f', commands on {", ".join(t for t, _ in command_topics(self.scene.system).values())}')
-                + (f', recording to {self.recorder.path}' if self.recorder else '')
+                + (f', recording to {self.recorder.path}' if self.recorder and self.recorder.path else '')
+                + (f', live on {self.live.server.url}' if self.live else '')
                 + (f' ({cfg.auto})' if cfg.auto else ''))
             # the run (real-time schedule, summary wall time) starts now, after the set-up
             self._wall_start = self._anchor_wall = self._rtf_wall = self._pause_began = time.monotonic()
             self._cpu_start = time.process_time()   # CPU of the run (paused spinning costs next to none)
+
+        # -- command interfaces, servo and sensors (robodyn_ros.systems.servo, .sensors) ---------
+        def _control_publishers(self, out0):
+            """Publishers of the further messages of each output (a servo's desired and error states, the
+            sensors' readings: ``SystemOutputs.messages``), known from the initial output."""
+            for topic, type_name, _ in out0.messages:
+                self.pub[topic] = self.create_publisher(_import_msg(type_name), topic, 10)
+
+        def _publish_command_joint_names(self, latched):
+            """Latch ``command_joint_names`` (std_msgs/String: one line ``<topic>: [joints]`` per joint command
+            topic, in that topic's order) and log it, when the scene has position or velocity commands."""
+            sys_ = self.scene.system
+            self.command_joint_names = None
+            if not any(p in sys_.inputs for p in ('position', 'velocity')):
+                return
+            self.command_joint_names = M.string(M.command_joint_names(sys_))
+            pub = self.create_publisher(_import_msg(M.TOPIC_TYPES['command_joint_names']), 'command_joint_names',
+                                        latched)
+            self.pub['command_joint_names'] = pub
+            pub.publish(M.fill(pub.msg_type(), self.command_joint_names))
+            self.get_logger().info('command joints (command_joint_names):\n' + self.command_joint_names['data'])
 
         # -- set-up helpers -------------------------------------------------------------------
         def _read_robot_description(self, timeout: float) -> str:
@@ -248,15 +278,20 @@ def make_node_class():
             self._next_diag = self.sim.t
 
         def _open_recording(self):
-            if not self.cfg.record:
+            """The run's encoder: an MCAP file (``record``), and the live viewers' stream (``foxglove_port``):
+            the same records to both. Neither: no recorder."""
+            if not self.cfg.record and self.live is None:
                 return
             from ..recording.run_sink import NODE_CHUNK_SPAN, McapRunSink
-            path = _episode_path(self.cfg.record, self.episode)
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            path = None
+            if self.cfg.record:
+                path = episode_path(self.cfg.record, self.episode)
+                os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             self.recorder = McapRunSink(path, self.scene, self.cfg.settings(self.namespace),
                                         record_wrenches=True, diagnostics_period=self.cfg.diagnostics_period,
                                         namespace=self.namespace.strip('/'), record_tf=self.cfg.publish_tf,
-                                        chunk_span=NODE_CHUNK_SPAN)
+                                        chunk_span=NODE_CHUNK_SPAN, embed_meshes=self.cfg.embed_meshes,
+                                        taps=() if self.live is None else (self.live.tap,))
             self.recorders.append(self.recorder)
             self.recorder.on_start(self.sim)
 
@@ -397,6 +432,7 @@ def make_node_class():
                     self.pub['/clock'].publish(data)
                 if rec is not None:
                     rec._write_data('/clock', M.TOPIC_TYPES['/clock'], data, t_ns)
+            self._publish_markers(out, t_ns)
             self._last_extra = out.extra
             if self.sim.t >= self._next_diag - 1e-9:
                 self._publish_diagnostics(record=True)
@@ -464,7 +500,8 @@ def make_node_class():
             self._publish_initial_state()
             response.success = True
             response.message = (f'reset to the initial state at t={self.sim.t:g} s'
-                                + (f'; recording continues in {self.recorder.path}' if self.recorder else ''))
+                                + (f'; recording continues in {self.recorder.path}'
+                                   if self.recorder and self.recorder.path else ''))
             self.get_logger().info(response.message)
             return response
 
@@ -540,17 +577,130 @@ def make_node_class():
                 if not self._run_period() or self.finished:
                     return 0.0
 
+        # -- markers (recording.markers): contact points and forces ------------------------------
+        def _markers_setup(self):
+            """The ``markers`` publisher when the system draws markers (a ground), else nothing."""
+            from ..recording.markers import TOPIC, TYPE, Markers
+            self.markers = Markers.of(self.scene.system)
+            if self.markers is not None:
+                try:
+                    self.pub[TOPIC] = self.create_publisher(_import_msg(TYPE), TOPIC, 10)
+                except ImportError:   # as /tf without tf2_msgs: recorded (and live), not published
+                    self.get_logger().info('visualization_msgs is not installed: markers are not published '
+                                           '(recordings still carry them)')
+
+        def _publish_markers(self, out, t_ns):
+            """The period's MarkerArray (the recorder's bytes) to its subscribers and the recording."""
+            if self.markers is None:
+                return
+            from ..recording.markers import TOPIC, TYPE, MarkerInputs
+            rec = self.recorder
+            if rec is None and not self._subscribed.get(TOPIC):
+                return
+            data = self.markers.message(t_ns, MarkerInputs.of_outputs(out))
+            if self._subscribed.get(TOPIC):
+                self.pub[TOPIC].publish(data)
+            if rec is not None:
+                rec._write_data(TOPIC, TYPE, data, t_ns)
+
+        # -- live: a Foxglove WebSocket server (robodyn_ros.live) ---------------------------------
+        def _bind_live(self, raw):
+            """The listening socket of ``foxglove_port`` (None when 0), or ConfigError (port in use)."""
+            host, port = check_live(raw)
+            if not port:
+                return None
+            from ..live.server import LivePortError, bind
+            try:
+                return bind(host, port)
+            except LivePortError as e:
+                raise ConfigError(f"parameter 'foxglove_port': {e}") from None
+
+        def _start_live(self):
+            """Serve the run: the server on its thread; client requests wake the executor (a guard
+            condition) and are taken in :meth:`_take_live`, between two periods."""
+            if self._live_sock is None:
+                return
+            from types import SimpleNamespace
+
+            from ..live.server import LiveServer, LiveTap
+            from ..live.steering import RATE_FACTOR, Steering, service_set
+            from ..recording.run_sink import resolve
+            ns = self.namespace.strip('/')
+            commands = {} if self.cfg.scripted_commands else {
+                resolve(topic, ns): (port, t) for port, (topic, t) in command_topics(self.scene.system).items()}
+            gc = self.create_guard_condition(self._take_live)
+            steering = Steering(commands, command_values, wake=gc.trigger)
+            server = LiveServer(self._live_sock, f'robodyn_ros {NODE_NAME}: {self.scene.name}', steering,
+                                services=service_set(self.get_fully_qualified_name() + '/'),
+                                parameters={RATE_FACTOR: self.cfg.rate_factor}).start()
+            steering.advertise(server)
+            self.live = SimpleNamespace(server=server, steering=steering, tap=LiveTap(server), guard=gc)
+
+        def _take_live(self):
+            """Apply the clients' requests as their ROS counterparts: commands through the command ports'
+            checks (:meth:`_on_command`), reset and pause through the services, rate_factor."""
+            from types import SimpleNamespace
+
+            from ..live.server import Publish, ServiceCall, SetParameter
+            from ..live.steering import RATE_FACTOR, RefusedCommand, set_bool_data, trigger_response
+            live = self.live
+            for req in live.steering.take():
+                if isinstance(req, Publish):
+                    try:
+                        got = live.steering.command(req)
+                    except RefusedCommand as e:
+                        self.sim.ports[e.port].rejected += 1
+                        self._log_throttled('error', str(e), f'command rejected ({self.sim.rejected_commands} so far), '
+                                                             f'last valid command stays: {e}')
+                        live.server.status(req.client, 2, f'robodyn_ros: command rejected: {e}')
+                        continue
+                    if got is None:
+                        takes = ', '.join(live.steering.commands) or 'none'
+                        live.server.status(req.client, 1, f'robodyn_ros: {req.topic} is not a command topic of this '
+                                                          f'node (it takes {takes})')
+                        continue
+                    before = self.sim.rejected_commands
+                    self._on_command(*got)
+                    if self.sim.rejected_commands > before:
+                        live.server.status(req.client, 2, f'robodyn_ros: command on {req.topic} rejected '
+                                                          f'({self.sim.rejected_commands} so far); see the node log')
+                elif isinstance(req, ServiceCall):
+                    response = SimpleNamespace(success=False, message='')
+                    try:
+                        if req.service.endswith('/reset'):
+                            self._on_reset(None, response)
+                        else:
+                            self._on_pause(SimpleNamespace(data=set_bool_data(req.payload)), response)
+                    except ValueError as e:
+                        response.message = f'{req.service}: {e}'
+                    req.reply(trigger_response(response.success, response.message))
+                elif isinstance(req, SetParameter):
+                    value = req.value
+                    if req.name != RATE_FACTOR or isinstance(value, bool) or not isinstance(value, (int, float)) \
+                            or not math.isfinite(value) or value <= 0:
+                        req.reply(self.cfg.rate_factor, f"robodyn_ros: only {RATE_FACTOR} can be set, to a number > 0; "
+                                                        f"got {req.name} = {value!r}")
+                        continue
+                    from rclpy.parameter import Parameter
+                    self.cfg.rate_factor = float(value)
+                    self._anchor_wall, self._anchor_sim = time.monotonic(), self.sim.t
+                    self.set_parameters([Parameter(RATE_FACTOR, value=float(value))])
+                    live.server.set_parameter(RATE_FACTOR, float(value))
+                    req.reply(float(value), None)
+
         # -- shutdown ---------------------------------------------------------------------------
         def close(self) -> str:
             """Finish the recording; return the run summary (``robodyn run`` format)."""
             from ..runs import summary
             for r in self.recorders:
                 r.close()
+            if self.live is not None:
+                self.live.server.close()
             now = time.monotonic()
             wall = now - self._wall_start - self._paused_wall - (now - self._pause_began if self.paused else 0.0)
             st = {'integrator': self.cfg.integrator, 'dt': self.cfg.dt, 'rtol': self.cfg.rtol,
                   'atol': self.cfg.atol, 'auto': self.cfg.auto}
-            record = self.recorder.path if self.recorder else None
+            record = self.recorder.path if self.recorder else None   # None: live only
             return summary(self.scene, self.sim, st, wall, record, self.recorders,
                            cpu=time.process_time() - self._cpu_start)
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 
@@ -10,6 +11,10 @@ from ..kernels.records import fill_rows
 from ..systems.base import LazyWrenches
 from ..version import __version__
 from . import cdr
+from .fanout import Fanout
+from .markers import TOPIC as MARKERS_TOPIC
+from .markers import TYPE as MARKERS_TYPE
+from .markers import MarkerInputs, Markers
 from .mcap_sink import McapSink
 
 
@@ -63,6 +68,19 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
         topic = M.contact_topic(link)
         if want is None or want(topic):
             recs.append((topic, M.WRENCH_TYPE, cdr.wrench_stamped_bytes(sec, nsec, frame, w)))
+    js_type = M.TOPIC_TYPES['joint_states']
+    for topic, type_name, msg in out.messages:   # sensors, a servo's desired and error states
+        if want is None or want(topic):
+            data = None
+            if type_name == js_type:   # the fast encoders (the same bytes as cdr.encode)
+                data = cdr.joint_state_bytes(sec, nsec, cdr.joint_state_names(msg['header']['frame_id'],
+                                                                              tuple(msg['name'])),
+                                             msg['position'], msg['velocity'], msg['effort'])
+            elif type_name == M.WRENCH_TYPE:
+                n, f = msg['wrench']['torque'], msg['wrench']['force']
+                data = cdr.wrench_stamped_bytes(sec, nsec, msg['header']['frame_id'],
+                                                (n['x'], n['y'], n['z'], f['x'], f['y'], f['z']))
+            recs.append((topic, type_name, cdr.encode(type_name, msg) if data is None else data))
     if tf is not None and (want is None or want('/tf')):
         trs = tf.transforms(out.joint_names, out.position, out.odom)
         if trs:
@@ -273,18 +291,25 @@ class McapRunSink:
     its file (headless runs): the node, which also writes messages of its own, uses 0.
     chunk_span: close a chunk once it spans this many seconds of simulation (see
     :class:`McapSink`; the node, paced by the wall clock, uses :data:`NODE_CHUNK_SPAN`).
+    taps: where the same records also go (a live server's, :mod:`robodyn_ros.recording.fanout`);
+    path None with taps: nothing is recorded, the taps get what would be. embed_meshes: the recorded
+    ``robot_description`` carries its meshes as ``data:`` URIs (:func:`robodyn_ros.assets.embed_meshes`).
     """
 
     def __init__(self, path, scene, settings: dict, record_wrenches=True, diagnostics_period=1.0,
-                 namespace='', extra_metadata=None, record_tf=True, batch: int = 0, chunk_span=None):
-        self.path = str(path)
+                 namespace='', extra_metadata=None, record_tf=True, batch: int = 0, chunk_span=None,
+                 taps=(), embed_meshes=True):
+        self.path = None if path is None else str(path)
         self.scene = scene
         self.wants_wrenches = record_wrenches
         self.record_tf = record_tf
         self.tf = None   # the TfTree, built in on_start when record_tf
         self.diagnostics_period = diagnostics_period
         self.namespace = namespace
-        self.writer = McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata), chunk_span=chunk_span)
+        self.embed_meshes = embed_meshes
+        mcap = None if path is None else \
+            McapSink(self.path, metadata=run_metadata(scene, settings, extra_metadata), chunk_span=chunk_span)
+        self.writer = mcap if not taps else Fanout(mcap, taps)
         self._next_diag = None
         self.count = 0
         self._channels = {}   # relative topic -> channel id (resolved and registered on first use)
@@ -296,7 +321,8 @@ class McapRunSink:
         self._kind = None     # the kind of period of _layout
         self._values = None   # (batch, n_values) numbers of the periods held
         self._times = None    # (batch, 2) int64 ns: commands, outputs
-        self._diags = {}      # period index -> diagnostics CDR written after it
+        self._after = {}      # period index -> [(topic, type, CDR)] written after it (markers, diagnostics)
+        self.markers = None   # the run's Markers (recording.markers), set in on_start; None: no markers topic
         self._held = 0        # periods held
         self._filled = False  # the periods held came from blocks (their wrenches are in _values)
 
@@ -313,16 +339,40 @@ class McapRunSink:
         self.count += 1
 
     def on_start(self, sim):
-        """Record ``robot_description`` (and ``/tf_static``) at the start time."""
+        """Record ``robot_description`` (``command_joint_names`` with position or velocity commands, and
+        ``/tf_static``) at the start time."""
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic(resolve('robot_description', self.namespace), M.TOPIC_TYPES['robot_description'],
                               qos='transient_local')
-        self._write('robot_description', M.TOPIC_TYPES['robot_description'], M.string(sim.system.urdf()), t_ns)
+        self._write('robot_description', M.TOPIC_TYPES['robot_description'], M.string(self.description(sim)), t_ns)
+        if any(p in sim.system.inputs for p in ('position', 'velocity')):   # the joints of each command topic
+            self.writer.add_topic(resolve('command_joint_names', self.namespace),
+                                  M.TOPIC_TYPES['command_joint_names'], qos='transient_local')
+            self._write('command_joint_names', M.TOPIC_TYPES['command_joint_names'],
+                        M.string(M.command_joint_names(sim.system)), t_ns)
         if self.record_tf:
             from ..tf import TfTree
             self.tf = TfTree(sim.system)
             self.write_tf_static(t_ns)
+        self.markers = Markers.of(sim.system)
         self._next_diag = sim.t
+
+    def description(self, sim) -> str:
+        """The recorded robot_description: the system's URDF, its meshes embedded (``embed_meshes``)."""
+        urdf = sim.system.urdf()
+        if not self.embed_meshes:
+            return urdf
+        from ..assets import embed_meshes
+        text, notes = embed_meshes(urdf)
+        for note in notes:
+            warnings.warn(f'recording {self.path or "(live)"}: {note}', stacklevel=2)
+        return text
+
+    def hand_over(self):
+        """Write the periods held for the next vectorised pass now (a live run about to wait: its
+        viewers see every period written so far). The file is the same byte for byte."""
+        if not self.writer.closed:
+            self._write_held()
 
     def write_tf_static(self, t_ns):
         """Record ``/tf_static`` (transient local) when the tree has fixed joints."""
@@ -332,7 +382,12 @@ class McapRunSink:
             self._write('/tf_static', M.TOPIC_TYPES['/tf_static'], msg, t_ns)
 
     def on_command(self, t, port, values):
-        """Record a command as it was applied (Float64MultiArray for effort/voltage ports)."""
+        """Record a command as it was applied (Float64MultiArray for effort/voltage ports, the
+        JointTrajectory message for a trajectory)."""
+        if port == 'trajectory':   # a message, not numbers: after the periods held, as it comes
+            self._write_held()
+            self._write('joint_trajectory', M.TOPIC_TYPES['joint_trajectory'], values, M.to_ns(t))
+            return
         if self.batch:
             self._cmds.append((t, port, np.array(values, dtype=float)))
             return
@@ -366,6 +421,9 @@ class McapRunSink:
                                                      tf_layouts=self._tf_layouts):
             self._write_data(topic, type_name, data, t_ns)
         self._write_data('/clock', M.TOPIC_TYPES['/clock'], cdr.clock_bytes(*divmod(t_ns, 1_000_000_000)), t_ns)
+        if self.markers is not None:
+            data = self.markers.message(t_ns, MarkerInputs.of_outputs(out))
+            self._write_data(MARKERS_TOPIC, MARKERS_TYPE, data, t_ns)
         if self._diag_due(t):
             self._write('diagnostics', M.TOPIC_TYPES['diagnostics'],
                         M.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,
@@ -429,11 +487,17 @@ class McapRunSink:
             L.fill_block(self._values[h:h + m], blk, i, m)
             self._times[h:h + m, 0] = t_cmd[i:i + m]
             self._times[h:h + m, 1] = t_out[i:i + m]
+            if self.markers is not None:   # drawn from each period's state (the block has no outputs)
+                ny = sim.system.ny
+                for j in range(m):
+                    self._after[h + j] = [(MARKERS_TOPIC, MARKERS_TYPE, self.markers.message(
+                        int(t_out[i + j]), MarkerInputs.of_state(sim.system, blk.z[i + j, :ny])))]
             self._held = h + m
             self._filled = True
             i += m
             if i == K and self._diag_due(blk.t_out[-1]):
-                self._diags[self._held - 1] = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
+                data = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
+                self._after.setdefault(self._held - 1, []).append(('diagnostics', M.TOPIC_TYPES['diagnostics'], data))
                 self._next_diag += self.diagnostics_period
             if self._batch_done(int(t_out[i - 1])):
                 self._write_held()
@@ -476,8 +540,11 @@ class McapRunSink:
         self._times[k] = (M.to_ns(cmds[0][0]) if cmds else t_ns, t_ns)
         self._cmds = []
         self._held = k + 1
+        if self.markers is not None:
+            self._after[k] = [(MARKERS_TOPIC, MARKERS_TYPE, self.markers.message(t_ns, MarkerInputs.of_outputs(out)))]
         if diag:
-            self._diags[k] = _diagnostics_bytes(t_ns, sim, level, message)
+            self._after.setdefault(k, []).append(
+                ('diagnostics', M.TOPIC_TYPES['diagnostics'], _diagnostics_bytes(t_ns, sim, level, message)))
             self._next_diag += self.diagnostics_period
         if self._batch_done(t_ns):
             self._write_held()
@@ -486,14 +553,16 @@ class McapRunSink:
     def _layout_ready(self, kind, out) -> bool:
         """True when every topic of this kind of period has its channel and the arrays are floats."""
         arrays = (out.position, out.velocity, out.effort)
-        if not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
-            return False
+        if out.messages or not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
+            return False   # (further messages: written one by one)
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
         topics += [] if out.odom is None else ['odom']
         topics += [M.wrench_topic(k) for k in out.wrenches] if self.wants_wrenches else []
         topics += [M.contact_topic(k) for k in out.contacts]
         if self.tf is not None and self.tf.frames(out.odom is not None):
             topics.append('/tf')
+        if self.markers is not None:
+            topics.append(MARKERS_TOPIC)
         return all(t in self._channels for t in topics)
 
     def _channel(self, topic, type_name) -> int:
@@ -512,15 +581,16 @@ class McapRunSink:
         R = rows.shape[1]
         times = np.where(L.is_cmd, self._times[:K, 0:1], self._times[:K, 1:2])
         offs = np.arange(K, dtype=np.int64)[:, None] * R + L.rec_off
-        if not self._diags:
+        if not self._after:
             records, offsets = rows.reshape(-1), offs.ravel()
             channels, log_times = np.tile(L.channels, K), times.ravel()
-        else:   # a diagnostics record after some periods: inserted after their rows, in one pass
-            diag_cid = self._channel('diagnostics', M.TOPIC_TYPES['diagnostics'])
-            after = np.array(sorted(self._diags), dtype=np.int64)           # rows followed by one
-            blobs = [bytes(31) + self._diags[k] for k in after.tolist()]
+        else:   # records after some periods (markers, diagnostics): inserted after their rows, in one pass
+            extra = [(k, self._channel(topic, type_name), bytes(31) + data)
+                     for k in sorted(self._after) for topic, type_name, data in self._after[k]]
+            after = np.array([e[0] for e in extra], dtype=np.int64)           # the row each follows
+            blobs = [e[2] for e in extra]
             size = np.array([len(b) for b in blobs], dtype=np.int64)
-            shift = np.zeros(K, dtype=np.int64)                                # diagnostics bytes before row k
+            shift = np.zeros(K, dtype=np.int64)                                # extra bytes before row k
             np.add.at(shift, after[after + 1 < K] + 1, size[after + 1 < K])
             shift = np.cumsum(shift)
             n = L.n_msgs
@@ -538,13 +608,13 @@ class McapRunSink:
             d_offs = at + np.cumsum(size) - size
             pos = (after + 1) * n                                              # in the records' order
             offsets = np.insert((offs + shift[:, None]).ravel(), pos, d_offs)
-            channels = np.insert(np.tile(L.channels, K), pos, diag_cid)
+            channels = np.insert(np.tile(L.channels, K), pos, [e[1] for e in extra])
             log_times = np.insert(times.ravel(), pos, self._times[after, 1])
         self.writer.write_records(records, offsets, channels, log_times)
         self.count += len(offsets)
         self._held = 0
         self._filled = False
-        self._diags = {}
+        self._after = {}
 
     def close(self):
         """Finish the file (periods held, summary, footer); idempotent."""

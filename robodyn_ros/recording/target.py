@@ -15,11 +15,19 @@ import glob
 import os
 import re
 
-__all__ = ['RecordPathError', 'check_record_path', 'episode_files']
+__all__ = ['RecordPathError', 'check_record_path', 'episode_files', 'episode_path']
 
 
 class RecordPathError(ValueError):
     """A recording path that is refused; the message names the file and what to do."""
+
+
+def episode_path(path: str, episode: int) -> str:
+    """Recording file of the ``episode``-th reset: ``run.mcap`` -> ``run-1.mcap``, ... (0: ``path``)."""
+    if episode == 0:
+        return path
+    root, ext = os.path.splitext(path)
+    return f'{root}-{episode}{ext or ".mcap"}'
 
 
 def episode_files(path: str) -> list[str]:

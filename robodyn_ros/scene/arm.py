@@ -24,7 +24,8 @@ _LINK_REQUIRED = ('name', 'joint', 'parent', 'type')
 _LINK_OPTIONAL = ('origin', 'axis', 'mass', 'com', 'inertia', 'damping', 'limits', 'effort_limit')
 _LIMIT_KEYS = ('lower', 'upper', 'stiffness', 'damping', 'return')
 _ARM_REQUIRED = ('kind', 'name')
-_ARM_OPTIONAL = ('mount', 'origin', 'root', 'dh', 'tool', 'links', 'link_names', 'joint_names', 'actuated')
+_ARM_OPTIONAL = ('mount', 'origin', 'root', 'dh', 'tool', 'links', 'link_names', 'joint_names', 'actuated',
+                 'command_interfaces', 'servo')
 #: ModelError wording -> the link key it is about (for mapping model errors to key paths)
 _MODEL_ERROR_KEYS = (('limit', 'limits'), ('parent', 'parent'), ('mass', 'mass'), ('inertia', 'inertia'),
                      ('principal moments', 'inertia'), ('axis', 'axis'), ('damping', 'damping'),
@@ -247,7 +248,8 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
             system = ArmSystem(model, actuated=actuated)
     except ValueError as e:   # e.g. spherical joints on the numpy backend
         ctx.fail(path, str(e))
-    return Part(name=name, kind='arm', mount=mount, system=system, path=path)
+    from .control import part_control
+    return Part(name=name, kind='arm', mount=mount, system=system, path=path, control=part_control(ctx, spec, path))
 
 
 def _actuated(ctx: SceneContext, spec: dict, path: str, model, planar: bool = False):

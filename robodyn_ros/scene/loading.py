@@ -17,6 +17,7 @@ from ..profiles import build_script
 from ..validation import SceneContext, SceneError, registered
 from ..validation import key_path as _key
 from .arm import build_arm_part
+from .control import apply_control, build_sensors
 from .diff_drive import _assemble_diff_drive, build_diff_drive_part
 from .free_base import _assemble_free_base, build_free_base_part
 from .ground import attach_ground, build_ground_part
@@ -26,7 +27,8 @@ from .state import _initial_state, _settings, _stop_condition
 from .urdf import build_urdf_part
 
 _TOP_KEYS_REQUIRED = ('name', 'parts')
-_TOP_KEYS_OPTIONAL = ('description', 'source', 'gravity', 'initial_state', 'commands', 'simulation', 'stop_when')
+_TOP_KEYS_OPTIONAL = ('description', 'source', 'gravity', 'initial_state', 'commands', 'simulation', 'stop_when',
+                      'sensors')
 
 
 @dataclass
@@ -157,8 +159,11 @@ def parse_scene(text: str, file: str = '<string>', path: str | None = None, file
     system = _assemble(ctx, ctx.parts)
     y0 = _initial_state(ctx, data.get('initial_state', {}), system)
     ctx.y0 = y0  # command profiles may start from the initial state (e.g. a posture path)
-    script = build_script(ctx, data.get('commands', {}), system)
     settings = _settings(ctx, data.get('simulation', {}))
+    apply_control(ctx, system, ctx.parts, y0, settings)   # position/velocity joints: their servo (default gains at y0)
+    if 'sensors' in data:
+        build_sensors(ctx, data['sensors'], system)
+    script = build_script(ctx, data.get('commands', {}), system)
     stop = _stop_condition(ctx, data['stop_when'], system) if 'stop_when' in data else None
     return Scene(name=name, path=path or file, text=text, data=data, system=system, y0=y0, script=script,
                  settings=settings, parts=[p.name for p in ctx.parts], stop=stop, files=dict(ctx.files))
@@ -216,21 +221,27 @@ def find_scene(name_or_path) -> Path:
                      f'(searched {", ".join(str(d) for d in scene_dirs())})')
 
 
-def load_scene(name_or_path, position_limits: dict | None = None) -> Scene:
+def load_scene(name_or_path, position_limits: dict | None = None, command_interface: str | None = None,
+               sensors=None) -> Scene:
     """Load a bundled scene by name (``stanford_arm``), a scene file by path, or a URDF file.
 
     name_or_path: name or path (str or PathLike); a path ending in ``.urdf`` is imported as a
     one-part scene (:func:`urdf_scene_text`), with ``position_limits`` (``{stiffness, damping,
-    return}``, optional) as its part's key; a scene file gives that key itself (refused here).
+    return}``, optional), ``command_interface`` (``effort``, ``position`` or ``velocity`` for every
+    actuated joint) and ``sensors`` (the scene's list) as its keys; a scene file gives them itself
+    (refused here).
     Returns the validated :class:`Scene`; raises :class:`SceneError` whose message is
     ``<file>: <key path>: <reason>``.
     """
     s = os.fspath(name_or_path)
     if s.lower().endswith('.urdf'):  # a robot description alone: a one-part scene around it
-        return parse_scene(urdf_scene_text(s, position_limits=position_limits), file=s, path=s)
-    if position_limits is not None:
-        raise SceneError(f'{s}: (position_limits): applies to a URDF file only; in a scene file give '
-                         'position_limits on its kind: urdf part')
+        return parse_scene(urdf_scene_text(s, position_limits=position_limits, command_interface=command_interface,
+                                           sensors=sensors), file=s, path=s)
+    for key, given, where in (('position_limits', position_limits, 'position_limits on its kind: urdf part'),
+                              ('command_interface', command_interface, 'command_interfaces on its part'),
+                              ('sensors', sensors, 'a sensors list')):
+        if given is not None:
+            raise SceneError(f'{s}: ({key}): applies to a URDF file only; a scene file gives {where}')
     p = find_scene(name_or_path)
     try:
         text = p.read_text(encoding='utf-8')
@@ -240,13 +251,15 @@ def load_scene(name_or_path, position_limits: dict | None = None) -> Scene:
 
 
 def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = None,
-                    position_limits: dict | None = None) -> str:
+                    position_limits: dict | None = None, command_interface: str | None = None, sensors=None) -> str:
     """Scene YAML of one URDF: ``kind: urdf`` mounted on the world (or ``floating``), no scripted
     commands, default settings. urdf_file: its path (``load_scene('robot.urdf')``, ``robodyn run
     robot.urdf``, the node's ``robot_description_file``), or text: the URDF itself (the node
     reading ``robot_description``). A URDF whose root is a massless ``world`` link with a
     floating joint is floating anyway. position_limits: the part's ``position_limits`` mapping
-    (``{stiffness, damping, return}``; None = URDF position limits reported only)."""
+    (``{stiffness, damping, return}``; None = URDF position limits reported only); command_interface:
+    ``effort`` (None: the default), ``position`` or ``velocity`` for every actuated joint (the part's
+    ``command_interfaces``); sensors: the scene's ``sensors`` list (None: none)."""
     part = {'kind': 'urdf'}
     if text is None:
         p = Path(urdf_file)
@@ -261,7 +274,12 @@ def urdf_scene_text(urdf_file=None, floating: bool = False, text: str | None = N
         part['floating'] = True
     if position_limits is not None:
         part['position_limits'] = dict(position_limits)
-    return yaml.safe_dump({'name': name, 'description': f'imported from {origin}', 'parts': [part]}, sort_keys=False)
+    if command_interface is not None:
+        part['command_interfaces'] = command_interface
+    scene = {'name': name, 'description': f'imported from {origin}', 'parts': [part]}
+    if sensors is not None:
+        scene['sensors'] = sensors
+    return yaml.safe_dump(scene, sort_keys=False)
 
 
 def list_scenes() -> list:

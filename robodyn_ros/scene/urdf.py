@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..mass_properties import DENSITY
 from ..model import ModelError
 from ..validation import SceneContext, SceneError, typename
 from ..validation import key_path as _key
@@ -16,7 +17,8 @@ from .arm import _LIMIT_KEYS, _actuated, _limit_law, build_arm_part
 from .part import Part
 
 
-_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated', 'position_limits')
+_URDF_KEYS = ('kind', 'name', 'file', 'urdf', 'mount', 'origin', 'floating', 'locked', 'actuated', 'position_limits',
+              'armature', 'density', 'command_interfaces', 'servo')
 
 
 def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
@@ -26,6 +28,25 @@ def _urdf_position_limits(ctx: SceneContext, v, path: str, specs) -> list:
     law = _limit_law(ctx, v, path)
     return [replace(s, **law) if s.limits is not None and s.joint_type in ('revolute', 'prismatic') else s
             for s in specs]
+
+
+def _armature_key(ctx: SceneContext, v, path: str):
+    """``armature``: ``auto``, a number >= 0 (every moving joint), or ``{joint: number >= 0}``."""
+    if v == 'auto':
+        return v
+    if isinstance(v, dict):
+        out = {}
+        for k, x in v.items():
+            out[str(k)] = ctx.number(x, _key(path, k))
+            if not out[str(k)] >= 0.0:
+                ctx.fail(_key(path, k), f'expected a number >= 0 (kg·m² or kg), got {x!r}')
+        return out
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        ctx.fail(path, f"expected 'auto', a number >= 0 or a mapping joint: number, got {typename(v)} {v!r}")
+    x = ctx.number(v, path)
+    if not x >= 0.0:
+        ctx.fail(path, f'expected a number >= 0 (kg·m² or kg; 0: no armature), got {v!r}')
+    return x
 
 
 def referenced_path(ref: str, scene_file: str) -> Path:
@@ -54,7 +75,11 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     ``actuated`` as for an arm (default every 1-DOF joint); ``position_limits: {stiffness,
     damping, return}`` (optional; absent = URDF position limits reported only) enforces every
     joint's ``<limit lower upper>`` with the joint-limit moments of Huston eq. (20.2.1), as a
-    ``limits`` mapping does for an arm link (world-mounted, non-floating robots). The part is an
+    ``limits`` mapping does for an arm link (world-mounted, non-floating robots); ``armature``
+    (``auto``, the default: the smallest stated rotor inertia on the joints of a mass matrix singular
+    at q = 0, none elsewhere; a number >= 0 for every moving joint, 0 = none; or ``{joint: value}``,
+    kg·m² or kg, :mod:`robodyn_ros.armature`); ``density`` (kg/m³, default 1000; 0 = none) of the
+    solids inferred for moving links without ``<inertial>`` from their geometry. The part is an
     arm (its kind is ``arm`` once built) so it mounts wherever an arm does.
     """
     from ..urdf import UrdfError, UrdfText, read_urdf
@@ -100,13 +125,19 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
     if not isinstance(given, dict):
         ctx.fail(lpath, f'expected a mapping joint: position, got {typename(given)} {given!r}')
     locked = {k: ctx.number(v, _key(lpath, k)) for k, v in given.items()}
+    armature = _armature_key(ctx, spec.get('armature', 'auto'), _key(path, 'armature'))
+    density = DENSITY
+    if 'density' in spec:
+        density = ctx.number(spec['density'], _key(path, 'density'))
+        if not density >= 0.0:
+            ctx.fail(_key(path, 'density'), f'expected a number >= 0 (kg/m³; 0: infer no mass), got {density!r}')
     try:
         robot = read_urdf(src, floating=floating, locked=locked, file=ctx.file if alone else label,
-                          base_dir=base_dir)
+                          base_dir=base_dir, density=density, armature=armature)
     except UrdfError as e:
-        m = re.match(r"locked joint '([^']+)'", e.where)
+        m = re.match(r"(locked|armature) joint '([^']+)'", e.where)
         if m:
-            ctx.fail(_key(lpath, m.group(1)), e.reason)
+            ctx.fail(_key(_key(path, m.group(1)) if m.group(1) == 'armature' else lpath, m.group(2)), e.reason)
         if alone:  # its errors are the URDF's: '<file>: <link/joint>: <reason>'
             raise SceneError(str(e)) from None
         ctx.fail(where, str(e))
@@ -136,12 +167,14 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         except ModelError as e:
             ctx.fail(where, str(e))
         system = ff.FreeFlyerSystem(model, actuated=_actuated(ctx, spec, path, model), environment=env)
-        return Part(name=name, kind='free_base', mount='world', system=system, path=path)
+        from .control import part_control
+        return Part(name=name, kind='free_base', mount='world', system=system, path=path,
+                    control=part_control(ctx, spec, path))
     root = robot.root
     host = next((p for p in ctx.parts if p.name == mount and p.kind == 'free_base'), None)
     if host is not None:  # hang from the free base's link
         specs = [replace(s, parent=host.system.base_link) if s.parent == root else s for s in specs]
         root = host.system.base_link
     arm_spec = {'kind': 'arm', 'name': name, 'mount': mount, 'root': root,
-                **{k: spec[k] for k in ('origin', 'actuated') if k in spec}}
+                **{k: spec[k] for k in ('origin', 'actuated', 'command_interfaces', 'servo') if k in spec}}
     return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)))

@@ -40,7 +40,7 @@ BATCH_KERNEL_AFTER = 10_000
 #: the methods whose ArmSystem versions the fused loop reproduces
 _FUSED_METHODS_OF = ('rhs', 'input_power', 'generalized_forces', 'project', 'config_rate')
 #: what fused_periods computes in its compiled loop instead of calling it (each period's outputs)
-_PERIOD_METHODS_OF = ('outputs', '_outputs', 'split', '_wrenches_one', '_contact_outputs', '_wrenches_fext')
+_PERIOD_METHODS_OF = ('outputs', '_state_outputs', '_outputs', 'split', '_wrenches_one', '_contact_outputs', '_wrenches_fext')
 
 
 
@@ -123,6 +123,76 @@ class ArmSystem(System):
         self._wrench_index = {n: i for i, n in enumerate(self._wrench_names)}
         self._wrenches_many = self._wrenches_many   # one bound method: a stable batch key
         self.contact = None   # ground contact (attach_ground)
+        self.servo = None     # the joint servo of position/velocity-commanded joints (use_servo)
+        self.sensors = None   # IMU and force-torque sensors (attach_sensors)
+
+    def use_servo(self, servo):
+        """Drive the joints of ``servo`` (a :class:`robodyn_ros.systems.servo.JointServo`) by position and
+        velocity commands: they leave the ``effort`` port, which keeps the other actuated joints; ports
+        ``position`` (setpoints, held), ``trajectory`` (trajectory_msgs/JointTrajectory, onto the position
+        setpoints) and ``velocity`` are added for the joints that take them. Compiled kernels only."""
+        if self._km is None:
+            raise ValueError(f'{self.model.name}: position and velocity commands are tracked by the compiled '
+                             "kernels only; backend 'numpy' cannot simulate them (use 'numba' or 'generated')")
+        taken = set(servo.names)
+        effort = [n for n in self.actuated if n not in taken]
+        self.actuated, self.B, self.inputs['effort'] = effort_actuation(self.model, effort)
+        self._B = np.ascontiguousarray(self.B, dtype=np.float64)
+        self._B_is_selection = _is_selection(self.B)
+
+        def unit(names, rate):
+            kinds = sorted({'m' if self.model.jtype[self.model.state_index(n)[0]] == PRISMATIC else 'rad' for n in names})
+            return '/'.join(k + rate for k in kinds) or '-'
+        if servo.position:
+            self.inputs['position'] = InputPort('position', len(servo.position), servo.position,
+                                                unit(servo.position, ''), kind='setpoint')
+            self.inputs['trajectory'] = InputPort('trajectory', 0, servo.position, 'trajectory_msgs/JointTrajectory',
+                                                  kind='message', target='position')
+        if servo.velocity:
+            self.inputs['velocity'] = InputPort('velocity', len(servo.velocity), servo.velocity,
+                                                unit(servo.velocity, '/s'))
+        self.servo = servo
+
+    def attach_sensors(self, sensors):
+        """Publish the IMU and force-torque readings of ``sensors`` (a
+        :class:`robodyn_ros.systems.sensors.SensorSet` of this model) with every output. Compiled kernels only."""
+        if self._km is None:
+            raise ValueError(f'{self.model.name}: sensors are read by the compiled kernels only; '
+                             "backend 'numpy' cannot simulate them (use 'numba' or 'generated')")
+        self.sensors = sensors
+
+    # -- commands of the servo's ports (Simulator.set_command) ---------------------------------
+    def initial_input(self, port, y, t):
+        """Before any command the position setpoints hold the initial positions (a trajectory
+        controller's hold); every other port is zero."""
+        if port == 'position' and self.servo is not None:
+            from ..setpoints import SetpointProgram
+            q = self.split(np.asarray(y, dtype=float))[0]
+            value = np.array([q[int(self.servo.si[j, 1])] for j in range(len(self.servo.position))])
+            return value, SetpointProgram.hold(self.servo.position, value, float(t))
+        return super().initial_input(port, y, t)
+
+    def accept_input(self, port, value, t, applied):
+        """A position command (held from t) or a trajectory (joint_trajectory_controller's semantics,
+        :mod:`robodyn_ros.setpoints`) onto the setpoint program ``applied``; ValueError to refuse."""
+        from ..setpoints import SetpointProgram, parse_trajectory
+        if not isinstance(applied, SetpointProgram):
+            raise ValueError(f'port {port!r}: no setpoint program to apply it to')
+        if port == 'position':
+            return applied.with_positions(np.asarray(value, dtype=float), float(t))
+        if port == 'trajectory':
+            return applied.with_trajectory(parse_trajectory(value, self.servo.position), float(t))
+        return super().accept_input(port, value, t, applied)
+
+    def _srv(self, u):
+        """The kernel's servo tuple for inputs u (None without a servo)."""
+        if self.servo is None:
+            return None
+        return self.servo.pack(u.get('position'), u.get('velocity'))
+
+    def _tau_cmd(self, u):
+        """``B u`` (nv,): the efforts commanded on the effort port."""
+        return self.B @ u['effort'] if self.B.shape[1] else np.zeros(self.nv)
 
     def attach_ground(self, contact):
         """Put the tree on a ground: contact: a :class:`robodyn_ros.systems.contact.GroundContact` of this
@@ -171,16 +241,21 @@ class ArmSystem(System):
             self._km.couple(y[:self.nq], y[self.nq:self.nq + self.nv])
         return y
 
-    def generalized_forces(self, y, u):
+    def generalized_forces(self, y, u, t=0.0, servo_torque=None):
         """Applied plus passive generalised forces ``B u - D v - F tanh(v / v_s) + τ_lim(q, v)`` (nv,);
-        F: Coulomb joint friction, τ_lim: joint-limit moments."""
+        F: Coulomb joint friction, τ_lim: joint-limit moments; plus the joint servo's torques at time t (s)
+        (:mod:`robodyn_ros.kernels.servo`; servo_torque (ns,): those torques when already computed)."""
         q, v = self.split(y)
-        tau = self.B @ u['effort'] + dyn.passive_forces(self.model, v)
+        tau = self._tau_cmd(u) + dyn.passive_forces(self.model, v)
         if self._has_friction:
             add_friction, v_s = self._coulomb
             add_friction(self._friction, v_s, np.ascontiguousarray(v, dtype=float), tau)
         if self._lim.shape[0]:
             tau += self._km.limit_forces(q, v)
+        if self.servo is not None:
+            if servo_torque is None:
+                servo_torque = self._km.servo_state(self._srv(u), t, q, v)[0][:, 4]
+            tau[self.servo.v_index] += servo_torque
         return tau
 
     @property
@@ -290,7 +365,7 @@ class ArmSystem(System):
         q, v = self.split(np.asarray(y, dtype=float))
         nq, nv = self.nq, self.nv
         if self._km is not None:
-            D, K = self._km.passive_jacobian(q, v, h)
+            D, K = self._km.passive_jacobian(q, v, h, t, self._srv(u))
             M = self._km.crba(np.ascontiguousarray(q))
         else:
             D, K = np.diag(self.model.damping.astype(float)), np.zeros((nv, nv))
@@ -310,6 +385,28 @@ class ArmSystem(System):
         J[nq:, nq:] = -MinvDK[:, :nv]
         J[nq:, :nq] = -MinvDK[:, nv:] @ (np.eye(nv) if nq == nv else np.linalg.pinv(Q))
         return J
+
+    def time_derivative(self, t, y, u):
+        """``[0; M⁻¹ F_t]`` (ny,): the time rate of the joint servo's stiff part (``kp q̇* + kd q̈*`` on its
+        unsaturated position joints, ``kernels.servo.servo_time_rate``) as the fused loop's linearly implicit
+        step takes it; None without a servo."""
+        if self.servo is None:
+            return None
+        from ..kernels.servo import servo_time_rate
+        q, v = self.split(np.asarray(y, dtype=float))
+        srv = self._srv(u)
+        self._km.servo_state(srv, t, q, v)
+        Ft = np.zeros(self.nv)
+        servo_time_rate(srv, Ft)
+        M = self._km.crba(np.ascontiguousarray(q))
+        out = np.zeros(self.ny)
+        if self._km.cpl is not None:   # mimic joints: M⁻¹ is the coupled one, G (Gᵀ M G)⁻¹ Gᵀ
+            Gc = np.zeros((self.nv, self._km.nr))
+            Gc[np.arange(self.nv), self._km.col] = self._km.mul
+            out[self.nq:] = Gc @ np.linalg.solve(Gc.T @ M @ Gc, Gc.T @ Ft)
+        else:
+            out[self.nq:] = np.linalg.solve(M, Ft)
+        return out
 
     def explicit_time_constant(self, y):
         """inf: the declared fastest modes (joint limits) are in :meth:`passive_jacobian`."""
@@ -333,11 +430,11 @@ class ArmSystem(System):
             km = self._km
             out[:self.nq] = km.qdot(q, v)
             aba_fext_into(km.mi_r, km.mf_r, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
-                          self.generalized_forces(y, u), self.contact_fext(y)[0], out[self.nq:])
+                          self.generalized_forces(y, u, t), self.contact_fext(y)[0], out[self.nq:])
             return out
         if self._km is not None:
             out[:self.nq] = self._km.qdot(q, v)
-            out[self.nq:] = self._km.aba(q, v, self.generalized_forces(y, u))
+            out[self.nq:] = self._km.aba(q, v, self.generalized_forces(y, u, t))
             return out
         out[:self.nq] = dyn.qdot(self.model, q, v)
         out[self.nq:] = dyn.aba(self.model, q, v, self.generalized_forces(y, u))
@@ -377,8 +474,8 @@ class ArmSystem(System):
             grid = self._grids[dt] = make_integrator('rk4', dt=dt)
         n_full, h_last = grid.step_grid(float(t0), float(t1)) if t1 > t0 else (0, 0.0)
         n_steps = n_full + (1 if h_last > 0.0 else 0)
-        tau_app = np.ascontiguousarray(self.B @ u['effort'], dtype=np.float64)
-        k = self._km.integrate_arm(integrator_name, z, tau_app, dt, n_full, h_last)
+        tau_app = np.ascontiguousarray(self._tau_cmd(u), dtype=np.float64)
+        k = self._km.integrate_arm(integrator_name, z, tau_app, dt, n_full, h_last, t0, self._srv(u))
         if k == 0 and not np.isfinite(z0).all():  # checked after the fact: the loop reports step 0
             raise IntegrationError(integrator_name, t0, 'initial state is non-finite at components '
                                    f'{np.flatnonzero(~np.isfinite(np.asarray(z0)))[:8].tolist()}')
@@ -404,13 +501,15 @@ class ArmSystem(System):
         does, for spherical joints (joint_states hold their Bryan angles), for mimic joints (their
         efforts are the coupling's forces, computed per period), for input matrices that are not 0/1
         selections, and where :meth:`outputs` (or what it calls for joint states and wrenches) is
-        not ArmSystem's own. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps,
+        not ArmSystem's own, and (for now) with a joint servo or sensors, whose outputs the block recorder
+        does not lay out. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps,
         more)``: see ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's
         end, Fs None without wrenches, steps (K,) per period; more: ``{'odom': (K, 13) position,
         orientation, linear, angular of a free root (else None), 'contacts': (K, nl, 6) the links'
         contact wrenches (else None)}``.
         """
         if not self._fuses(integrator_name, z) or self.model.has_spherical or not self._B_is_selection \
+                or self.servo is not None or self.sensors is not None \
                 or self._coupled or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         from ..kernels import arm as karm
@@ -438,7 +537,8 @@ class ArmSystem(System):
         k, code = run(km.mi, km.mf, km.mi_r, km.mf_r, km.damping, km.friction, km.v_s, km.lim, self._B, self.nq,
                       kernels.FUSED_METHODS[integrator_name], z, float(dt), np.ascontiguousarray(t_start, dtype=float),
                       n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, bool(wrenches), ulim,
-                      None if c is None else c.con, None if c is None else c.point_rows, Cs)
+                      None if c is None else c.con, None if c is None else c.point_rows, Cs,
+                      np.ascontiguousarray(t_end, dtype=float), None, np.zeros((K, 0, 6)))
         steps = n_full + (h_last > 0.0)
         more = {'odom': None, 'contacts': Cs if c is not None else None}
         if self._simple:
@@ -474,26 +574,44 @@ class ArmSystem(System):
         return self._fused_class_ok and self.__dict__.keys().isdisjoint(_FUSED_METHODS_OF)
 
     def outputs(self, t, y, u, wrenches=True):
-        """Joint states, joint wrenches (optional) and energies at state y."""
+        """Joint states, joint wrenches (optional) and energies at state y; with a joint servo its desired
+        and error states, with sensors their readings (``SystemOutputs.messages``)."""
+        if self.servo is None and self.sensors is None:
+            return self._state_outputs(t, y, u, wrenches)
+        st = None   # the servo at (t, y): desired values and torques (kernels.servo.servo_state), once
+        if self.servo is not None:
+            q, v = self.split(y)
+            st = self._km.servo_state(self._srv(u), t, q, v)[0]
+        out = self._state_outputs(t, y, u, wrenches, st)
+        from .servo import control_messages
+        out.messages.extend(control_messages(self, t, y, u, st))
+        return out
+
+    def _state_outputs(self, t, y, u, wrenches, st=None):
+        """:meth:`outputs` without the servo's and sensors' messages (st: the servo's state at (t, y), if known)."""
         q, v = self.split(y)
-        tau_cmd = self.B @ u['effort']
+        tau_cmd = self._tau_cmd(u)
+        ts = None
+        if self.servo is not None:   # the servo's joints publish the torque it applies now
+            ts = (self._km.servo_state(self._srv(u), t, q, v)[0] if st is None else st)[:, 4].copy()
+            tau_cmd[self.servo.v_index] = ts
         w = {}
         if self._coupled:  # a mimic joint's effort: what the coupling transmits to it (λ, kernels.coupled)
-            _, f, lam = self._km.coupled_wrenches(q, v, self.generalized_forces(y, u))
+            _, f, lam = self._km.coupled_wrenches(q, v, self.generalized_forces(y, u, t, ts))
             tau_cmd[self._mimic_v] = lam[self._mimic_v]
             if wrenches:
                 w = {self.model.joint_names[i]: (self.model.link_names[i], f[i].copy()) for i in range(self.model.nb)}
             return self._outputs(q.copy(), v.copy(), tau_cmd, w)
         if self.contact is not None:
-            return self._contact_outputs(q.copy(), v.copy(), tau_cmd, self.generalized_forces(y, u), wrenches)
+            return self._contact_outputs(q.copy(), v.copy(), tau_cmd, self.generalized_forces(y, u, t, ts), wrenches)
         if wrenches:
             if self._km is not None:   # computed when read, or for many publications at once by a recorder
                 q1, v1 = q.copy(), v.copy()
                 return self._outputs(q1, v1, tau_cmd, LazyWrenches(
                     self._wrench_names, self._wrench_frames, self._wrenches_one, self._wrenches_many,
-                    (q1, v1, self.generalized_forces(y, u)), self._wrench_index))
+                    (q1, v1, self.generalized_forces(y, u, t, ts)), self._wrench_index))
             else:
-                _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u))
+                _, f = dyn.joint_wrenches(self.model, q, v, self.generalized_forces(y, u, t, ts))
             for i in range(self.model.nb):
                 w[self.model.joint_names[i]] = (self.model.link_names[i], f[i].copy())
         return self._outputs(q.copy(), v.copy(), tau_cmd, w)
@@ -510,8 +628,17 @@ class ArmSystem(System):
                              (q, v, tau, fext), self._wrench_index)
         out = self._outputs(q, v, tau_cmd, w)
         out.contacts = {link: (c.frame, wr) for link, wr in zip(c.links, c.wrenches(P))}
+        out.contact_points = c.touching(P)
         out.extra.update(c.diagnostics(P))
         return out
+
+    def contact_points(self, y) -> np.ndarray | None:
+        """``SystemOutputs.contact_points`` at state y (the touching points and their forces), None
+        off the ground; for the block path, which builds no outputs per period."""
+        if self.contact is None:
+            return None
+        q, v = self.split(y)
+        return self.contact.touching(self.contact.point_outputs(self._km, q, v))
 
     def _wrenches_fext(self, q, v, tau, fext):
         return self._km.joint_wrenches(q, v, tau, fext)[1]
@@ -564,5 +691,5 @@ class ArmSystem(System):
         """``vᵀ (B u - D v + τ_lim)``: actuator power minus damping and joint-limit dissipation (W), plus
         the ground's power on a ground."""
         _, v = self.split(y)
-        P = float(v @ self.generalized_forces(y, u))
+        P = float(v @ self.generalized_forces(y, u, t))
         return P + self.contact_power(y) if self.contact is not None else P

@@ -154,10 +154,14 @@ def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_v
 class InputPort:
     """A named command input: its size, the names of its elements and their unit.
 
-    name: port name ('effort', 'wheel_voltage', 'base_wrench'); size: vector length;
-    labels: element names (joint names, 'left'/'right', ...); unit: SI unit text for messages;
-    limit: optional (size,) tuple, the largest |value| per element (inf = none): the Simulator clamps
-    commands to it and counts the clamped components.
+    name: port name ('effort', 'wheel_voltage', 'base_wrench', 'position', 'velocity', 'trajectory');
+    size: vector length; labels: element names (joint names, 'left'/'right', ...); unit: SI unit text
+    for messages; limit: optional (size,) tuple, the largest |value| per element (inf = none): the
+    Simulator clamps commands to it and counts the clamped components.
+    kind: ``'vector'`` (held values; zero after the command timeout), ``'setpoint'`` (a vector the system
+    turns into what it applies, :meth:`System.accept_input`, held with no timeout: position setpoints)
+    or ``'message'`` (a structured command, e.g. a trajectory, validated by :meth:`System.accept_input`,
+    which yields what port ``target`` applies from then on).
     """
 
     name: str
@@ -165,6 +169,8 @@ class InputPort:
     labels: tuple
     unit: str
     limit: tuple | None = None
+    kind: str = 'vector'
+    target: str = ''
 
 
 class LazyValues(Mapping):
@@ -251,7 +257,10 @@ class SystemOutputs:
     energy: mapping of named energies (J; may be a :class:`LazyValues`, computed when read);
     extra: other diagnostics values; contacts: link -> (world frame, (6,) [moment; force]) of the
     ground on that link, world axes, about its centre of pressure (``contact_wrenches/<link>``,
-    :mod:`robodyn_ros.systems.contact`), empty off the ground.
+    :mod:`robodyn_ros.systems.contact`), empty off the ground; contact_points: (n, 6) ``[x; F]`` of the
+    points touching the ground (world frame; m, N), None off the ground (drawn as markers); messages:
+    further messages of this instant, ``[(topic, type, message dict)]`` (sensors, a servo's desired and
+    error states).
     """
 
     joint_names: list
@@ -264,6 +273,8 @@ class SystemOutputs:
     odom_child: str = 'base_link'   # child_frame_id of odom (the free root's link for a floating tree)
     extra: dict = field(default_factory=dict)
     contacts: dict = field(default_factory=dict)
+    contact_points: np.ndarray | None = None
+    messages: list = field(default_factory=list)
 
 
 class System:
@@ -280,6 +291,23 @@ class System:
     def zero_inputs(self) -> dict:
         """Input values that mean 'no command' (zeros) for every port."""
         return {k: np.zeros(p.size) for k, p in self.inputs.items()}
+
+    def initial_input(self, port: str, y: np.ndarray, t: float):
+        """``(value, applied)`` of a port before any command, at the initial state y and time t (s):
+        zeros by default (a position setpoint port holds the initial positions)."""
+        z = np.zeros(self.inputs[port].size)
+        return z, z
+
+    def accept_input(self, port: str, value, t: float, applied):
+        """What a ``setpoint`` or ``message`` port's command ``value`` arriving at time t (s) makes the
+        system apply from then on, given what it applies now (``applied``; for a message port, its target
+        port's); raises ValueError (the reason) to refuse it. Only systems with such ports implement it."""
+        raise ValueError(f'port {port!r} takes no structured commands')
+
+    def time_derivative(self, t: float, y: np.ndarray, u: dict):
+        """``∂(dy/dt)/∂t`` (ny,) of the stiff part of f that moves with time (a servo on a moving setpoint),
+        for the linearly implicit step's time term; None (the default): none."""
+        return None
 
     def rhs(self, t: float, y: np.ndarray, u: dict) -> np.ndarray:
         """State derivative ``dy/dt`` (ny,) at time t (s) with inputs u held constant."""

@@ -204,6 +204,12 @@ class GroundContact:
         link_wrenches(self.con[0], P, self._link_of, out)
         return out
 
+    def touching(self, P) -> np.ndarray:
+        """(n, 6) ``[x_c; F]`` of the points of P that touch (world coordinates; m, N), in point order."""
+        from ..kernels.contact import PACTIVE, PF, PX
+        on = P[:, PACTIVE] > 0.0
+        return np.concatenate([P[on, PX:PX + 3], P[on, PF:PF + 3]], axis=1)
+
     def diagnostics(self, P) -> dict:
         """``contact_active``, ``contact_max_penetration`` (m, 0 when none) and ``contact_max_slip_speed``
         (m/s) of the points' outputs P."""

@@ -1,0 +1,126 @@
+"""What a viewer draws beside the joints: the contact markers, and the meshes a recording carries.
+
+Markers (``markers``, visualization_msgs/MarkerArray) of an A1 landing are read back from the
+recording by rosbags (its own CDR decoder and the recorded schema): a DELETEALL, the touching points
+on the ground plane, one arrow per point whose vectors add up to the ground's total force of the
+``contact_wrenches`` topics (computed per link by the contact kernel's link sums). Meshes: the
+recorded ``robot_description`` holds each mesh as a ``data:`` URI whose bytes are the file's; the rest
+of the URDF is unchanged; a mesh that cannot be found, or beyond the size limit, keeps its reference.
+"""
+from __future__ import annotations
+
+import base64
+import re
+import warnings
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robodyn_ros.assets import asset_file, embed_meshes
+from robodyn_ros.recording.run_sink import McapRunSink
+from robodyn_ros.runs import plan_run, resolve_settings
+from robodyn_ros.scene import load_scene
+from robodyn_ros.simulation import Simulator, run_headless
+
+MEDIA = {'.dae': 'model/vnd.collada+xml', '.stl': 'model/stl'}
+
+
+def _record(path, name, duration):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        scene = load_scene(name)
+    plan, st = plan_run(resolve_settings(scene, duration=duration), scene.system, scene.y0)
+    sim = Simulator(scene.system, scene.y0, plan=plan)
+    sink = McapRunSink(path, scene, {**st, 'mode': 'headless'}, batch=64)
+    try:
+        run_headless(sim, duration, st['rate'], scene.script, [sink])
+    finally:
+        sink.close()
+    return scene
+
+
+@pytest.fixture(scope='module')
+def a1(tmp_path_factory):
+    """(scene, {topic: [(log time, message)]}) of 0.4 s of a1_stand read by rosbags."""
+    from rosbags.highlevel import AnyReader
+    path = tmp_path_factory.mktemp('a1') / 'a1.mcap'
+    scene = _record(path, 'a1_stand', 0.4)
+    msgs = {}
+    with AnyReader([path]) as reader:
+        for c, t, raw in reader.messages():
+            msgs.setdefault(c.topic, []).append((t, reader.deserialize(raw, c.msgtype)))
+    return scene, msgs
+
+
+def test_markers_draw_the_touching_points_and_the_grounds_force(a1):
+    scene, msgs = a1
+    markers = msgs['/markers']
+    assert len(markers) == len(msgs['/joint_states']) == 81     # one per publication (200 Hz)
+    weight = scene.system.model.total_mass() * 9.81
+    touching = 0
+    for (t, m), (tw, *_) in zip(markers, msgs['/joint_states']):
+        assert t == tw
+        first, rest = m.markers[0], m.markers[1:]
+        assert first.action == 3                                  # DELETEALL: the last period's markers go
+        assert all(x.header.frame_id == scene.system.contact.frame and
+                   x.header.stamp.sec * 10**9 + x.header.stamp.nanosec == t for x in m.markers)
+        if not rest:
+            continue
+        touching += 1
+        spheres = [x for x in rest if x.type == 7]
+        arrows = [x for x in rest if x.type == 0]
+        assert len(spheres) == 1 and len(arrows) == len(spheres[0].points) == len(rest) - 1 >= 1
+        pts = np.array([[p.x, p.y, p.z] for p in spheres[0].points])
+        assert np.all(pts[:, 2] <= 0.0) and np.all(pts[:, 2] > -0.02)   # on the plane z = 0, a few mm in
+        tails = np.array([[a.points[0].x, a.points[0].y, a.points[0].z] for a in arrows])
+        tips = np.array([[a.points[1].x, a.points[1].y, a.points[1].z] for a in arrows])
+        np.testing.assert_array_equal(tails, pts)
+        # the arrows at 0.5 m per weight add up to the ground's force on the links (contact_wrenches)
+        total = (tips - tails).sum(axis=0) * weight / 0.5
+        links = [k for k in msgs if k.startswith('/contact_wrenches/')]
+        f = sum(np.array([w.wrench.force.x, w.wrench.force.y, w.wrench.force.z])
+                for k in links for tw2, w in msgs[k] if tw2 == t)
+        np.testing.assert_allclose(total, f, rtol=1e-9, atol=1e-9 * weight)
+        assert f[2] > 0.0
+    assert touching >= 40     # dropped from 0.1 m, the A1 stands on its feet within 0.2 s
+
+
+def test_a_robot_off_the_ground_has_no_markers(tmp_path):
+    from robodyn_ros.recording.reader import summarize
+    _record(tmp_path / 'arm.mcap', 'stanford_arm', 0.05)
+    assert '/markers' not in summarize(tmp_path / 'arm.mcap')['topics']
+
+
+def test_the_recorded_description_carries_the_meshes(a1):
+    scene, msgs = a1
+    original = scene.system.urdf()
+    (_, desc), = msgs['/robot_description']
+    text = desc.data
+    refs = re.findall(r'<mesh\b[^>]*filename="([^"]*)"', original)
+    embedded = re.findall(r'<mesh\b[^>]*filename="([^"]*)"', text)
+    assert len(refs) == len(embedded) == 13 and all(r.startswith('package://') for r in refs)
+    for ref, uri in zip(refs, embedded):
+        head, _, b64 = uri.partition(',')
+        assert head == f'data:{MEDIA[Path(ref).suffix]};base64'
+        assert base64.b64decode(b64) == asset_file(ref).read_bytes()
+    # nothing else changed: the same XML with the references put back
+    a, b = ET.fromstring(original), ET.fromstring(text)
+    for m, ref in zip(b.iter('mesh'), refs):
+        m.set('filename', ref)
+    assert ET.tostring(a) == ET.tostring(b)
+
+
+def test_meshes_not_found_or_beyond_the_limit_keep_their_reference(tmp_path):
+    stl = tmp_path / 'part.stl'
+    stl.write_bytes(b'solid x\nendsolid x\n')
+    urdf = (f'<robot name="r"><link name="a"><visual><geometry><mesh filename="file://{stl}"/></geometry></visual>'
+            f'<visual><geometry><mesh filename="package://no_such_pkg/m.dae" scale="1 1 1"/></geometry></visual>'
+            f'</link></robot>')
+    text, notes = embed_meshes(urdf)
+    assert f'data:model/stl;base64,{base64.b64encode(stl.read_bytes()).decode()}' in text
+    assert 'package://no_such_pkg/m.dae' in text and len(notes) == 1 and 'no_such_pkg' in notes[0]
+    text, notes = embed_meshes(urdf, limit=5)
+    assert text.count('data:') == 0 and f'file://{stl}' in text and len(notes) == 2 and 'MiB' in notes[0]
+    assert embed_meshes('<robot name="r"/>') == ('<robot name="r"/>', ())
