@@ -137,7 +137,12 @@ def recording_info(path) -> LayoutInfo:
         key = rel[t]
         if key in command_topics:
             msg = first[key]
-            n = 6 if 'wrench' in msg else len(msg['data']) - msg['layout']['data_offset']
+            if 'wrench' in msg:
+                n = 6
+            elif 'data' in msg:     # Float64MultiArray: effort, voltage, position, velocity commands
+                n = len(msg['data']) - msg['layout']['data_offset']
+            else:                   # a JointTrajectory: no fixed size (its port's size is 0: no Publish panel)
+                n = 0
             if n:
                 commands.append((key, summary['topics'][t]['type'], n))
     md = summary.get('metadata', {}).get('robodyn', {})
