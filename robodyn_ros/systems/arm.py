@@ -351,6 +351,10 @@ class ArmSystem(System):
                                     f'sqrt(I/k) = {np.sqrt(inertia / k) if k else float("inf"):.3g} s')
         return tau
 
+    def stop_time_constant(self, y):
+        """The fastest joint-stop mode (s): :meth:`fastest_time_constant`, whose modes are all joint stops."""
+        return self.fastest_time_constant(y)
+
     def passive_jacobian(self, t, y, u, h=None):
         """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``): ``[[0, Q], [−M⁻¹K Φ,
         −M⁻¹D]]`` with D, K from ``CompiledModel.passive_jacobian`` (damping, friction slope, joint-limit

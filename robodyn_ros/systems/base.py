@@ -341,6 +341,11 @@ class System:
         """An estimate (s) of the fastest time constant at state y, for step-size checks."""
         return float('inf')
 
+    def stop_time_constant(self, y: np.ndarray) -> float:
+        """The fastest time constant (s) at state y of a joint stop, whose law switches within a bounce: an
+        explicit step must resolve it (``stability.STOP_RESOLUTION``); inf when there is none."""
+        return float('inf')
+
     def passive_jacobian(self, t: float, y: np.ndarray, u: dict, h: float | None = None):
         """The stiff part J (ny, ny) of ``∂(dy/dt)/∂y`` at (t, y) that the linearly implicit ``rosenbrock2``
         treats implicitly at step h (s): the passive forces (damping, friction slope, joint-limit springs
