@@ -137,7 +137,12 @@ def recording_info(path) -> LayoutInfo:
         key = rel[t]
         if key in command_topics:
             msg = first[key]
-            n = 6 if 'wrench' in msg else len(msg['data']) - msg['layout']['data_offset']
+            if 'wrench' in msg:
+                n = 6
+            elif 'data' in msg:   # a Float64MultiArray
+                n = len(msg['data']) - msg['layout']['data_offset']
+            else:                 # a JointTrajectory: no vector to publish from a panel (the scene's port size 0)
+                n = 0
             if n:
                 commands.append((key, summary['topics'][t]['type'], n))
     md = summary.get('metadata', {}).get('robodyn', {})
