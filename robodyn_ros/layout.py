@@ -140,9 +140,9 @@ def recording_info(path) -> LayoutInfo:
             msg = first[key]
             if 'wrench' in msg:
                 n = 6
-            elif 'data' in msg:   # a Float64MultiArray
+            elif 'data' in msg:     # Float64MultiArray: effort, voltage, position, velocity commands
                 n = len(msg['data']) - msg['layout']['data_offset']
-            else:                 # a JointTrajectory: no vector to publish from a panel (the scene's port size 0)
+            else:                   # a JointTrajectory: no fixed size (its port's size is 0: no Publish panel)
                 n = 0
             if n:
                 commands.append((key, summary['topics'][t]['type'], n))
