@@ -6,8 +6,9 @@ of the scene publishes, read either from the scene (its outputs and ``/tf`` at t
 both give the same :class:`LayoutInfo` for a recording of the scene, hence the same layout. Panels:
 
 * 3D: ``/robot_description`` switched on (Foxglove hides it until clicked), ``/markers`` too on a
-  ground, the TF axes hidden (the robot's shapes stand for them), the camera at a distance of about
-  four times the robot's size (from ``/tf`` at the start), following the floating base if any;
+  ground or with sensors, the TF axes hidden (the robot's shapes stand for them), the camera at a
+  distance of about four times the robot's size (from ``/tf`` at the start), following the floating
+  base if any;
 * plots of the joint positions and efforts (up to :data:`MAX_LINES` joints, labelled by name);
 * a plot of the reactions that characterise the system: on a ground the contact forces (``force.z``
   of every ``contact_wrenches/<link>``); else the named contacts and drives (wheel contacts, the

@@ -575,7 +575,8 @@ class ArmSystem(System):
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states, joint wrenches (optional) and energies at state y; with a joint servo its desired
-        and error states, with sensors their readings (``SystemOutputs.messages``)."""
+        and error states, with sensors their readings (``SystemOutputs.messages``) and what the markers draw
+        of them (``imu_poses``, ``ft_wrenches``)."""
         if self.servo is None and self.sensors is None:
             return self._state_outputs(t, y, u, wrenches)
         st = None   # the servo at (t, y): desired values and torques (kernels.servo.servo_state), once
@@ -584,7 +585,12 @@ class ArmSystem(System):
             st = self._km.servo_state(self._srv(u), t, q, v)[0]
         out = self._state_outputs(t, y, u, wrenches, st)
         from .servo import control_messages
-        out.messages.extend(control_messages(self, t, y, u, st))
+        msgs = control_messages(self, t, y, u, st)
+        out.messages.extend(msgs)
+        if self.sensors is not None:   # the sensors' messages come last (control_messages)
+            n = len(self.sensors.sensors)
+            out.imu_poses, out.ft_wrenches = self.sensors.world_frames(self._km, self.split(y)[0],
+                                                                        msgs[len(msgs) - n:])
         return out
 
     def _state_outputs(self, t, y, u, wrenches, st=None):

@@ -260,7 +260,10 @@ class SystemOutputs:
     :mod:`robodyn_ros.systems.contact`), empty off the ground; contact_points: (n, 6) ``[x; F]`` of the
     points touching the ground (world frame; m, N), None off the ground (drawn as markers); messages:
     further messages of this instant, ``[(topic, type, message dict)]`` (sensors, a servo's desired and
-    error states).
+    error states); imu_poses: (ni, 12) ``[p; R]`` of each IMU's link in the world (root) frame (origin, m;
+    rotation row major, the link's axes as columns), ft_wrenches: (nf, 9) ``[p; f; n]`` of each force-torque
+    sensor: its frame's origin and its published reading in world axes (m, N, N·m), both None without
+    sensors (drawn as markers; :meth:`robodyn_ros.systems.sensors.SensorSet.world_frames`).
     """
 
     joint_names: list
@@ -275,6 +278,8 @@ class SystemOutputs:
     contacts: dict = field(default_factory=dict)
     contact_points: np.ndarray | None = None
     messages: list = field(default_factory=list)
+    imu_poses: np.ndarray | None = None
+    ft_wrenches: np.ndarray | None = None
 
 
 class System:
