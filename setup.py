@@ -28,8 +28,8 @@ setup(
     version=_package_xml('version'),
     packages=find_packages(exclude=['test']),
     # recording/msg: bundled .msg/.json definitions (tf2_msgs/TFMessage) for recordings without tf2_msgs;
-    # data/example-robot-data: the two robots the bundled scenes a1_stand and solo12_drop need (URDFs, the STL
-    # meshes solo12's URDF names, example-robot-data's licence; 1.6 MB; robodyn_ros.meshes.resolve_uri finds them)
+    # data/example-robot-data: the three robots the bundled scenes a1_stand, solo12_drop, xarm7_trajectory need
+    # (URDFs, the STL meshes solo12's URDF names, example-robot-data's licence; 1.6 MB; meshes.resolve_uri finds them)
     package_data={package_name: ['data/*', 'recording/msg/*/msg/*', 'data/example-robot-data/**/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),

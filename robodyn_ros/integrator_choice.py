@@ -274,7 +274,8 @@ def _auto(system, y, dt, rtol, atol, t: float, u=None):
     if a4.verdict != 'refuse':
         return ('rk4', h, None, None, f'auto chose rk4 at dt={h:g} s: no mode is stiff{where} ({_fastest(a4)}; '
                 f'rk4 is stable up to h·|λ| ≈ 2.8)', a4)
-    why4 = f'rk4 is unstable at dt={h:g} s{where} ({_fastest(a4)})'
+    why4 = (f'rk4 does not resolve a joint stop at dt={h:g} s (h/τ = {h / a4.system_tau:.3g})'
+            if a4.extra.get('stop') else f'rk4 is unstable at dt={h:g} s{where} ({_fastest(a4)})')
     a2, all2, _ = worst('rosenbrock2')
     if a2.verdict != 'refuse':
         a2 = max(all2, key=_local_error)

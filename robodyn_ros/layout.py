@@ -6,8 +6,9 @@ of the scene publishes, read either from the scene (its outputs and ``/tf`` at t
 both give the same :class:`LayoutInfo` for a recording of the scene, hence the same layout. Panels:
 
 * 3D: ``/robot_description`` switched on (Foxglove hides it until clicked), ``/markers`` too on a
-  ground, the TF axes hidden (the robot's shapes stand for them), the camera at a distance of about
-  four times the robot's size (from ``/tf`` at the start), following the floating base if any;
+  ground or with sensors, the TF axes hidden (the robot's shapes stand for them), the camera at a
+  distance of about four times the robot's size (from ``/tf`` at the start), following the floating
+  base if any;
 * plots of the joint positions and efforts (up to :data:`MAX_LINES` joints, labelled by name);
 * a plot of the reactions that characterise the system: on a ground the contact forces (``force.z``
   of every ``contact_wrenches/<link>``); else the named contacts and drives (wheel contacts, the
@@ -137,7 +138,12 @@ def recording_info(path) -> LayoutInfo:
         key = rel[t]
         if key in command_topics:
             msg = first[key]
-            n = 6 if 'wrench' in msg else len(msg['data']) - msg['layout']['data_offset']
+            if 'wrench' in msg:
+                n = 6
+            elif 'data' in msg:     # Float64MultiArray: effort, voltage, position, velocity commands
+                n = len(msg['data']) - msg['layout']['data_offset']
+            else:                   # a JointTrajectory: no fixed size (its port's size is 0: no Publish panel)
+                n = 0
             if n:
                 commands.append((key, summary['topics'][t]['type'], n))
     md = summary.get('metadata', {}).get('robodyn', {})

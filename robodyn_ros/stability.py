@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'StepWarning', 'StepAnalysis',
+__all__ = ['REFUSE_GROWTH', 'WARN_DOUBLING_TIME', 'FD_REL_STEP', 'STOP_RESOLUTION', 'StepWarning', 'StepAnalysis',
            'linearisation', 'candidate_modes', 'spin_rate', 'analyse_step',
            'preflight', 'diagnose', 'stable_step_limit', 'rosenbrock2_amplification', 'rosenbrock2_step_matrix',
            'passive_jacobian', 'step_alternatives', 'stiff_mode', 'start_inputs']
@@ -72,6 +72,15 @@ WARN_DOUBLING_TIME = 1e5
 FD_REL_STEP = 6e-6
 #: fixed explicit methods this module analyses
 FIXED_EXPLICIT = ('euler', 'semi_implicit_euler', 'rk4')
+#: the longest explicit step on a joint stop, as a multiple of its time constant τ (``stop_time_constant``,
+#: 1/ω for an underdamped stop): the stop's law switches within its bounce (its spring and damper on at
+#: contact, the damper off when the joint turns back), which linear stability (S3) does not see. Measured on a
+#: hinge coasting into its stop (every phase of the step at contact; test_joint_limits): rk4 at h/τ = 2.5
+#: throws a damped joint (ζ = 0.5) back 1.8 times as fast as it came, symplectic Euler 2.7 times at 1.5;
+#: within these limits a damped stop (ζ >= 0.05) sends it back slower than it came, an undamped one within
+#: 2.5 % of its speed. Explicit Euler gains on any oscillation: at 0.1 an undamped stop returns the joint
+#: 17 % faster, a damped one (ζ = 0.5) slower.
+STOP_RESOLUTION = {'euler': 0.1, 'semi_implicit_euler': 1.0, 'rk4': 1.5}
 #: fixed-step methods implicit in the system's passive forces (``System.passive_jacobian``), explicit in the rest
 LINEARLY_IMPLICIT = ('rosenbrock2',)
 #: every fixed-step method this module analyses
@@ -307,6 +316,15 @@ def analyse_step(system, integrator: str, dt: float, y, u=None, t: float = 0.0, 
                      f'numerical growth {growth:.2e} per step doubles it every {doubling:.3g} s of simulated '
                      f'time (energy drifts upward); use semi_implicit_euler, rk4 or an error-controlled integrator '
                      f'for long runs')
+    tau_stop = float(system.stop_time_constant(y)) if hasattr(system, 'stop_time_constant') else math.inf
+    if a.verdict != 'refuse' and h > STOP_RESOLUTION[name] * tau_stop:
+        a.verdict = 'refuse'
+        a.extra['stop'] = True
+        a.message = (f'{name} with dt={h:g} s does not resolve a joint stop of {type(system).__name__}'
+                     f'{getattr(system, "time_constant_words", "")}: h/τ = {h / tau_stop:.3g}; an explicit step '
+                     f'through a stop\'s bounce must keep h/τ <= {STOP_RESOLUTION[name]:g} (dt <= '
+                     f'{STOP_RESOLUTION[name] * tau_stop:.3g} s), or it can throw the joint back faster than it came. '
+                     f'{step_alternatives(system, h, y, u, t, J)}')
     return a
 
 

@@ -64,3 +64,26 @@ def random_state(model, rng, scale=1.0):
 def state_of():
     """The :func:`random_state` helper (fixtures are the way test modules share code here)."""
     return random_state
+
+
+@pytest.fixture(autouse=True)
+def _no_process_outlives_its_test():
+    """A node or controller process a test started and left running (its test failed before the
+    cleanup) is killed when the test ends, so that it cannot publish into a later test's ROS domain.
+    Processes of module-scoped fixtures are set up before this fixture and stay for their module;
+    the session's end kills those (:func:`pytest_sessionfinish`)."""
+    import sys
+    helpers = sys.modules.get('ros_helpers')
+    since = len(helpers.Proc.started) if helpers else 0
+    yield
+    helpers = sys.modules.get('ros_helpers')
+    if helpers is not None:
+        helpers.kill_left_over(since)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Kill any helper process still running at the end of the session."""
+    import sys
+    helpers = sys.modules.get('ros_helpers')
+    if helpers is not None:
+        helpers.kill_left_over(0)

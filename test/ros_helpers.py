@@ -22,14 +22,26 @@ for _k, _v in DISCOVERY_ENV.items():
     os.environ.setdefault(_k, _v)
 
 
+def _die_with_parent():
+    """preexec_fn: the child gets SIGKILL when the test process dies (Linux ``PR_SET_PDEATHSIG``),
+    so a killed or crashed pytest leaves no node running in its ROS domain for later tests to meet."""
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # 1 = PR_SET_PDEATHSIG
+
+
 class Proc:
-    """A subprocess whose output goes to a log file; always stopped by :meth:`cleanup`."""
+    """A subprocess whose output goes to a log file; always stopped by :meth:`cleanup`, and killed
+    after the test that started it at the latest (conftest: :func:`kill_left_over`)."""
+
+    #: every Proc started in this test process, in order (conftest kills those left running)
+    started: list = []
 
     def __init__(self, cmd, env, log_path):
         self.cmd, self.log_path = cmd, str(log_path)
         self._log = open(self.log_path, 'wb')
         self.p = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=self._log, stderr=subprocess.STDOUT,
-                                  start_new_session=True)
+                                  start_new_session=True, preexec_fn=_die_with_parent)
+        Proc.started.append(self)
 
     @property
     def pid(self):
@@ -65,6 +77,15 @@ class Proc:
             self._log.flush()
         with open(self.log_path, 'rb') as f:
             return f.read().decode('utf-8', 'replace')
+
+
+def kill_left_over(since: int = 0) -> list:
+    """Kill every :class:`Proc` started at index ``since`` or later that still runs; returns their
+    commands (a fixture or test that failed before its own cleanup leaves them)."""
+    left = [p for p in Proc.started[since:] if p.alive()]
+    for p in left:
+        p.cleanup()
+    return [p.cmd for p in left]
 
 
 def start_sim(domain: Domain, params: dict, log_path, namespace=None) -> Proc:

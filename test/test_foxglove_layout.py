@@ -151,15 +151,20 @@ def test_the_layout_of_a_scene_fits_its_recording(runs, name):
     assert set(cfg['publish']) == PUBLISH_KEYS
     for layer in cfg['layers'].values():
         assert layer['layerId'] == 'foxglove.Grid' and set(layer) <= GRID_KEYS
-    # the shown topics are recorded: the robot, and on a ground its markers (touching points after the drop)
+    # the shown topics are recorded: the robot, and on a ground or with sensors its markers (touching points
+    # after the drop, IMU axes and force-torque arrows), drawn in a frame of the recording's tf tree
     assert set(cfg['topics']) <= set(msgs) and '/robot_description' in cfg['topics']
     assert all(v == {'visible': True} for v in cfg['topics'].values())
-    assert ('/markers' in cfg['topics']) == ('/markers' in msgs) == bool(info.contacts)
+    sensors = any(k.startswith(('/imu/', '/ft/')) for k in msgs)
+    assert ('/markers' in cfg['topics']) == ('/markers' in msgs) == (bool(info.contacts) or sensors)
+    assert sensors == (name == 'xarm7_trajectory')     # the bundled scene with sensors (its IMU and wrist sensor)
     # the hidden axes and the followed frame are frames of the recording's /tf and /tf_static
     frames = {t.child_frame_id for k in ('/tf', '/tf_static') for m in msgs.get(k, []) for t in m.transforms} | \
         {t.header.frame_id for k in ('/tf', '/tf_static') for m in msgs.get(k, []) for t in m.transforms}
     keys = {k[len('frame:'):] for k in cfg['transforms']}
     assert keys == frames and all(set(v) <= FRAME_KEYS for v in cfg['transforms'].values())
+    drawn_in = {x.header.frame_id for m in msgs.get('/markers', []) for x in m.markers}
+    assert drawn_in <= frames and len(drawn_in) == ('/markers' in msgs)
     assert cfg.get('followTf') is None or cfg['followTf'] in frames
     assert (cfg.get('followTf') is not None) == ('/odom' in msgs)
 

@@ -213,6 +213,77 @@ def test_stiff_stop_is_refused_naming_its_time_constant():
     Simulator(one_joint(), np.array([0.0, 0.0]), integrator='rk4', dt=1e-4)
 
 
+def restitution(zeta):
+    """The stop law's coefficient of restitution with ``return: spring`` (closed form): the joint enters at
+    ``Δ̇ = ω0`` under ``Δ̈ + 2ζωn Δ̇ + ωn² Δ = 0`` until it turns at ``ωd τ1 = atan(√(1 − ζ²)/ζ)`` with
+    ``Δpk = (ω0/ωn) e^{−ζωn τ1}``, then leaves under the spring alone at ``ωn Δpk``: ``e = e^{−ζωn τ1}``."""
+    if zeta == 0.0:
+        return 1.0
+    s = math.sqrt(1.0 - zeta * zeta)
+    return math.exp(-zeta * math.atan2(s, zeta) / s)
+
+
+def bounce_ratios(method, h_tau, zeta, phases=16, w0=1.0):
+    """The hinge of :func:`one_joint` (``return: spring``, c for the damping ratio zeta) coasting into its upper
+    stop at w0, integrated by the fused compiled loop of ``method`` at ``h = h_tau / ωn`` from ``phases``
+    positions spread over the last step before contact; returns the rates it leaves with, over w0 (the
+    loop itself: the step check that refuses such steps is the next test)."""
+    wn = math.sqrt(K / I_AX)
+    c = 2.0 * zeta * math.sqrt(K * I_AX)
+    km = one_joint('spring', c=c)._km
+    h = h_tau / wn
+    tau = np.zeros(1)
+    out = []
+    for j in range(phases):
+        z = np.array([HI - (j + 0.5) / phases * w0 * h, w0, 0.0])
+        for _ in range(int(40.0 / h_tau) + 10):
+            assert km.integrate_arm(method, z, tau, h, 1, 0.0) < 0
+            if z[0] < HI and z[1] < 0.0:
+                break
+        assert z[0] < HI and z[1] < 0.0, (method, h_tau, zeta, z)   # it came back
+        out.append(-z[1] / w0)
+    return np.array(out)
+
+
+@pytest.mark.parametrize('method, h_bad, faster', [('rk4', 2.5, 1.5), ('semi_implicit_euler', 1.5, 2.0)])
+def test_an_explicit_step_through_a_bounce_is_refused_where_it_throws_the_joint_back_faster(method, h_bad, faster):
+    """A joint coasting into its stop can leave no faster than it came (the law only dissipates: its damper acts
+    going in). An explicit step that does not resolve the bounce breaks that at steps its linear stability
+    allows (h/τ = 2.5 < rk4's 2.785, 1.5 < symplectic Euler's 2): measured, rk4 throws a damped joint (ζ = 0.5)
+    back 1.8 times as fast as it came, symplectic Euler 2.7 times. At the steps the check allows
+    (``stability.STOP_RESOLUTION``: h/τ <= 1.5 for rk4, 1 for symplectic Euler) a damped stop (ζ = 0.05,
+    0.5) sends it back slower than it came and an undamped one (e = 1) within 2.5 % of its speed; the
+    Simulator refuses the longer step, naming the stop, and auto takes rosenbrock2 there."""
+    from robodyn_ros.stability import STOP_RESOLUTION
+    limit = STOP_RESOLUTION[method]
+    assert bounce_ratios(method, h_bad, 0.5).max() > faster
+    checked = 0
+    for h_tau in (limit, 0.5):
+        for zeta, bound in ((0.0, 1.025), (0.05, 1.0), (0.5, 1.0)):
+            r = bounce_ratios(method, h_tau, zeta)
+            assert r.max() < bound, (h_tau, zeta, r.max())
+            checked += 1
+    assert checked == 6
+    sys_ = one_joint('spring', k=5e4)
+    tau = math.sqrt(I_AX / 5e4)
+    with pytest.raises(ValueError) as e:
+        Simulator(sys_, np.array([0.0, 0.0]), integrator=method, dt=h_bad * tau)
+    assert 'does not resolve a joint stop' in str(e.value) and "joint limit of 'hinge'" in str(e.value), str(e.value)
+    Simulator(sys_, np.array([0.0, 0.0]), integrator=method, dt=0.99 * limit * tau)
+    auto = Simulator(sys_, np.array([0.0, 0.0]), integrator='auto', dt=2.0 * tau)
+    assert auto.settings['integrator'] == 'rosenbrock2', auto.choice.reason
+    assert 'does not resolve a joint stop' in auto.choice.reason, auto.choice.reason
+
+
+def test_rk4_converges_on_the_bounce_to_the_laws_restitution():
+    """rk4 through the bounce of a damped stop (ζ = 0.5) against the law's restitution (closed form, 0.546):
+    the error over the step's phases shrinks with h (the law's kinks, at contact and where the joint turns,
+    make it first order), to within 1 % at h/τ = 0.01."""
+    e = restitution(0.5)
+    err = [np.abs(bounce_ratios('rk4', h_tau, 0.5) - e).max() for h_tau in (1.0, 0.1, 0.01)]
+    assert err[0] > err[1] > err[2] and err[2] < 0.01 * e, err
+
+
 def test_bad_limit_data_refused():
     with pytest.raises(ModelError, match='limit_return'):
         build_model([LinkSpec(name='a', joint='j', parent=None, limits=(0, 1), limit_stiffness=1.0,

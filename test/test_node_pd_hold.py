@@ -64,8 +64,9 @@ def test_pd_hold_node_recording_equals_headless_run(a1_lockstep):
     assert set(summarize(rec)['topics']) == topics
     # every topic but /diagnostics (its real-time factor is the wall clock's) message for message
     compared = sorted(topics - {'/diagnostics'})
-    assert len(compared) == 39 and {'/joint_states', '/odom', '/effort_commands', '/tf', '/tf_static', '/clock',
-                                    '/robot_description', '/contact_wrenches/FR_foot'} <= set(compared), compared
+    assert len(compared) == 40 and {'/joint_states', '/odom', '/effort_commands', '/tf', '/tf_static', '/clock',
+                                    '/markers', '/robot_description', '/contact_wrenches/FR_foot'} <= set(compared), \
+        compared
     for topic in compared:
         a = [(t, raw) for _, _, t, raw in read_raw_messages(rec, topics=[topic])]
         b = [(t, raw) for _, _, t, raw in read_raw_messages(out, topics=[topic])]

@@ -44,12 +44,12 @@ def test_the_bundled_files_are_example_robot_datas_own():
     erd = example_robot_data_dir()
     own = bundled_robot_data_dir()
     files = [p for p in own.rglob('*') if p.is_file()]
-    assert len(files) == 14
+    assert len(files) == 16   # a1: URDF, README; solo12: URDF, README, 10 STL; xarm7: URDF, README
     for p in files:
         assert p.read_bytes() == (erd / p.relative_to(own)).read_bytes(), p
     assert (own.parent / 'LICENSE').read_text().startswith('BSD 2-Clause License')
     size = sum(p.stat().st_size for p in own.parent.rglob('*') if p.is_file())
-    assert size < 2_000_000, size   # 1.6 MB: both URDFs, solo12's STL meshes, the licence and READMEs
+    assert size < 2_000_000, size   # 1.6 MB: three URDFs, solo12's STL meshes, the licence and READMEs
 
 
 def test_package_uris_prefer_the_installed_example_robot_data_and_fall_back_to_the_bundled_copy(plain_env):

@@ -69,10 +69,18 @@ class OracleSink:
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic('/robot_description', M.TOPIC_TYPES['robot_description'], qos='transient_local')
         self.write('robot_description', M.string(embed_meshes(sim.system.urdf())[0]), t_ns)
+        if any(p in sim.system.inputs for p in ('position', 'velocity')):   # the joints of each command topic
+            self.writer.add_topic('/command_joint_names', 'std_msgs/msg/String', qos='transient_local')
+            self.write('command_joint_names', M.string(M.command_joint_names(sim.system)), t_ns,
+                       'std_msgs/msg/String')
         self.weight = None
-        if getattr(sim.system, 'contact', None) is not None:
+        sensors = getattr(sim.system, 'sensors', None)
+        self.imu = [s.topic for s in sensors.imu] if sensors is not None else []
+        self.ft = [s.topic for s in sensors.ft] if sensors is not None else []
+        if getattr(sim.system, 'contact', None) is not None or sensors is not None:
             self.weight = sim.system.model.total_mass() * float(np.linalg.norm(sim.system.model.gravity))
-            self.world = sim.system.contact.frame
+            contact = getattr(sim.system, 'contact', None)
+            self.world = contact.frame if contact is not None else sim.system.model.root
         if self.record_tf:
             from robodyn_ros.tf import TfTree
             self.tf = TfTree(sim.system)
@@ -85,6 +93,9 @@ class OracleSink:
     def on_command(self, t, port, values):
         t_ns = M.to_ns(t)
         topic = M.PORT_TOPICS[port]
+        if port == 'trajectory':   # the JointTrajectory message as it was applied
+            self.write(topic, values, t_ns, 'trajectory_msgs/msg/JointTrajectory')
+            return
         if port == 'base_wrench':  # [fx, fy, fz, tx, ty, tz] -> the spatial force [torque; force]
             msg = M.wrench_stamped(t_ns, 'base_link', np.r_[values[3:6], values[0:3]])
         else:
@@ -97,7 +108,8 @@ class OracleSink:
             self.write(topic, msg, t_ns, type_name)
         self.write('/clock', M.clock(t_ns), t_ns)
         if self.weight is not None:
-            self.write('markers', _marker_array(t_ns, self.world, self.weight, out.contact_points), t_ns,
+            self.write('markers', _marker_array(t_ns, self.world, self.weight, out.contact_points, self.imu, self.ft,
+                                                out.imu_poses, out.ft_wrenches), t_ns,
                        'visualization_msgs/msg/MarkerArray')
         if t >= self.next_diag - 1e-9:
             self.write('diagnostics', M.diagnostic_array(t_ns, 'robodyn_ros: simulation', 0, 'running',
@@ -108,9 +120,12 @@ class OracleSink:
         self.writer.close()
 
 
-def _marker_array(t_ns, frame, weight, points) -> dict:
+def _marker_array(t_ns, frame, weight, points, imu=(), ft=(), imu_poses=None, ft_wrenches=None) -> dict:
     """The markers message as the recording module describes it: a DELETEALL, then (when points touch)
-    a sphere list of the touching points and an arrow per point along its force, 0.5 m at the weight."""
+    a sphere list of the touching points and an arrow per point along its force, 0.5 m at the weight;
+    then per IMU (namespace its topic) its link's x, y, z axes as three 0.1 m arrows (red, green, blue)
+    from the link's origin, per force-torque sensor an arrow along its force (amber) and one along its
+    moment (violet) from its frame's origin, at the contact arrows' scale."""
     sec, nsec = divmod(t_ns, 1_000_000_000)
     header = {'stamp': {'sec': sec, 'nanosec': nsec}, 'frame_id': frame}
 
@@ -119,13 +134,23 @@ def _marker_array(t_ns, frame, weight, points) -> dict:
                 'pose': {'orientation': {'w': 1.0}}, 'scale': dict(zip('xyz', scale)),
                 'color': dict(zip('rgba', color)), 'points': [dict(zip('xyz', p)) for p in points]}
     out = [marker('', 0, 0, 3, (0, 0, 0), (0, 0, 0, 0), [])]
-    if len(points):
+    if points is not None and len(points):
         d = 0.04 * 0.5
         out.append(marker('contact_points', 0, 7, 0, (d, d, d), (1.0, 0.55, 0.0, 1.0), points[:, :3]))
         for i, p in enumerate(points):
             tip = p[:3] + 0.5 / weight * p[3:]
             out.append(marker('contact_forces', i, 0, 0, (0.25 * d, 0.5 * d, 0.75 * d), (0.85, 0.1, 0.1, 1.0),
                               [p[:3], tip]))
+    d = 0.04 * 0.5
+    arrow = (0.25 * d, 0.5 * d, 0.75 * d)
+    for k, ns in enumerate(imu):
+        p, R = imu_poses[k, 0:3], imu_poses[k, 3:12].reshape(3, 3)
+        for a, color in enumerate(((1.0, 0.0, 0.0, 1.0), (0.0, 0.8, 0.0, 1.0), (0.0, 0.2, 1.0, 1.0))):
+            out.append(marker(ns, a, 0, 0, arrow, color, [p, p + 0.1 * R[:, a]]))
+    for k, ns in enumerate(ft):
+        o, f, n = ft_wrenches[k, 0:3], ft_wrenches[k, 3:6], ft_wrenches[k, 6:9]
+        out.append(marker(ns, 0, 0, 0, arrow, (0.95, 0.75, 0.0, 1.0), [o, o + 0.5 / weight * f]))
+        out.append(marker(ns, 1, 0, 0, arrow, (0.6, 0.2, 0.85, 1.0), [o, o + 0.5 / weight * n]))
     return {'markers': out}
 
 
@@ -166,11 +191,19 @@ def test_every_scene_records_the_oracle_bytes(tmp_path, name, batch):
     # the message-by-message path of the node, HEADLESS_BATCH the vectorised one of robodyn run
     # (one batch here), 7 many batches per run; RK4 at 2 ms, or at the scene's step where it needs a
     # smaller one (a body on the ground: contact is stiff)
+    # smaller one (a body on the ground: contact is stiff); a scene on auto, by auto's choice (xarm7's
+    # stiff joint damping refuses rk4: rosenbrock2 at its step)
+    from robodyn_ros.runs import plan_run
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
-        st = load_scene(name).settings
-    dt = min(2e-3, st['dt']) if st['integrator'] == 'rk4' else 2e-3
-    data = _compare(tmp_path, name, 0.4, batch=batch, chunk_size=3000, diagnostics_period=0.05, dt=dt)
+        scene = load_scene(name)
+        st = scene.settings
+        if st['integrator'] == 'auto':
+            st = plan_run(st, scene.system, scene.y0)[1]
+    integrator = 'rosenbrock2' if st.get('auto') and st['integrator'] == 'rosenbrock2' else 'rk4'
+    dt = min(2e-3, st['dt']) if st['integrator'] == 'rk4' or integrator == 'rosenbrock2' else 2e-3
+    data = _compare(tmp_path, name, 0.4, batch=batch, chunk_size=3000, diagnostics_period=0.05, dt=dt,
+                    integrator=integrator)
     assert len(data) > 5000
 
 

@@ -1,9 +1,9 @@
 """``robodyn warm``: compile, once, every kernel the bundled scenes and URDF robots run on.
 
 numba compiles a kernel the first time a process calls it and caches the machine code on disk
-(:mod:`robodyn_ros.kernels.cache`); a fresh install would pay that in its first runs. This command
-pays it up front, as ``make test`` does before the suite: every
-bundled scene, and a URDF robot (stanford_arm's arm written to URDF and read back, the path of
+(:mod:`robodyn_ros.kernels.cache`); a fresh install would pay that in its first runs (about a
+minute of CPU for stanford_arm, several minutes for every scene). This command pays it up front, as
+``make test`` does before its tests: every bundled scene, and a URDF robot (stanford_arm's arm written to URDF and read back, the path of
 ``robodyn run robot.urdf``; again with joint friction and effort limits, and with a ``<mimic>``
 joint), each run for :data:`DURATION` s the two ways the tools run them:
 
@@ -28,6 +28,13 @@ import sys
 
 #: one line for ``robodyn --help``
 HELP = 'compile once the kernels every bundled scene and URDF robot uses (make test does it first)'
+#: ``robodyn warm --help``'s text
+DESCRIPTION = ('numba compiles a kernel the first time a process calls it and caches the machine code on disk; '
+               'a fresh install pays that in its first runs (about a minute of CPU for stanford_arm, several '
+               'minutes for every scene). robodyn warm pays it up front, in one worker process per processor '
+               '(--jobs): every bundled scene and a URDF robot, each run briefly the ways robodyn run, the '
+               'sim node and the recorder run them. A robot never run before then loads the same machine code. '
+               'A second robodyn warm only loads. make test runs it first.')
 #: simulated seconds of each warm-up run (two diagnostics periods, a block of periods)
 DURATION = 0.2
 #: labels of the runs that compile the most on an empty cache (measured, most first): the workers
@@ -38,7 +45,7 @@ HEAVY_FIRST = ('a1_stand', 'betancur_platform', 'stanford_arm as URDF, mimic', '
 
 def add_parser(sub):
     """Register the subcommand and its options."""
-    p = sub.add_parser('warm', help=HELP, description=__doc__.split('\n\n')[1])
+    p = sub.add_parser('warm', help=HELP, description=DESCRIPTION)
     p.add_argument('--backend', choices=('numba', 'generated', 'auto'), default=None,
                    help='kernels to warm (default: those of robodyn run: $ROBODYN_BACKEND, else auto, whose '
                         'short runs use the generic kernels, as numba)')

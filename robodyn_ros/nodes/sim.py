@@ -577,9 +577,9 @@ def make_node_class():
                 if not self._run_period() or self.finished:
                     return 0.0
 
-        # -- markers (recording.markers): contact points and forces ------------------------------
+        # -- markers (recording.markers): contact points and forces, sensors ---------------------
         def _markers_setup(self):
-            """The ``markers`` publisher when the system draws markers (a ground), else nothing."""
+            """The ``markers`` publisher when the system draws markers (a ground, sensors), else nothing."""
             from ..recording.markers import TOPIC, TYPE, Markers
             self.markers = Markers.of(self.scene.system)
             if self.markers is not None:

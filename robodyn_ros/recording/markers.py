@@ -7,14 +7,21 @@ a ``DELETEALL``, then what the period's outputs hold. Now:
 
 * namespace ``contact_points``: the points touching the ground (a ``SPHERE_LIST``);
 * namespace ``contact_forces``: one ``ARROW`` per touching point, from the point along the ground's
-  force on it, :data:`ARROW_AT_WEIGHT` m long for a force equal to the robot's weight.
+  force on it, :data:`ARROW_AT_WEIGHT` m long for a force equal to the robot's weight;
+* namespace ``imu/<name>`` per IMU: its link's axes, three ``ARROW`` s (ids 0, 1, 2: x red, y green,
+  z blue) :data:`AXIS_LENGTH` m long from the link's origin;
+* namespace ``ft/<name>`` per force-torque sensor: from its frame's origin, id 0 an ``ARROW`` along the
+  force it reads, id 1 along the moment, at the contact arrows' scale (the moment's ``ARROW_AT_WEIGHT``
+  m at the robot's weight times 1 m).
 
-All in the ground's (world) frame, stamped with simulation time. A system that draws nothing (no
-ground) has no ``markers`` topic: its recordings keep their bytes.
+All in the world frame (the ground's, the tree's root frame: the frame of the IMUs' orientation),
+stamped with simulation time. A system that draws nothing (no ground, no sensors) has no ``markers``
+topic: its recordings keep their bytes; so does a system without sensors (the sensors' markers come
+after the contact's).
 
-Adding a kind (an IMU's axes, a force-torque sensor's wrench): give :class:`MarkerInputs` its field,
-fill it in :meth:`MarkerInputs.of_outputs` (and :meth:`MarkerInputs.of_state` for the block path),
-and append its markers in :meth:`Markers._items`; the layout cache and the encoding take any list.
+Adding a kind: give :class:`MarkerInputs` its field, fill it in :meth:`MarkerInputs.of_outputs` (and
+:meth:`MarkerInputs.of_state` for the block path), and append its markers in :meth:`Markers._items`
+and their coordinates in :meth:`Markers._values`; the layout cache and the encoding take any list.
 """
 from __future__ import annotations
 
@@ -31,28 +38,40 @@ TYPE = 'visualization_msgs/msg/MarkerArray'
 ARROW_AT_WEIGHT = 0.5
 #: diameter (m) of a touching point's sphere, per metre of arrow at the robot's weight
 POINT_SIZE = 0.04
+#: metres of each axis of an IMU's triad
+AXIS_LENGTH = 0.1
 # visualization_msgs/Marker types and actions
 ARROW, SPHERE_LIST = 0, 7
 ADD, DELETEALL = 0, 3
 POINT_COLOR = (1.0, 0.55, 0.0, 1.0)   # orange
 FORCE_COLOR = (0.85, 0.1, 0.1, 1.0)   # red
+AXIS_COLORS = ((1.0, 0.0, 0.0, 1.0), (0.0, 0.8, 0.0, 1.0), (0.0, 0.2, 1.0, 1.0))   # x red, y green, z blue
+FT_FORCE_COLOR = (0.95, 0.75, 0.0, 1.0)   # amber
+FT_TORQUE_COLOR = (0.6, 0.2, 0.85, 1.0)   # violet
 
 
 @dataclass
 class MarkerInputs:
     """What one period's markers are drawn from. contact_points: (n, 6) ``[x; F]`` of the points
-    touching the ground (world frame; m, N), or None."""
+    touching the ground (world frame; m, N), or None; imu_poses: (ni, 12) ``[p; R]`` of each IMU's link
+    (origin, m; rotation row major, the link's axes as columns; world frame); ft_wrenches: (nf, 9)
+    ``[p; f; n]`` of each force-torque sensor (its frame's origin, its reading in world axes; m, N, N·m);
+    both None without sensors (``SystemOutputs``' fields of the same names)."""
 
     contact_points: np.ndarray | None = None
+    imu_poses: np.ndarray | None = None
+    ft_wrenches: np.ndarray | None = None
 
     @classmethod
     def of_outputs(cls, out) -> 'MarkerInputs':
         """From a period's SystemOutputs."""
-        return cls(contact_points=getattr(out, 'contact_points', None))
+        return cls(contact_points=getattr(out, 'contact_points', None), imu_poses=getattr(out, 'imu_poses', None),
+                   ft_wrenches=getattr(out, 'ft_wrenches', None))
 
     @classmethod
     def of_state(cls, system, y) -> 'MarkerInputs':
-        """From the system's state y (the block path builds no outputs per period)."""
+        """From the system's state y (the block path builds no outputs per period; it runs no system with
+        sensors, whose readings need the period's outputs)."""
         return cls(contact_points=system.contact_points(y))
 
 
@@ -152,48 +171,78 @@ _STAMP = struct.Struct('<iI')
 
 
 class Markers:
-    """The markers of one run: its frame and scale, and a layout per shape (number of touching points).
+    """The markers of one run: its frame and scale, its sensors, and a layout per shape (number of
+    touching points).
 
-    frame: the world frame the contact outputs use; weight: the robot's weight (N) for the arrow
-    scale (arrows :data:`ARROW_AT_WEIGHT` m long at it).
+    frame: the world frame the contact outputs and the sensors' poses use; weight: the robot's weight (N)
+    for the arrow scale (arrows :data:`ARROW_AT_WEIGHT` m long at it); sensors: the system's
+    :class:`robodyn_ros.systems.sensors.SensorSet`, or None.
     """
 
-    def __init__(self, frame: str, weight: float):
+    def __init__(self, frame: str, weight: float, sensors=None):
         self.frame = frame
-        self.scale = ARROW_AT_WEIGHT / weight if weight > 0 else 1e-3   # m of arrow per N
+        self.scale = ARROW_AT_WEIGHT / weight if weight > 0 else 1e-3   # m of arrow per N (per N·m)
         self.size = POINT_SIZE * ARROW_AT_WEIGHT
+        self.imu = [s.topic for s in sensors.imu] if sensors is not None else []
+        self.ft = [s.topic for s in sensors.ft] if sensors is not None else []
         self._layouts = {}
 
     @classmethod
     def of(cls, system) -> 'Markers | None':
-        """The markers of ``system``'s runs, or None when it draws none (no ground contact)."""
+        """The markers of ``system``'s runs, or None when it draws none (no ground contact, no sensors)."""
         contact = getattr(system, 'contact', None)
         if contact is None or not hasattr(system, 'contact_points'):
+            contact = None
+        sensors = getattr(system, 'sensors', None)
+        if contact is None and sensors is None:
             return None
         model = system.model
-        return cls(contact.frame, model.total_mass() * float(np.linalg.norm(model.gravity)))
+        frame = contact.frame if contact is not None else model.root
+        return cls(frame, model.total_mass() * float(np.linalg.norm(model.gravity)), sensors)
 
     def _items(self, n: int) -> list:
         """The markers of a period with n touching points (see :func:`marker_array_bytes`); their
         points' coordinates are :meth:`_values`."""
         items = [('', 0, ARROW, DELETEALL, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), 0)]
+        d = self.size
+        arrow = (0.25 * d, 0.5 * d, 0.75 * d)   # shaft diameter, head diameter, head length (m)
         if n:
-            d = self.size
             items.append(('contact_points', 0, SPHERE_LIST, ADD, (d, d, d), POINT_COLOR, n))
-            items += [('contact_forces', i, ARROW, ADD, (0.25 * d, 0.5 * d, 0.75 * d), FORCE_COLOR, 2)
-                      for i in range(n)]
+            items += [('contact_forces', i, ARROW, ADD, arrow, FORCE_COLOR, 2) for i in range(n)]
+        for ns in self.imu:
+            items += [(ns, a, ARROW, ADD, arrow, AXIS_COLORS[a], 2) for a in range(3)]
+        for ns in self.ft:
+            items += [(ns, 0, ARROW, ADD, arrow, FT_FORCE_COLOR, 2), (ns, 1, ARROW, ADD, arrow, FT_TORQUE_COLOR, 2)]
         return items
 
     def _values(self, P):
-        """The coordinates of :meth:`_items`' markers, as rows ``[x, x, x + s F]`` (n, 9) of the touching
-        points: the sphere list's point, each arrow's tail and tip (:meth:`_order` puts them in order)."""
+        """The coordinates of :meth:`_items`' contact markers, as rows ``[x, x, x + s F]`` (n, 9) of the
+        touching points: the sphere list's point, each arrow's tail and tip (:meth:`_order` puts them in
+        order)."""
         x = P[:, 0:3]
         return np.concatenate((x, x, x + self.scale * P[:, 3:6]), axis=1)
+
+    def _sensor_values(self, m: MarkerInputs) -> np.ndarray:
+        """The coordinates of :meth:`_items`' sensor markers, in their order: per IMU three arrows
+        ``[p, p + L R e_a]`` (a = x, y, z), per force-torque sensor ``[p, p + s f]`` and ``[p, p + s n]``."""
+        ni, nf = len(self.imu), len(self.ft)
+        if not ni and not nf:
+            return np.empty(0)
+        if m.imu_poses is None or m.ft_wrenches is None or len(m.imu_poses) != ni or len(m.ft_wrenches) != nf:
+            raise ValueError(f'markers: {ni} IMU poses and {nf} force-torque wrenches expected (SystemOutputs.'
+                             f'imu_poses, ft_wrenches), got {m.imu_poses!r} and {m.ft_wrenches!r}')
+        p = m.imu_poses[:, None, 0:3]                                            # (ni, 1, 3)
+        axes = m.imu_poses[:, 3:12].reshape(ni, 3, 3).transpose(0, 2, 1)          # (ni, a, 3): R's columns
+        imu = np.concatenate((np.broadcast_to(p, (ni, 3, 3)), p + AXIS_LENGTH * axes), axis=2)   # (ni, 3, 6)
+        o = m.ft_wrenches[:, 0:3]
+        s = self.scale
+        ft = np.concatenate((o, o + s * m.ft_wrenches[:, 3:6], o, o + s * m.ft_wrenches[:, 6:9]), axis=1)
+        return np.concatenate((imu.ravel(), ft.ravel()))
 
     @staticmethod
     def _order(n: int) -> np.ndarray:
         """Where each of the (n, 9) values of :meth:`_values` (row-major) goes among the float slots of
-        :meth:`_items`' markers (the n sphere points first, then tail and tip of each arrow)."""
+        :meth:`_items`' contact markers (the n sphere points first, then tail and tip of each arrow)."""
         rows = np.arange(n)[:, None]
         sphere = 3 * rows + np.arange(3)                  # slots 0 .. 3n-1
         arrows = 3 * n + 6 * rows + np.arange(6)          # then 6 per arrow: tail, tip
@@ -206,6 +255,10 @@ class Markers:
         layout = self._layouts.get(n)
         if layout is None:
             layout = self._layouts[n] = _Layout(self.frame, self._items(n))
-            layout.float_at = layout.float_at[self._order(n)] if n else layout.float_at
+            k = len(layout.float_at) - 9 * n      # the sensors' values follow the contact's, in slot order
+            layout.float_at = layout.float_at[np.concatenate((self._order(n), 9 * n + np.arange(k)))]
         sec, nsec = divmod(int(t_ns), 1_000_000_000)
-        return layout.fill(sec, nsec, self._values(P).ravel() if n else ())
+        values = self._sensor_values(m)
+        if n:
+            values = np.concatenate((self._values(P).ravel(), values))
+        return layout.fill(sec, nsec, values)

@@ -356,6 +356,10 @@ class ArmSystem(System):
                                     f'sqrt(I/k) = {np.sqrt(inertia / k) if k else float("inf"):.3g} s')
         return tau
 
+    def stop_time_constant(self, y):
+        """The fastest joint-stop mode (s): :meth:`fastest_time_constant`, whose modes are all joint stops."""
+        return self.fastest_time_constant(y)
+
     def passive_jacobian(self, t, y, u, h=None):
         """J (ny, ny) of the linearly implicit step at y (``System.passive_jacobian``): ``[[0, Q], [−M⁻¹K Φ,
         −M⁻¹D]]`` with D, K from ``CompiledModel.passive_jacobian`` (damping, friction slope, joint-limit
@@ -567,7 +571,8 @@ class ArmSystem(System):
 
     def outputs(self, t, y, u, wrenches=True):
         """Joint states, joint wrenches (optional) and energies at state y; with a joint servo its desired
-        and error states, with sensors their readings (``SystemOutputs.messages``)."""
+        and error states, with sensors their readings (``SystemOutputs.messages``) and what the markers draw
+        of them (``imu_poses``, ``ft_wrenches``)."""
         if self.servo is None and self.sensors is None:
             return self._state_outputs(t, y, u, wrenches)
         st = None   # the servo at (t, y): desired values and torques (kernels.servo.servo_state), once
@@ -576,7 +581,12 @@ class ArmSystem(System):
             st = self._km.servo_state(self._srv(u), t, q, v)[0]
         out = self._state_outputs(t, y, u, wrenches, st)
         from .servo import control_messages
-        out.messages.extend(control_messages(self, t, y, u, st))
+        msgs = control_messages(self, t, y, u, st)
+        out.messages.extend(msgs)
+        if self.sensors is not None:   # the sensors' messages come last (control_messages)
+            n = len(self.sensors.sensors)
+            out.imu_poses, out.ft_wrenches = self.sensors.world_frames(self._km, self.split(y)[0],
+                                                                        msgs[len(msgs) - n:])
         return out
 
     def _state_outputs(self, t, y, u, wrenches, st=None):

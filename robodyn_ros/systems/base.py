@@ -268,7 +268,10 @@ class SystemOutputs:
     :mod:`robodyn_ros.systems.contact`), empty off the ground; contact_points: (n, 6) ``[x; F]`` of the
     points touching the ground (world frame; m, N), None off the ground (drawn as markers); messages:
     further messages of this instant, ``[(topic, type, message dict)]`` (sensors, a servo's desired and
-    error states).
+    error states); imu_poses: (ni, 12) ``[p; R]`` of each IMU's link in the world (root) frame (origin, m;
+    rotation row major, the link's axes as columns), ft_wrenches: (nf, 9) ``[p; f; n]`` of each force-torque
+    sensor: its frame's origin and its published reading in world axes (m, N, N·m), both None without
+    sensors (drawn as markers; :meth:`robodyn_ros.systems.sensors.SensorSet.world_frames`).
     """
 
     joint_names: list
@@ -283,6 +286,8 @@ class SystemOutputs:
     contacts: dict = field(default_factory=dict)
     contact_points: np.ndarray | None = None
     messages: list = field(default_factory=list)
+    imu_poses: np.ndarray | None = None
+    ft_wrenches: np.ndarray | None = None
 
 
 class System:
@@ -347,6 +352,11 @@ class System:
 
     def fastest_time_constant(self, y: np.ndarray) -> float:
         """An estimate (s) of the fastest time constant at state y, for step-size checks."""
+        return float('inf')
+
+    def stop_time_constant(self, y: np.ndarray) -> float:
+        """The fastest time constant (s) at state y of a joint stop, whose law switches within a bounce: an
+        explicit step must resolve it (``stability.STOP_RESOLUTION``); inf when there is none."""
         return float('inf')
 
     def passive_jacobian(self, t: float, y: np.ndarray, u: dict, h: float | None = None):

@@ -106,3 +106,22 @@ class SensorSet:
                     rng.standard_normal(3)
             out.append((s.topic, M.WRENCH_TYPE, M.wrench_stamped(t_ns, s.frame, wr)))
         return out
+
+    def world_frames(self, km, q, msgs) -> tuple:
+        """``(imu (ni, 12), ft (nf, 9))``: what the markers draw of the sensors at configuration q, in the
+        world (the tree's root frame, the frame of the IMUs' orientation). Per IMU its link's pose
+        ``[p; R]``: origin p (m) and the rotation R (row major; its columns are the link's axes in world
+        coordinates). Per force-torque sensor its frame's origin p and the reading of ``msgs`` (this set's
+        messages, :meth:`messages`' order: noise and bias included) turned into world axes ``[p; R f; R n]``
+        (m, N, N·m). The poses are the kernels' (``CompiledModel.body_poses``)."""
+        R, p = km.body_poses(q)
+        ni = len(self.imu)
+        imu = np.concatenate((p[self._imu_bodies], R[self._imu_bodies].reshape(-1, 9)), axis=1).reshape(ni, 12)
+        ft = np.empty((len(self.ft), 9))
+        for k, s in enumerate(self.ft):
+            w = msgs[ni + k][2]['wrench']
+            o = s.frame_body
+            ft[k, 0:3] = p[o]
+            ft[k, 3:6] = R[o] @ [w['force'][a] for a in 'xyz']
+            ft[k, 6:9] = R[o] @ [w['torque'][a] for a in 'xyz']
+        return imu, ft
