@@ -239,7 +239,7 @@ class CompiledModel:
                 self._auto = False
                 return
             if not codegen.is_compiled(self._requested):   # else another run compiled it
-                jit.COMPILER.request(('generated', self._requested))
+                jit.COMPILER.request(('call', codegen.__name__, 'load', self._requested))
                 self._seen = jit.COMPILER.generation
                 return
         else:

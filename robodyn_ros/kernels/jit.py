@@ -218,7 +218,8 @@ class _Compiler:
 
     def request(self, what) -> None:
         """Have the child compile ``what``: ``('kernel', module, function, signature)``, ``('call', module,
-        function)`` (a function that compiles, e.g. the cfuncs of :mod:`.treefn`) or ``('generated', path)``."""
+        function, *args)`` (a function that compiles, e.g. the cfuncs of :mod:`.treefn`, or a model's generated
+        module: ``codegen.load(path)``). The child names no module itself, so this room imports none of them."""
         import base64
         import pickle
         if what in self.sent:
@@ -285,10 +286,7 @@ def main() -> int:
             if what[0] == 'kernel':
                 getattr(importlib.import_module(what[1]), what[2]).compile(what[3])
             elif what[0] == 'call':
-                getattr(importlib.import_module(what[1]), what[2])()
-            elif what[0] == 'generated':
-                from . import codegen
-                codegen.load(what[1])
+                getattr(importlib.import_module(what[1]), what[2])(*what[3:])
             status = b'done'
         except Exception as e:   # reported, and the parent keeps interpreting that call
             status = f'failed {type(e).__name__}'.encode()
