@@ -34,6 +34,17 @@ _SUMMARY_TIME = re.compile(r'simulated ([0-9.]+) s in ([0-9.]+) s wall')
 _SUMMARY_CPU = re.compile(r'([0-9.]+) s CPU\)')
 
 
+def _stop(proc) -> None:
+    """End a sim node started here: SIGINT (it writes its summary and closes its recording), SIGKILL if it
+    has not exited within 30 s."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 def _max_mode_rtf(publish_rate: float, duration: float, profile: str | None = None) -> dict:
     """One max-mode run with a joint_states subscriber; returns the row (profile: run the node
     under cProfile, writing its statistics to this file)."""
@@ -125,12 +136,7 @@ def _lockstep_latency(publish_rate: float, n: int) -> dict:
     try:
         lat = np.array(probe.lockstep_latency(n, [0.0] * 6, timeout=90.0)) * 1e3
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _stop(proc)
         probe.close()
         dom.release()
     steps = int(round(1.0 / publish_rate / INTEGRATOR['dt']))
@@ -192,12 +198,7 @@ def _live_latency(publish_rate: float, n: int) -> dict:
             lat.append(time.perf_counter() - t0)
         conn.__exit__(None, None, None)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _stop(proc)
         dom.release()
     lat = np.array(lat) * 1e3
     return {'figure': 'command -> displayed joint_states latency (Foxglove WebSocket)', 'mode': 'lockstep',
