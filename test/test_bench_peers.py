@@ -28,11 +28,14 @@ def test_every_row_reports_its_figures(measured):
     rows, text = measured
     assert list(rows) == list(peers.ROWS)
     for name, f in rows.items():
-        for key in ('cpu', 'wall', 'rss', 'mujoco_cpu', 'mujoco_wall', 'mujoco_rss', 'ratio_cpu', 'ratio_wall'):
+        for key in ('cpu', 'wall', 'rss', 'rss_before', 'mujoco_cpu', 'mujoco_wall', 'mujoco_rss', 'mujoco_rss_before',
+                    'ratio_cpu', 'ratio_wall'):
             assert f[key] is not None and math.isfinite(f[key]) and f[key] > 0, (name, key, f[key])
         assert abs(f['duration'] - DURATION) < 1e-9 and f['steps'] > 0
         assert set(f['kernels']) <= {'generic', 'generated'} and f['kernels']
         assert f['messages'] > 0
+        # the resident set before the run within the peak (1 %: the kernel's RSS counters are approximate)
+        assert f['rss_before'] <= 1.01 * f['rss'] and f['mujoco_rss_before'] <= 1.01 * f['mujoco_rss']
         assert f'| `{name}`, {DURATION:g} s |' in text and f'| `{name}` |' in text
     assert rows['a1_stand']['method'] == 'rosenbrock2' and rows['stanford_arm']['method'] == 'rk4'
     assert rows['a1_stand']['kernels'] == ['generic']     # a tree on a ground stays on the generic kernels

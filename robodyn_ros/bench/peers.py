@@ -46,7 +46,7 @@ import warnings
 
 import numpy as np
 
-from .timing import machine_line, peak_rss_bytes, table
+from .timing import machine_line, peak_rss_bytes, rss_bytes, table
 
 HELP = 'peer rows (a1_stand, xarm7, stanford_arm) recorded vs MuJoCo: CPU, wall, peak RSS, split per step'
 #: the rows, in report order, and their default simulated seconds (long enough for backend auto to have
@@ -71,8 +71,9 @@ def add_arguments(p):
 
 def main(args) -> int:
     """Run the rows and print (and optionally write) the markdown report."""
+    start = machine_line()
     rows = measure(args.rows, args.duration, args.repeat, args.keep)
-    text = report(rows, args.repeat)
+    text = report(rows, args.repeat, start)
     print(text)
     if args.out:
         with open(args.out, 'w', encoding='utf-8') as f:
@@ -196,6 +197,7 @@ def _run(row, duration, side, path) -> dict:
         for name in ('on_command', 'on_output', 'on_block', 'block_periods', 'close'):
             sink_clock.wrap(sink, name)
         sinks.append(sink)
+    rss = rss_bytes()
     w0, c0 = time.perf_counter(), time.process_time()
     try:
         run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop)
@@ -209,7 +211,7 @@ def _run(row, duration, side, path) -> dict:
             'method': sim.settings['integrator'], 'dt': sim.settings.get('dt'), 'rate': st['rate'], 't': sim.t,
             'kernels': ended, 'generic_s': float(getattr(km, '_spent', 0.0)) if km is not None else 0.0,
             'integrating_cpu': integ.cpu, 'sink_cpu': sink_clock.cpu + start.cpu, 'sink_start_cpu': start.cpu,
-            'messages': sum(getattr(s, 'count', 0) for s in sinks), 'sim': sim}
+            'messages': sum(getattr(s, 'count', 0) for s in sinks), 'rss_before': rss, 'sim': sim}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -326,8 +328,10 @@ def _mujoco(row: str, duration: float) -> dict:
         r = mujoco_fall(text, names, 'implicitfast', q0, repeat=1, horizon=min(duration, 0.05), cpu=True)
         if r[0] is None:
             return {'why': r[1]}
+        rss = rss_bytes()
         r = mujoco_fall(text, names, 'implicitfast', q0, repeat=1, horizon=duration, cpu=True)
-        return {'cpu': r[2], 'wall': r[1], 'what': 'implicitfast 1 ms, mj_step per call, qpos read at 100 Hz'}
+        return {'cpu': r[2], 'wall': r[1], 'rss_before': rss,
+                'what': 'implicitfast 1 ms, mj_step per call, qpos read at 100 Hz'}
     else:
         from ..model import to_urdf
         m, why = mujoco_model(to_urdf(s.model))
@@ -339,9 +343,10 @@ def _mujoco(row: str, duration: float) -> dict:
             mujoco_recorded_loop(m, q0, v0, d)
         what = 'RK4 1 ms, mj_step(10) per period, state copied out'
     run(min(duration, 0.05))
+    rss = rss_bytes()
     w0, c0 = time.perf_counter(), time.process_time()
     run(duration)
-    return {'cpu': time.process_time() - c0, 'wall': time.perf_counter() - w0, 'what': what}
+    return {'cpu': time.process_time() - c0, 'wall': time.perf_counter() - w0, 'rss_before': rss, 'what': what}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -384,31 +389,35 @@ def row_figures(runs: dict, recording=None) -> dict:
     cpu, wall = med('full', 'cpu'), med('full', 'wall')
     return {'duration': full[0]['t'], 'method': full[0]['method'], 'dt': full[0]['dt'], 'rate': full[0]['rate'],
             'steps': steps, 'kernels': [x['kernels'] for x in full], 'generic_s': med('full', 'generic_s'),
-            'cpu': cpu, 'wall': wall, 'rss': med('full', 'peak_rss'), 'messages': full[0]['messages'],
+            'cpu': cpu, 'wall': wall, 'rss': med('full', 'peak_rss'), 'rss_before': med('full', 'rss_before'),
+            'messages': full[0]['messages'],
             'sink_cpu': med('full', 'sink_cpu'), 'sink_start_cpu': med('full', 'sink_start_cpu'),
             'none_cpu': statistics.median(x['cpu'] for x in none),
             'mujoco_cpu': mj_cpu, 'mujoco_wall': mj_wall, 'mujoco_rss': med('mujoco', 'peak_rss'),
+            'mujoco_rss_before': med('mujoco', 'rss_before'),
             'mujoco_what': runs['mujoco'][0].get('what', runs['mujoco'][0].get('why')),
             'ratio_cpu': mj_cpu / cpu if mj_cpu else None, 'ratio_wall': mj_wall / wall if mj_wall else None,
             'split': split, 'whole': whole * 1e6, 'fd': statistics.median(x['fd'] for x in none),
             'bm': statistics.median(x['bm'] for x in none), 'recording': recording}
 
 
-def report(rows: dict, repeat: int) -> str:
-    """The markdown of :func:`measure`'s rows."""
+def report(rows: dict, repeat: int, start: str | None = None) -> str:
+    """The markdown of :func:`measure`'s rows; start: the machine line (load average) before they ran."""
     mb = 1024.0 ** 2
-    head = ['row', 'robodyn (kernels at the end)', 'robodyn CPU / wall s', 'RTF (CPU)', 'peak RSS',
-            'MuJoCo', 'MuJoCo CPU / wall s', 'RTF (CPU)', 'peak RSS', 'ratio robodyn / MuJoCo (CPU; wall)']
+    head = ['row', 'robodyn (kernels at the end)', 'robodyn CPU / wall s', 'RTF (CPU)', 'peak RSS (before the run)',
+            'MuJoCo', 'MuJoCo CPU / wall s', 'RTF (CPU)', 'peak RSS (before the run)',
+            'ratio robodyn / MuJoCo (CPU; wall)']
     main_rows, split_rows = [], []
     for name, f in rows.items():
         kernels = ', '.join(sorted(set(f['kernels'])))
         main_rows.append([
             f'`{name}`, {f["duration"]:g} s', f'{f["method"]} {f["dt"] * 1e3:g} ms, {f["rate"]:g} Hz, every topic '
             f'({f["messages"]} messages); {kernels} (generic for {f["generic_s"]:.2f} s)',
-            f'{f["cpu"]:.3f} / {f["wall"]:.3f}', f'{f["duration"] / f["cpu"]:.0f}', f'{f["rss"] / mb:.0f} MiB',
+            f'{f["cpu"]:.3f} / {f["wall"]:.3f}', f'{f["duration"] / f["cpu"]:.0f}',
+            f'{f["rss"] / mb:.0f} MiB ({f["rss_before"] / mb:.0f})',
             f['mujoco_what'], '—' if f['mujoco_cpu'] is None else f'{f["mujoco_cpu"]:.3f} / {f["mujoco_wall"]:.3f}',
             '—' if f['mujoco_cpu'] is None else f'{f["duration"] / f["mujoco_cpu"]:.0f}',
-            '—' if f['mujoco_rss'] is None else f'{f["mujoco_rss"] / mb:.0f} MiB',
+            '—' if f['mujoco_rss'] is None else f'{f["mujoco_rss"] / mb:.0f} MiB ({f["mujoco_rss_before"] / mb:.0f})',
             '—' if f['ratio_cpu'] is None else f'×{f["ratio_cpu"]:.2f}; ×{f["ratio_wall"]:.2f}'])
         sp = f['split']
         split_rows.append([f'`{name}`', f'{f["whole"]:.2f}'] + [f'{sp[k]:.2f}' for k in PARTS]
@@ -416,9 +425,13 @@ def report(rows: dict, repeat: int) -> str:
                              f'{f["sink_cpu"] / f["steps"] * 1e6:.2f} (start {f["sink_start_cpu"]:.2f} s)'])
     return '\n'.join([
         '# Peers: robodyn fully recorded against MuJoCo from Python', '',
-        f'`robodyn bench peers` (`make bench`). {machine_line()}', '',
+        f'`robodyn bench peers` (`make bench`). At the end: {machine_line()}'
+        + (f'. At the start: {start.split(";")[0]}.' if start else '.'), '',
         f'Medians of {repeat} interleaved runs per side, each in its own child process; CPU and wall seconds of '
-        'the run alone (no imports, no scene loading); peak RSS: the child process\'s ru_maxrss. RTF: simulated '
+        'the run alone (no imports, no scene loading); peak RSS: the child process\'s ru_maxrss, and in brackets '
+        'its resident set just before the timed run (imports, scene, a short warm-up run). The MuJoCo child loads '
+        'robodyn\'s scene too (the URDF, initial state and PD gains it is set up from), so its RSS includes '
+        'robodyn\'s imports (numba): MuJoCo\'s own share is roughly the peak minus the bracket. RTF: simulated '
         '/ CPU seconds. Ratio: robodyn\'s real-time factor over MuJoCo\'s (> 1: robodyn faster).', '',
         table(head, main_rows), '',
         '## Where robodyn\'s recorded run spends its time, per integration step (µs of CPU)', '',
