@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(PY) -m robodyn_ros.bench contact --out docs/bench_contact.md
 	$(PY) -m robodyn_ros.bench contact --steps --out docs/bench_contact_steps.md
 	$(PY) -m robodyn_ros.bench startup --out docs/bench_startup.md
+	$(PY) -m robodyn_ros.bench peers --out docs/bench_peers.md
 
 clean:
 	rm -rf $(VENV) build install log

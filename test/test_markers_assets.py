@@ -124,3 +124,29 @@ def test_meshes_not_found_or_beyond_the_limit_keep_their_reference(tmp_path):
     text, notes = embed_meshes(urdf, limit=5)
     assert text.count('data:') == 0 and f'file://{stl}' in text and len(notes) == 2 and 'MiB' in notes[0]
     assert embed_meshes('<robot name="r"/>') == ('<robot name="r"/>', ())
+
+
+def test_the_block_paths_markers_of_many_periods_are_the_bytes_of_each_periods_message():
+    """Markers.state_messages (the block path draws a piece of periods at once, grouped by the number of
+    touching points) gives each period the bytes Markers.message makes of it alone, the one the test above
+    reads back: A1's drop and landing (all four feet touch down within one period)."""
+    from robodyn_ros.recording.markers import MarkerInputs, Markers
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        scene = load_scene('a1_stand')
+    s = scene.system
+    sim = Simulator(s, scene.y0, integrator='rosenbrock2', dt=1e-3)
+    Y = []
+    for k in range(60):   # 0.3 s at 200 Hz
+        for port, values in scene.script(sim.t, sim.y).items():
+            sim.set_command(port, values)
+        Y.append(sim.advance((k + 1) / 200.0).copy())
+    Y = np.array(Y)
+    t_ns = np.arange(1, 61, dtype=np.int64) * 5_000_000 + 2_000_000_000   # a second boundary crossed: sec > 0
+    P = s.contact_point_outputs(Y)
+    counts = (P[:, :, 9] > 0).sum(axis=1)     # kernels.contact.PACTIVE
+    assert P.shape == (60, s.contact.n_points, 10) and set(counts.tolist()) == {0, 4}   # in the air, on four feet
+    m = Markers.of(s)
+    one_by_one = [m.message(int(t), MarkerInputs.of_state(s, y)) for t, y in zip(t_ns, Y)]
+    assert Markers.of(s).state_messages(t_ns, P) == one_by_one
+    assert m.state_messages(t_ns[::-1], P[::-1]) == one_by_one[::-1]   # any order of periods

@@ -11,7 +11,7 @@ import argparse
 import importlib
 
 #: benchmark modules, in help order; the first is the default
-BENCHES = ('speed', 'precision', 'sweep', 'urdf', 'startup', 'stiff', 'contact', 'live', 'control')
+BENCHES = ('speed', 'precision', 'sweep', 'urdf', 'startup', 'stiff', 'contact', 'live', 'control', 'peers')
 
 
 def available() -> dict:

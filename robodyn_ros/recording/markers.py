@@ -248,17 +248,59 @@ class Markers:
         arrows = 3 * n + 6 * rows + np.arange(6)          # then 6 per arrow: tail, tip
         return np.concatenate((sphere, arrows), axis=1).ravel()
 
-    def message(self, t_ns: int, m: MarkerInputs) -> bytes:
-        """The MarkerArray CDR of one period at simulation time t_ns."""
-        P = m.contact_points
-        n = 0 if P is None else len(P)
+    def _layout(self, n: int) -> _Layout:
+        """The layout of a period with n touching points (made once per n)."""
         layout = self._layouts.get(n)
         if layout is None:
             layout = self._layouts[n] = _Layout(self.frame, self._items(n))
             k = len(layout.float_at) - 9 * n      # the sensors' values follow the contact's, in slot order
             layout.float_at = layout.float_at[np.concatenate((self._order(n), 9 * n + np.arange(k)))]
+        return layout
+
+    def message(self, t_ns: int, m: MarkerInputs) -> bytes:
+        """The MarkerArray CDR of one period at simulation time t_ns."""
+        P = m.contact_points
+        n = 0 if P is None else len(P)
+        layout = self._layout(n)
         sec, nsec = divmod(int(t_ns), 1_000_000_000)
         values = self._sensor_values(m)
         if n:
             values = np.concatenate((self._values(P).ravel(), values))
         return layout.fill(sec, nsec, values)
+
+    def state_messages(self, t_ns, points) -> list:
+        """The MarkerArray CDR of many periods of the block path, the bytes :meth:`message` makes of each
+        period's :meth:`MarkerInputs.of_state`, built per group of periods with the same number of touching
+        points instead of period by period.
+
+        t_ns: (m,) integer simulation times (ns); points: (m, nc, NP) every contact point's outputs at each
+        period's end (``kernels.contact.contact_points``' columns: the touching ones are drawn, in point
+        order). A run with sensors draws them from its outputs, which the block path does not make: ValueError,
+        as :meth:`message` raises."""
+        from ..kernels.contact import PACTIVE, PF, PX
+        self._sensor_values(MarkerInputs())       # raises when there are sensors to draw
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        sec, nsec = np.divmod(t_ns, 1_000_000_000)
+        on = points[:, :, PACTIVE] > 0.0           # (m, nc)
+        counts = on.sum(axis=1)
+        out = [b''] * len(t_ns)
+        for n in np.unique(counts).tolist():
+            idx = np.flatnonzero(counts == n)
+            g = len(idx)
+            layout = self._layout(n)
+            buf = np.tile(np.frombuffer(layout.template, dtype=np.uint8), (g, 1))
+            stamp = np.empty(g, dtype=[('sec', '<i4'), ('nsec', '<u4')])   # _STAMP's bytes
+            stamp['sec'], stamp['nsec'] = sec[idx], nsec[idx]
+            stamp = stamp.view(np.uint8).reshape(g, 8)
+            for at in layout.stamp_at:
+                buf[:, at:at + 8] = stamp
+            if n:
+                P = points[idx][on[idx]].reshape(g, n, points.shape[2])   # the touching rows, in point order
+                x = P[:, :, PX:PX + 3]
+                values = np.concatenate((x, x, x + self.scale * P[:, :, PF:PF + 3]), axis=2)   # :meth:`_values`
+                f = np.ascontiguousarray(buf[:, 4:4 + 8 * layout.n_f64]).view('<f8')
+                f[:, layout.float_at] = values.reshape(g, 9 * n)
+                buf[:, 4:4 + 8 * layout.n_f64] = f.view(np.uint8)
+            for j, k in enumerate(idx.tolist()):
+                out[k] = buf[j].tobytes()
+        return out

@@ -489,9 +489,15 @@ class McapRunSink:
             self._times[h:h + m, 1] = t_out[i:i + m]
             if self.markers is not None:   # drawn from each period's state (the block has no outputs)
                 ny = sim.system.ny
+                many = getattr(sim.system, 'contact_point_outputs', None)
+                P = many(blk.z[i:i + m, :ny]) if many is not None else None
+                if P is not None:   # the m periods' markers at once: the same bytes
+                    data = self.markers.state_messages(t_out[i:i + m], P)
+                else:
+                    data = [self.markers.message(int(t_out[i + j]), MarkerInputs.of_state(sim.system, blk.z[i + j, :ny]))
+                            for j in range(m)]
                 for j in range(m):
-                    self._after[h + j] = [(MARKERS_TOPIC, MARKERS_TYPE, self.markers.message(
-                        int(t_out[i + j]), MarkerInputs.of_state(sim.system, blk.z[i + j, :ny])))]
+                    self._after[h + j] = [(MARKERS_TOPIC, MARKERS_TYPE, data[j])]
             self._held = h + m
             self._filled = True
             i += m

@@ -642,6 +642,20 @@ class ArmSystem(System):
         q, v = self.split(y)
         return self.contact.touching(self.contact.point_outputs(self._km, q, v))
 
+    def contact_point_outputs(self, Y) -> np.ndarray | None:
+        """(m, nc, NP) every contact point's outputs (``kernels.contact.contact_points``, columns there) at
+        each of the states Y (m, ny), None off the ground; for the block path's markers (one compiled call
+        per state, without the per-state Python of :meth:`contact_points`)."""
+        if self.contact is None:
+            return None
+        from ..kernels.contact import NP, contact_points
+        km, con, nq = self._km, self.contact.con, self.nq
+        Y = np.ascontiguousarray(Y, dtype=float)
+        out = np.empty((Y.shape[0], self.contact.n_points, NP))
+        for k in range(Y.shape[0]):
+            out[k] = contact_points(con, km.mi_r, km.mf_r, Y[k, :nq], Y[k, nq:])
+        return out
+
     def _wrenches_fext(self, q, v, tau, fext):
         return self._km.joint_wrenches(q, v, tau, fext)[1]
 
