@@ -188,9 +188,9 @@ def _run(args, sock, rate_factor) -> int:
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
     from ..kernels import jit
-    if jit.DEFERRED and not jit.LOADED:
-        print(f'kernels      run as Python, numba not loaded (a run this short ends before numba would have '
-              f'loaded; the same bytes)')
+    if jit.DEFERRED and not jit.LOADED and st['backend'] != 'numpy':
+        print('kernels      run as Python, numba not loaded (a run this short ends before numba would have '
+              'loaded; the same bytes)')
     return status
 
 
