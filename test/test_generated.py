@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import warnings
 import zlib
 
@@ -172,7 +173,6 @@ def test_auto_takes_up_the_generated_code_at_a_period_boundary(tmp_path, monkeyp
     """Backend auto: the run starts on the generic kernels, a child process compiles the model's code
     (asked for at once here), and the run takes it up at its third loop call: the recording is the numba
     run's file, and the code did change mid-run."""
-    import shutil
     gen_dir = tmp_path / 'generated'
     monkeypatch.setattr(codegen, 'GENERATED_DIR', str(gen_dir))   # an empty cache: the child really compiles
     monkeypatch.setattr(kernels, 'GENERATE_AFTER', 0.0)
@@ -194,6 +194,30 @@ def test_auto_takes_up_the_generated_code_at_a_period_boundary(tmp_path, monkeyp
     assert sb._km.gen is not None and sb._km._requested is not None
     assert a == b
     shutil.rmtree(gen_dir, ignore_errors=True)
+
+
+def test_auto_takes_up_code_an_earlier_run_compiled_at_its_first_call(tmp_path, monkeypatch):
+    """Backend auto, the model's code compiled by an earlier run (here the generated one): the run takes it
+    up at its first loop call, without integrating GENERATE_AFTER seconds first, and records the numba file."""
+    gen_dir = tmp_path / 'generated'
+    monkeypatch.setattr(codegen, 'GENERATED_DIR', str(gen_dir))
+    monkeypatch.setattr(kernels, 'GENERATE_AFTER', 1e9)   # never asked for: only the first look can find it
+    used = []
+    poll = kernels.CompiledModel.poll_generated
+
+    def polling(self):
+        poll(self)
+        used.append(self.gen is not None)
+    a, _ = _record(tmp_path, 'betancur_pendulum', 'numba', 'first', 1.0)
+    _record(tmp_path, 'betancur_pendulum', 'generated', 'first', 1.0)   # compiles the model's code
+    monkeypatch.setattr(kernels.CompiledModel, 'poll_generated', polling)
+    b, sb = _record(tmp_path, 'betancur_pendulum', 'auto', 'first', 1.0)
+    assert len(used) >= 3 and all(used)   # generated from the first call on
+    assert sb._km.gen is not None and a == b
+    used.clear()
+    shutil.rmtree(gen_dir)                # nothing compiled on disk: generic throughout (nothing asked for)
+    c, sc = _record(tmp_path, 'betancur_pendulum', 'auto', 'second', 1.0)
+    assert len(used) >= 3 and not any(used) and sc._km.gen is None and c == a
 
 
 def test_a_negative_zero_in_the_state_keeps_the_generic_kernels():

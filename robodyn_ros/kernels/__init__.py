@@ -218,6 +218,7 @@ class CompiledModel:
         self._spent = 0.0         # wall time integrated on the generic kernels (backend 'auto')
         self._ros = None          # the linearly implicit step's work arrays (arm.rosenbrock_work)
         self._pygen = False       # interpreting: the generated code's Python tokens (None: none), once asked
+        self._looked = False      # backend 'auto': whether the first poll has looked for compiled code on disk
         if specialize is True and self.coupled is None:   # a coupled tree stays on the generic kernels
             from . import codegen
             self.gen = codegen.specialize(model)
@@ -229,12 +230,20 @@ class CompiledModel:
         self._pygen = None
 
     def poll_generated(self):
-        """Backend 'auto': take up the model's generated code once the compiler child (:mod:`.jit`) has it in
-        the cache; ask the child for it once :data:`GENERATE_AFTER` seconds were integrated here (called
-        between loop calls, so the code changes at a period boundary)."""
+        """Backend 'auto': take up the model's generated code at the first call when an earlier run left it
+        compiled in the cache, else once the compiler child (:mod:`.jit`) has it there; ask the child for it once
+        :data:`GENERATE_AFTER` seconds were integrated here (called between loop calls, so the code changes at a
+        period boundary)."""
         if not self._auto or self.gen is not None:
             return
         from . import codegen, jit
+        if not self._looked:   # code an earlier run had compiled: taken up at the first period boundary
+            self._looked = True
+            path = codegen.written_path(self.model) if jit.LOADED else None   # (a deferred run is short)
+            if path is not None and codegen.is_compiled(path):
+                self._requested = path
+                self.gen = codegen.load(path)
+                return
         if self._requested is None:
             if self._spent < GENERATE_AFTER:
                 return

@@ -395,6 +395,13 @@ def _key(model) -> str:
     return h.hexdigest()[:20]
 
 
+def written_path(model) -> str | None:
+    """Path of the generated module of ``model`` when an earlier run has written it, else None (nothing
+    generated here)."""
+    path = os.path.join(GENERATED_DIR, f'robodyn_gen_{_key(model)}.py')
+    return path if os.path.exists(path) else None
+
+
 def module_path(model) -> str | None:
     """Path of the generated module of ``model`` (written if needed), or None when the model keeps the
     generic kernels or the directory is not writable."""

@@ -37,7 +37,7 @@ from mcap.writer import CompressionType, Writer
 
 from ..kernels.records import fill_headers, group_by_channel
 from ..version import __version__
-from . import cdr, msgdefs
+from . import cdr, chunk_cache, msgdefs
 
 #: Name of the metadata record holding scene text, integrator settings and package version.
 METADATA_NAME = 'robodyn'
@@ -125,6 +125,7 @@ class _DirectMessages:
         if self.compression == 'zstd':
             import zstandard
             self._zstd = zstandard.ZstdCompressor(level=3)   # what zstandard.compress(data) uses
+            self._zstandard = zstandard
         elif self.compression == 'lz4':
             import lz4.frame
             self._lz4 = lz4.frame.compress
@@ -181,8 +182,9 @@ class _DirectMessages:
         if cb.num_messages:
             self.stats.chunk_count += 1
             raw = cb.end()
-            if self.compression == 'zstd':
-                data = self._zstd.compress(raw)
+            if self.compression == 'zstd':   # (a large chunk written before comes from chunk_cache: the same bytes)
+                data = chunk_cache.compress_zstd(raw, self._zstd, self._zstandard.ZstdDecompressor,
+                                                 self._zstandard.__version__)
             elif self.compression == 'lz4':
                 data = self._lz4(raw)
             else:
