@@ -319,6 +319,8 @@ class McapRunSink:
         self._layouts = {}    # kind of period -> _PeriodLayout
         self._layout = None   # the layout of the periods held
         self._kind = None     # the kind of period of _layout
+        self._kind_of = (None, None, None)   # block_periods' last (template, commands, kind of period)
+        self._diag_topic = resolve('diagnostics', namespace)
         self._values = None   # (batch, n_values) numbers of the periods held
         self._times = None    # (batch, 2) int64 ns: commands, outputs
         self._after = {}      # period index -> [(topic, type, CDR)] written after it (markers, diagnostics)
@@ -452,32 +454,56 @@ class McapRunSink:
         """True when batching: the Simulator's block path may hand this sink many periods at once."""
         return self.batch > 0
 
-    def block_periods(self, t_out, template, cmd_kind) -> int:
+    #: with a lone sink, :class:`robodyn_ros.blocks.BlockRunner` hands this one the periods of a
+    #: block in one piece: :meth:`on_block` puts the Simulator at each diagnostics message's period
+    arrives_in_blocks = True
+
+    def block_periods(self, t_out, template, cmd_kind, arriving=False) -> int:
         """How many of the periods ending at ``t_out`` (s) :meth:`on_block` can take in one block:
         up to the first one that ends with a diagnostics message (inclusive: the Simulator is then
-        at its end), 0 when they are not of the kind of the periods held so far (the per-period
+        at its end), all of them when arriving (the block's ``arrive`` puts the Simulator at each
+        such period), 0 when they are not of the kind of the periods held so far (the per-period
         path registers new channels and layouts first)."""
-        if not self.batch or self._cmds or self._layout is None or \
-                self._period_kind(cmd_kind, template) != self._kind:
+        if not self.batch or self._cmds or self._layout is None:
+            return 0
+        if template is not self._kind_of[0] or cmd_kind != self._kind_of[1]:   # the kind of a template, once
+            self._kind_of = (template, cmd_kind, self._period_kind(cmd_kind, template))
+        if self._kind_of[2] != self._kind:
             return 0
         if self._next_diag is None:
             return len(t_out)
-        if resolve('diagnostics', self.namespace) not in self.writer._channels:
+        if self._diag_topic not in self.writer._channels:
             return 0
-        due = np.flatnonzero(t_out >= self._next_diag - 1e-9)
-        return int(due[0]) + 1 if due.size else len(t_out)
+        if arriving:
+            return len(t_out)
+        due = int(np.searchsorted(t_out, self._next_diag - 1e-9, 'left'))   # the first t_out >= it (ascending)
+        return due + 1 if due < len(t_out) else len(t_out)
 
     def on_block(self, blk, sim, level=0, message='running'):
         """Record K periods run in one block (:class:`robodyn_ros.blocks.PeriodBlock`): the
         records :meth:`on_command` and :meth:`on_output` write for each, batch by batch as they
-        would be (:meth:`block_periods` said this sink takes them; a diagnostics message is due
-        at most after the last one, where ``sim`` is)."""
+        would be (:meth:`block_periods` said this sink takes them). A diagnostics message is due
+        at most after the last one, where ``sim`` is, or, when the block has ``arrive``, after
+        any of them: ``blk.arrive(j)`` puts ``sim`` at the end of period j first."""
         if self._held and not self._filled:
             self._write_held()   # periods of the per-period path: their wrenches are computed when written
         L = self._layout
         K = blk.t_out.shape[0]
         t_out = np.rint(blk.t_out * 1e9).astype(np.int64)   # messages.to_ns of each
         t_cmd = np.rint(blk.t_cmd * 1e9).astype(np.int64) if blk.commands else t_out
+        # the periods that end with a diagnostics message (_diag_due of each, in turn)
+        due = []
+        if self._next_diag is not None:
+            nd = self._next_diag
+            j = int(np.searchsorted(blk.t_out, nd - 1e-9, 'left'))
+            while j < K:
+                due.append((j, nd))
+                nd += self.diagnostics_period   # one message per period at most, as on_output writes them
+                j = max(j + 1, int(np.searchsorted(blk.t_out, nd - 1e-9, 'left')))
+            if due and blk.arrive is None and due[0][0] != K - 1:
+                raise RuntimeError(f'a diagnostics message is due at period {due[0][0]} of {K}, '
+                                   'before the Simulator')
+        d = 0
         i = 0
         while i < K:
             h = self._held
@@ -500,11 +526,15 @@ class McapRunSink:
                     self._after[h + j] = [(MARKERS_TOPIC, MARKERS_TYPE, data[j])]
             self._held = h + m
             self._filled = True
+            while d < len(due) and due[d][0] < i + m:   # the diagnostics of these periods, the Simulator at each
+                j, nd = due[d]
+                if blk.arrive is not None:
+                    blk.arrive(j)
+                data = _diagnostics_bytes(int(t_out[j]), sim, level, message)
+                self._after.setdefault(h + j - i, []).append(('diagnostics', M.TOPIC_TYPES['diagnostics'], data))
+                self._next_diag = nd + self.diagnostics_period
+                d += 1
             i += m
-            if i == K and self._diag_due(blk.t_out[-1]):
-                data = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
-                self._after.setdefault(self._held - 1, []).append(('diagnostics', M.TOPIC_TYPES['diagnostics'], data))
-                self._next_diag += self.diagnostics_period
             if self._batch_done(int(t_out[i - 1])):
                 self._write_held()
 
