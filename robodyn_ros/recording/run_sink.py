@@ -22,6 +22,8 @@ from .mcap_sink import McapSink
 #: writer's chunks, what a killed run loses)
 BATCH_SPAN = 0.5
 BATCH_SPAN_NS = int(BATCH_SPAN * 1e9)
+#: the gap a message record's header is written into (mcap_sink's 31-byte record header)
+_GAP = bytes(31)
 #: periods per vectorised pass in headless runs (``robodyn run``)
 HEADLESS_BATCH = 64
 #: seconds of simulation after which the node's recorder closes a chunk (a killed node loses at
@@ -190,6 +192,15 @@ class _PeriodLayout:
         self.stamp_at = np.array(stamp_at, dtype=np.int64)
         self.stamp_of = np.array(stamp_src, dtype=np.int64)   # 0: the commands' time, 1: the outputs'
         self.n_msgs = len(msgs)
+        self._starts = (None, None, None)   # record_starts' last K and its arrays
+
+    def record_starts(self, K):
+        """``(offsets (K, n), channels (K n,))`` of K rows' records: each record's start in the rows'
+        bytes and its channel id, row by row (kept for the last K)."""
+        if self._starts[0] != K:
+            R = self.template.size
+            self._starts = (K, np.arange(K, dtype=np.int64)[:, None] * R + self.rec_off, np.tile(self.channels, K))
+        return self._starts[1], self._starts[2]
 
     def fill(self, row, cmds, out):
         """Write one period's numbers into ``row`` (n_values,); cmds: ``[(t, port, values)]``."""
@@ -616,36 +627,46 @@ class McapRunSink:
         rows = L.rows(self._values[:K], self._times[:K], filled=self._filled)
         R = rows.shape[1]
         times = np.where(L.is_cmd, self._times[:K, 0:1], self._times[:K, 1:2])
-        offs = np.arange(K, dtype=np.int64)[:, None] * R + L.rec_off
+        offs, chans = L.record_starts(K)   # (K, n) each record's start in the rows, (K * n,) its channel
         if not self._after:
             records, offsets = rows.reshape(-1), offs.ravel()
-            channels, log_times = np.tile(L.channels, K), times.ravel()
+            channels, log_times = chans, times.ravel()
         else:   # records after some periods (markers, diagnostics): inserted after their rows, in one pass
-            extra = [(k, self._channel(topic, type_name), bytes(31) + data)
-                     for k in sorted(self._after) for topic, type_name, data in self._after[k]]
-            after = np.array([e[0] for e in extra], dtype=np.int64)           # the row each follows
-            blobs = [e[2] for e in extra]
-            size = np.array([len(b) for b in blobs], dtype=np.int64)
-            shift = np.zeros(K, dtype=np.int64)                                # extra bytes before row k
-            np.add.at(shift, after[after + 1 < K] + 1, size[after + 1 < K])
-            shift = np.cumsum(shift)
             n = L.n_msgs
-            at = (after + 1) * R                                               # in the rows' bytes
-            flat = rows.reshape(-1)
-            records = np.empty(flat.size + int(size.sum()), dtype=np.uint8)
-            a = b = 0                                                          # read, write positions
-            for end, blob in zip(at.tolist(), blobs):
-                records[b:b + end - a] = flat[a:end]
-                b += end - a
-                records[b:b + len(blob)] = np.frombuffer(blob, dtype=np.uint8)
-                b += len(blob)
-                a = end
-            records[b:] = flat[a:]
-            d_offs = at + np.cumsum(size) - size
-            pos = (after + 1) * n                                              # in the records' order
-            offsets = np.insert((offs + shift[:, None]).ravel(), pos, d_offs)
-            channels = np.insert(np.tile(L.channels, K), pos, [e[1] for e in extra])
-            log_times = np.insert(times.ravel(), pos, self._times[after, 1])
+            mv = rows.reshape(-1).data
+            pieces, after, e_offs, e_chans = [], [], [], []
+            shift = np.zeros(K + 1, dtype=np.int64)    # extra bytes right before row k (cumulated below)
+            a = 0        # bytes of the rows taken so far
+            added = 0    # bytes of the records inserted so far
+            for k in sorted(self._after):
+                end = (k + 1) * R
+                if end > a:
+                    pieces.append(mv[a:end])
+                    a = end
+                for topic, type_name, data in self._after[k]:
+                    pieces.append(_GAP)
+                    pieces.append(data)
+                    e_offs.append(end + added)
+                    e_chans.append(self._channel(topic, type_name))
+                    after.append(k)
+                    added += 31 + len(data)
+                    shift[k + 1] += 31 + len(data)
+            pieces.append(mv[a:])
+            records = np.frombuffer(bytearray().join(pieces), dtype=np.uint8)
+            # the i-th inserted record (after row k) lands at (k + 1) n + i in the records' order
+            pos = np.array(after, dtype=np.int64)
+            rest = np.ones(K * n + len(after), dtype=bool)
+            ins = (pos + 1) * n + np.arange(len(after))
+            rest[ins] = False
+            offsets = np.empty(rest.size, dtype=np.int64)
+            offsets[rest] = (offs + np.cumsum(shift[:K])[:, None]).ravel()
+            offsets[ins] = e_offs
+            channels = np.empty(rest.size, dtype=np.int64)
+            channels[rest] = chans
+            channels[ins] = e_chans
+            log_times = np.empty(rest.size, dtype=np.int64)
+            log_times[rest] = times.ravel()
+            log_times[ins] = self._times[pos, 1]
         self.writer.write_records(records, offsets, channels, log_times)
         self.count += len(offsets)
         self._held = 0
