@@ -151,11 +151,12 @@ class BlockRunner:
         _, _, Zs, Us, outs, Fs, steps = res[:7]
         more = res[7] if len(res) > 7 else {}
         at = [a]   # the first period of the piece the Simulator is not yet past
+        counts = steps.tolist()   # the steps of each period (ints: their sums are steps[a:b].sum())
 
         def arrive(j):
             """The Simulator at the end of period a + j of the block (j counted in the piece; forward only)."""
             if a + j + 1 > at[0]:
-                self._arrive(at[0], a + j + 1, t_cmd, t_out, res)
+                self._arrive(at[0], a + j + 1, t_cmd, t_out, res, sum(counts[at[0]:a + j + 1]))
                 at[0] = a + j + 1
             elif a + j + 1 < at[0]:
                 raise RuntimeError(f'the Simulator is past period {a + j} of the block')
@@ -172,14 +173,14 @@ class BlockRunner:
             s.on_block(block, self.sim)
         arrive(b - a - 1)
 
-    def _arrive(self, a, b, t_cmd, t_out, res):
+    def _arrive(self, a, b, t_cmd, t_out, res, n_steps):
         """The Simulator at the end of period b - 1 of the block, coming from the end of period a - 1:
-        the counters of periods a..b-1 added, the port holding period b - 1's command."""
+        the counters of periods a..b-1 (n_steps steps) added, the port holding period b - 1's command."""
         sim, sys_ = self.sim, self.sim.system
-        _, _, Zs, Us, outs, Fs, steps = res[:7]
+        _, _, Zs, Us, outs = res[:5]
         ny = sys_.ny
         z = Zs[b - 1]
-        st = IntegratorStats.of_fused_steps(sim.settings['integrator'], int(steps[a:b].sum()), b - a)
+        st = IntegratorStats.of_fused_steps(sim.settings['integrator'], n_steps, b - a)
         sim.integrator.stats.accumulate(st)
         sim.diag.count(st)
         sim.diag.block_periods += b - a
