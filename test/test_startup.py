@@ -147,6 +147,7 @@ def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_pat
     env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
     env['NUMBA_CACHE_DIR'] = str(tmp_path / 'cache')
     env['ROBODYN_COLD_START'] = 'compile'   # (robodyn run would interpret while a child compiles: test_cold_start)
+    env['ROBODYN_INTERPRET_BUDGET'] = '0'     # (and runs this short without numba: test_deferred_numba)
     compiled, _ = _compiled_in_new_process([['run', str(first), '--duration', '0.05']], env)
     assert compiled                                   # the cache was empty: this process compiled
     others = [str(next(d.rglob('go2.urdf'))), str(next(d.rglob('ur5_robot.urdf')))]

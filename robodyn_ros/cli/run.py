@@ -77,6 +77,12 @@ def main(args) -> int:
     only with ``--live``), so a short run starts fast (``robodyn bench startup``). On a cold kernel
     cache the kernels run as Python while a child process compiles them (``kernels.jit``, mode 'interpret'),
     the same bytes."""
+    if 'robodyn_ros.kernels' not in sys.modules:   # numba loads when the run needs it (kernels.jit.DEFERRED)
+        os.environ['_ROBODYN_DEFER_NUMBA'] = '1'
+        try:
+            from ..kernels import jit
+        finally:
+            del os.environ['_ROBODYN_DEFER_NUMBA']
     from ..kernels import jit
     mode = jit.MODE
     jit.set_mode('interpret')
@@ -154,6 +160,7 @@ def _run(args, sock, rate_factor) -> int:
                           args.step_budget)
     st['backend'] = recorded_backend(backend)  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
+        expect_work(scene, st, args.live)
         plan, st = plan_run(st, scene.system, scene.y0)   # which integrator, which step, and why: decided once
         sim = Simulator(scene.system, scene.y0, plan=plan)
     except ValueError as e:
@@ -180,7 +187,40 @@ def _run(args, sock, rate_factor) -> int:
             s.close()
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
+    from ..kernels import jit
+    if jit.DEFERRED and not jit.LOADED and st['backend'] != 'numpy':
+        print('kernels      run as Python, numba not loaded (a run this short ends before numba would have '
+              'loaded; the same bytes)')
     return status
+
+
+#: interpreted cost (s) per state of one right-hand-side evaluation called from Python (the integrator plan's
+#: linearisation, 2 ny + 1 of them) and inside the fused loop, of a publication period beyond its steps, and the
+#: evaluations per step by method (for :func:`expect_work`; measured: stanford_arm 12 states 1.2 ms / 150 µs,
+#: a1_stand 37 states 3.5 ms, huston_human17 125 states 6.9 ms)
+PY_RHS_PER_STATE = 100e-6
+PY_LOOP_EVAL_PER_STATE = 15e-6
+PY_PERIOD = 5e-4
+EVALS_PER_STEP = {'euler': 1, 'semi_implicit_euler': 1, 'rk4': 4, 'rosenbrock2': 4}
+
+
+def expect_work(scene, st, live) -> None:
+    """Tell the kernels (:func:`robodyn_ros.kernels.jit.expect`) how long this run would spend in them
+    interpreted, so a run that would outlast the deferral loads numba before it starts: a live run always,
+    else the plan's linearisation plus steps × evaluations per step (an error-controlled or automatic method
+    counted at 1 ms steps, 4 evaluations each) plus the publication periods."""
+    from ..kernels import jit
+    if not jit.DEFERRED or jit.LOADED:
+        return
+    if live:
+        jit.load_numba()
+        return
+    ny = scene.system.ny
+    dt = st.get('dt') or DEFAULT_DT
+    evals = EVALS_PER_STEP.get(st.get('integrator'), 4)
+    duration = float(st['duration'])
+    jit.expect((2 * ny + 1) * ny * PY_RHS_PER_STATE + duration / dt * evals * ny * PY_LOOP_EVAL_PER_STATE
+               + duration * float(st['rate']) * PY_PERIOD)
 
 
 def _run_live(args, sock, rate_factor, scene, st, sim) -> int:

@@ -48,11 +48,15 @@ import os
 import numpy as np
 
 from ..model import Model
+from . import jit as _jit
 from .jit import NUMBA
 
 if NUMBA:
     from . import cache as _cache
-    _cache.install()   # before any kernel is defined: where their cache goes, when it is stale
+    if _jit.LOADED:
+        _cache.install()   # before any kernel is defined: where their cache goes, when it is stale
+    else:   # deferred (jit.DEFERRED): when numba is loaded, before the kernels are made real
+        _jit._BEFORE_LOAD.append(_cache.install)
 
 #: directory holding the compiled kernels' cache (see :mod:`.cache`)
 CACHE_DIR = _cache.cache_root() if NUMBA else ''

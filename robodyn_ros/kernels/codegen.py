@@ -432,7 +432,8 @@ def _import(path):
 
 def is_compiled(path) -> bool:
     """True when numba's cache holds the machine code of both functions of the module at path."""
-    from . import treefn
+    from . import jit, treefn
+    jit.load_numba()   # (treefn's signatures exist once numba is loaded)
     mod = _import(path)
     return treefn.cached((mod.fd, treefn.FD_SIG), (mod.bm, treefn.BM_SIG))
 
@@ -445,6 +446,8 @@ def load(path):
     path = os.path.abspath(path)
     got = _LOADED.get(path)
     if got is None:
+        from . import jit
+        jit.load_numba()
         from numba import cfunc
 
         from .treefn import BM_SIG, CFUNC_OPTIONS, FD_SIG, register

@@ -22,18 +22,43 @@ call from Python does when no machine code for its argument types is in memory (
   instead of compiling for a minute; the child keeps compiling when the run ends before it (its cache
   serves the next run) and stops when it has done what was asked;
 * ``'python'`` (tests): interpret every miss, load and compile nothing.
+
+Deferred (:data:`DEFERRED`: ``robodyn run``). Importing numba and loading its first cached function costs
+about 0.65 s, more than a short run's whole simulation. ``robodyn run`` imports the kernels without numba:
+each is a :class:`Deferred` that runs its Python source (as above, the same bytes) and counts the time;
+when that passes :data:`INTERPRET_BUDGET`, or the run says it will (:func:`expect`, from its steps and
+bodies), :func:`load_numba` imports numba and puts numba's dispatcher of every kernel where the Deferred
+one was, between two calls from Python. A 10 ms run thus ends in under half a second, and a long run
+loads numba before its first step.
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
+import time
 import types
 
-try:
-    from numba import njit as _numba_njit
-    NUMBA = True
-except ImportError:   # no numba: the kernels below run as Python functions
-    NUMBA = False
+#: numba is installed (the kernels compile); whether it is loaded yet: :data:`LOADED`
+NUMBA = importlib.util.find_spec('numba') is not None
+#: ``robodyn run`` imports the kernels with ``$_ROBODYN_DEFER_NUMBA`` set: numba stays unloaded, the kernels run
+#: as Python, until the run's interpreted time passes :data:`INTERPRET_BUDGET` (or it is expected to): the
+#: deferred tier (:class:`Deferred`, :func:`load_numba`). Any other process loads numba with the kernels.
+DEFERRED = NUMBA and os.environ.get('_ROBODYN_DEFER_NUMBA') == '1'
+#: numba is imported and every kernel is numba's dispatcher
+LOADED = False
+#: seconds of interpreted kernel time after which a deferred process loads numba (about a third of what loading
+#: it and the cached machine code costs: a run that ends sooner is done before numba would have loaded);
+#: ``$ROBODYN_INTERPRET_BUDGET`` sets it (tests)
+INTERPRET_BUDGET = float(os.environ.get('ROBODYN_INTERPRET_BUDGET', '0.25'))
+#: seconds the deferred kernels have run interpreted so far
+SPENT = [0.0]
+if NUMBA and not DEFERRED:
+    try:
+        from numba import njit as _numba_njit
+        LOADED = True
+    except ImportError:   # installed but broken: the kernels run as Python functions
+        NUMBA = False
 
 #: what a kernel called from Python with new argument types does when their machine code is not in memory:
 #: 'compile', 'interpret' or 'python' (module docstring); ``$ROBODYN_COLD_START`` sets it for a process,
@@ -53,13 +78,22 @@ def set_mode(mode: str) -> None:
         MODE = mode
 
 
+def _is_kernel(obj) -> bool:
+    """obj is a kernel: a :class:`Deferred` one, or numba's dispatcher once numba is loaded."""
+    if isinstance(obj, Deferred):
+        return True
+    if not LOADED:
+        return False
+    from numba.core.dispatcher import Dispatcher
+    return isinstance(obj, Dispatcher)
+
+
 def python_kernel(func, math_module=None, overrides=None):
     """``func`` (a kernel, or a kernel module's plain Python function) as Python: every compiled kernel it
     reaches replaced by its Python source, ``math`` by ``math_module`` (symbols: :mod:`.codegen`), the names
     of :data:`PY_OVERRIDES` and ``overrides`` by their values. The same operations as the compiled code, run
     by the interpreter."""
     import math
-    from numba.core.dispatcher import Dispatcher
     spaces: dict = {}
     extra = {**PY_OVERRIDES, **(overrides or {})}
 
@@ -68,10 +102,10 @@ def python_kernel(func, math_module=None, overrides=None):
         if ns is None:
             ns = spaces[module_name] = dict(vars(sys.modules[module_name]))
             ns['math'] = math if math_module is None else math_module
-            ns.update(extra)
             for name, obj in list(ns.items()):
-                if isinstance(obj, Dispatcher):
+                if _is_kernel(obj) and name not in extra:
                     ns[name] = rebound(obj.py_func)
+            ns.update(extra)
         return ns
 
     def rebound(py):
@@ -81,14 +115,114 @@ def python_kernel(func, math_module=None, overrides=None):
 
 
 def njit(*args, **kw):
-    """``@njit(...)`` / ``@njit``: numba's, making a :class:`KernelDispatcher`; without numba the function itself."""
+    """``@njit(...)`` / ``@njit``: numba's, making a :class:`KernelDispatcher`; in a deferred process a
+    :class:`Deferred` kernel (numba's once :func:`load_numba` ran); without numba the function itself."""
     if not NUMBA:
         if len(args) == 1 and callable(args[0]):
             return args[0]
         return lambda f: f
     if len(args) == 1 and callable(args[0]) and not kw:
-        return _adopt(_numba_njit(args[0]))
-    return lambda f: _adopt(_numba_njit(*args, **kw)(f))
+        return _make(args[0], (), {})
+    return lambda f: _make(f, args, kw)
+
+
+def _make(f, args, kw):
+    """The kernel of function f with numba options ``args, kw``: numba's dispatcher when numba is loaded."""
+    if LOADED:
+        return _adopt(_numba_njit(*args, **kw)(f))
+    return Deferred(f, lambda: _adopt(_numba_njit(*args, **kw)(f)))
+
+
+class Deferred:
+    """A kernel, or another numba object a kernel module defines (an intrinsic), in a process that has not
+    loaded numba yet (:data:`DEFERRED`). Called from Python it runs its function's Python source
+    (:func:`run_interpreted`: the operations of the compiled code) and counts the time in :data:`SPENT`; past
+    :data:`INTERPRET_BUDGET`, or when anything asks for numba's object (an attribute other than ``py_func``),
+    it loads numba (:func:`load_numba`), which replaces every Deferred in the kernel modules' namespaces by
+    the real object (:attr:`real`), and it forwards to that from then on."""
+
+    __slots__ = ('py_func', '_make', 'real', '_robodyn_python', '__weakref__')
+
+    def __init__(self, py_func, make):
+        self.py_func = py_func
+        self._make = make
+        self.real = None
+        self._robodyn_python = None
+        _DEFERRED.append(self)
+
+    def __call__(self, *args):
+        if self.real is None and SPENT[0] >= INTERPRET_BUDGET:
+            load_numba()
+        if self.real is not None:
+            return self.real(*args)
+        t0 = time.perf_counter()
+        try:
+            return run_interpreted(self, None, args, fallback=lambda: _loaded(self)(*args))
+        finally:
+            SPENT[0] += time.perf_counter() - t0
+
+    def __getattr__(self, name):   # numba's dispatcher attributes (compile, overloads, address, ...)
+        return getattr(_loaded(self), name)
+
+    def __repr__(self):
+        return f'<deferred kernel {self.py_func.__module__}.{self.py_func.__qualname__}>'
+
+
+#: every :class:`Deferred` made in this process (made real by :func:`load_numba`)
+_DEFERRED: list = []
+#: functions :func:`load_numba` calls after numba is imported, before any kernel is made (:mod:`.cache`'s install)
+_BEFORE_LOAD: list = []
+
+
+def _loaded(d):
+    """Deferred d's real object (numba loaded first)."""
+    load_numba()
+    return d.real
+
+
+def load_numba() -> None:
+    """Load numba in a deferred process: make every :class:`Deferred` real and put the real objects where the
+    Deferred ones were (the globals of every robodyn_ros module, and the tuples and dicts among them), so
+    compiled code finds numba's objects. Once; nothing to do in a process that loaded numba at start."""
+    global LOADED, _numba_njit
+    if LOADED or not NUMBA:
+        return
+    from numba import njit as _numba_njit
+    LOADED = True
+    for f in _BEFORE_LOAD:
+        f()
+    for d in list(_DEFERRED):
+        if d.real is None:
+            d.real = d._make()
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not (name.startswith('robodyn_ros') or name.startswith('robodyn_gen_')):
+            continue
+        ns = vars(mod)
+        for key, obj in list(ns.items()):
+            if isinstance(obj, Deferred):
+                ns[key] = obj.real
+            elif isinstance(obj, dict) and any(isinstance(x, (Deferred, tuple)) for x in obj.values()):
+                for k, x in list(obj.items()):
+                    obj[k] = _real(x)
+            elif isinstance(obj, tuple) and any(isinstance(x, Deferred) for x in obj):
+                ns[key] = _real(obj)
+
+
+def _real(x):
+    """x with its Deferred objects (x itself, or the items of a tuple) made real."""
+    if isinstance(x, Deferred):
+        return x.real
+    if isinstance(x, tuple) and any(isinstance(y, Deferred) for y in x):
+        return tuple(_real(y) for y in x)
+    return x
+
+
+def expect(seconds: float) -> None:
+    """A deferred process that expects about ``seconds`` of interpreted kernel time loads numba now when
+    that is past half of :data:`INTERPRET_BUDGET` (a rough estimate: when in doubt, numba), so a long run pays
+    nothing for the deferral."""
+    if DEFERRED and seconds >= 0.5 * INTERPRET_BUDGET:
+        load_numba()
 
 
 _KD = None
@@ -158,8 +292,9 @@ def load_cached(d, sig):
 
 
 def request_compiled(d, args) -> None:
-    """Have the compiler child compile kernel d for the types of args, unless it is in memory or the cache."""
-    if MODE != 'interpret':
+    """Have the compiler child compile kernel d for the types of args, unless it is in memory or the cache
+    (nothing while numba is not loaded: :data:`DEFERRED`)."""
+    if MODE != 'interpret' or isinstance(d, Deferred):
         return
     sig = tuple(d.typeof_pyval(a) for a in args)
     if load_cached(d, sig) is None:
@@ -168,7 +303,7 @@ def request_compiled(d, args) -> None:
 
 def interpreted(d):
     """Kernel d as Python (:func:`python_kernel`), made once."""
-    py = getattr(d, '_robodyn_python', None)
+    py = d._robodyn_python if isinstance(d, Deferred) else getattr(d, '_robodyn_python', None)
     if py is None:
         py = d._robodyn_python = python_kernel(d)
     return py
@@ -227,7 +362,7 @@ class _Compiler:
         self.sent.add(what)
         if self.proc is None:
             import subprocess
-            env = dict(os.environ, ROBODYN_COLD_START='compile')
+            env = dict(os.environ, ROBODYN_COLD_START='compile', _ROBODYN_DEFER_NUMBA='')
             root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
             env['PYTHONPATH'] = root + (os.pathsep + env['PYTHONPATH'] if env.get('PYTHONPATH') else '')
             self.proc = subprocess.Popen([sys.executable, '-m', 'robodyn_ros.kernels.jit'], env=env,
@@ -298,7 +433,7 @@ def main() -> int:
     return 0
 
 
-__all__ = ['njit', 'NUMBA', 'MODE', 'set_mode', 'python_kernel']
+__all__ = ['njit', 'NUMBA', 'LOADED', 'DEFERRED', 'MODE', 'set_mode', 'python_kernel', 'load_numba', 'expect']
 
 if __name__ == '__main__':
     sys.exit(main())

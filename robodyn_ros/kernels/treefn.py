@@ -31,25 +31,25 @@ each cfunc's Python source under its address, and Python-only implementations un
 """
 from __future__ import annotations
 
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
-
 from . import jit
 from .jit import njit
 from .tree import _JIT, aba_ws, crba_ws, gravity_stiffness_ws, rnea_ws, transforms, workspace
 
-_F1 = types.float64[::1]
-_F2 = types.float64[:, ::1]
-_I2 = types.int64[:, ::1]
-#: ``fd(mi, mf, q, v, tau, qdd, W)``
-FD_SIG = types.void(_I2, _F2, _F1, _F1, _F1, _F1, _F2)
-#: ``bm(mi, mf, q, v, zero, bias, H, G, W)``
-BM_SIG = types.void(_I2, _F2, _F1, _F1, _F1, _F1, _F2, _F2, _F2)
-FD_TYPE = types.FunctionType(FD_SIG)
-BM_TYPE = types.FunctionType(BM_SIG)
 #: options of every cfunc behind an address (generic and generated): numba's numpy error model, as the kernels
 CFUNC_OPTIONS = dict(cache=True, error_model='numpy')
+#: ``fd(mi, mf, q, v, tau, qdd, W)`` and ``bm(mi, mf, q, v, zero, bias, H, G, W)`` as numba signatures, and their
+#: first-class function types (made by :func:`_numba_types` when numba is loaded)
+FD_SIG = BM_SIG = FD_TYPE = BM_TYPE = None
+
+
+def _numba_types():
+    """Set the numba signatures and function types above (numba is loaded)."""
+    global FD_SIG, BM_SIG, FD_TYPE, BM_TYPE
+    from numba import types
+    f1, f2, i2 = types.float64[::1], types.float64[:, ::1], types.int64[:, ::1]
+    FD_SIG = types.void(i2, f2, f1, f1, f1, f1, f2)
+    BM_SIG = types.void(i2, f2, f1, f1, f1, f1, f2, f2, f2)
+    FD_TYPE, BM_TYPE = types.FunctionType(FD_SIG), types.FunctionType(BM_SIG)
 
 
 def generic_fd(mi, mf, q, v, tau, qdd, W):
@@ -76,28 +76,48 @@ def generic_bm(mi, mf, q, v, zero, bias, H, G, W):
 
 def _function_at(ftype, context, builder, addr):
     """The first-class function value of type ``ftype`` at the C address addr (an LLVM int64)."""
+    from numba.core import cgutils
     f = cgutils.create_struct_proxy(ftype)(context, builder)
-    vp = context.get_value_type(types.voidptr)
+    vp = context.get_value_type(jit_types().voidptr)
     f.c_addr = builder.inttoptr(addr, vp)
     f.py_addr = cgutils.get_null_value(vp)   # never called back through Python
     f.jit_addr = cgutils.get_null_value(vp)  # called through the C wrapper at c_addr
     return f._getvalue()
 
 
-@intrinsic
+def jit_types():
+    """numba's ``types`` module (numba is loaded)."""
+    from numba import types
+    return types
+
+
 def fd_at(typingctx, addr):
     """``fd_at(addr)``: the ``fd`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, types.Integer):
+    if isinstance(addr, jit_types().Integer):
         return FD_TYPE(addr), lambda context, builder, sig, args: _function_at(FD_TYPE, context, builder, args[0])
     return None
 
 
-@intrinsic
 def bm_at(typingctx, addr):
     """``bm_at(addr)``: the ``bm`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, types.Integer):
+    if isinstance(addr, jit_types().Integer):
         return BM_TYPE(addr), lambda context, builder, sig, args: _function_at(BM_TYPE, context, builder, args[0])
     return None
+
+
+def _intrinsic(typer):
+    """numba's ``@intrinsic`` of typer (made when numba is loaded: :class:`.jit.Deferred`)."""
+    def make():
+        from numba.extending import intrinsic
+        if FD_SIG is None:
+            _numba_types()
+        return intrinsic(typer)
+    return make() if jit.LOADED else jit.Deferred(typer, make)
+
+
+#: ``fd_at(addr)`` / ``bm_at(addr)`` (intrinsics): the function at that address, in compiled code
+fd_at = _intrinsic(fd_at)
+bm_at = _intrinsic(bm_at)
 
 
 @njit(**_JIT)
@@ -115,8 +135,9 @@ def generic_pointers(block: bool = True):
     compiled, or loaded from the kernels' cache, on first use. ``block=False`` (interpreting, :mod:`.jit`):
     None when the cache lacks them, and the compiler child is asked for them."""
     if not _GENERIC:
-        if jit.MODE == 'python' and not block:
+        if not block and (jit.MODE == 'python' or not jit.LOADED):   # (not loaded: numba deferred, jit.DEFERRED)
             return None
+        jit.load_numba()
         if not block:
             if _GENERIC_MISS[0] == jit.COMPILER.generation:
                 jit.COMPILER.poll()
@@ -136,6 +157,7 @@ def generic_pointers(block: bool = True):
 
 def cached(*funcs) -> bool:
     """True when the kernels' cache holds machine code of every ``(python function, cfunc signature)``."""
+    jit.load_numba()
     from numba.core.caching import FunctionCache
     from numba.core.registry import cpu_target
     return all(FunctionCache(f).load_overload(sig, cpu_target.target_context) is not None for f, sig in funcs)
