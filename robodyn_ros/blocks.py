@@ -37,7 +37,9 @@ class PeriodBlock:
     that publishes one, and the ground's ``contacts`` (K, nl, 6) in the order of ``template.contacts``
     (else None). template: the SystemOutputs of one such period (names, frames, how wrenches are
     computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and work quadrature
-    ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the last one.
+    ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the last one, or, with
+    ``arrive`` (a callable, :meth:`BlockRunner.run`'s lone sink), ``arrive(j)`` puts it at the end of
+    period j (forward only; at the end of the last one after ``on_block``).
     """
     t_cmd: np.ndarray
     t_out: np.ndarray
@@ -50,6 +52,7 @@ class PeriodBlock:
     z: np.ndarray
     odom: np.ndarray | None = None
     contacts: np.ndarray | None = None
+    arrive: object = None
 
 
 class BlockRunner:
@@ -101,15 +104,19 @@ class BlockRunner:
 
         One compiled call runs up to :data:`BLOCK_PERIODS` periods; the sinks then get them in
         pieces that end where one wants the Simulator's state (a diagnostics message), the
-        Simulator being put at the end of each piece first, as per-period calls leave it."""
+        Simulator being put at the end of each piece first, as per-period calls leave it. A lone
+        sink that says ``arrives_in_blocks`` takes the periods in one piece instead and puts the
+        Simulator at the end of the periods where it wants its state itself (``PeriodBlock.arrive``:
+        the same Simulator there, without a piece per diagnostics message)."""
         sim, sys_ = self.sim, self.sim.system
         if self.template is None:
             self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
         cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
+        whole = (True,) if len(self.sinks) == 1 and getattr(self.sinks[0], 'arrives_in_blocks', False) else ()
         while k < n:
             K = min(BLOCK_PERIODS, n - k)
             t_out = t_start + (np.arange(k, k + K) + 1) / rate    # the per-period path's t_start + (k + 1) / rate
-            if any(s.block_periods(t_out, self.template, cmd_kind) <= 0 for s in self.sinks):
+            if any(s.block_periods(t_out, self.template, cmd_kind, *whole) <= 0 for s in self.sinks):
                 return k   # a sink wants this period on the per-period path
             t_cmd = np.empty(K)
             t_cmd[0] = sim.t
@@ -127,30 +134,57 @@ class BlockRunner:
             while a < done:
                 b = done
                 for s in self.sinks:
-                    b = min(b, a + s.block_periods(t_out[a:done], self.template, cmd_kind))
+                    b = min(b, a + s.block_periods(t_out[a:done], self.template, cmd_kind, *whole))
                 if b <= a:   # the rest of the block is dropped: the Simulator is at the end of period k + a - 1
                     return k + a
-                self._commit(a, b, t_cmd, t_out, res)
+                self._commit(a, b, t_cmd, t_out, res, bool(whole))
                 a = b
             k += done
             if code:
                 return k
         return n
 
-    def _commit(self, a, b, t_cmd, t_out, res):
+    def _commit(self, a, b, t_cmd, t_out, res, whole=False):
         """The Simulator at the end of period b - 1 of the block, as advance() calls leave it;
-        the sinks get periods a..b-1."""
-        sim, sys_ = self.sim, self.sim.system
+        the sinks get periods a..b-1 (whole: the lone sink may put the Simulator at the end of
+        an earlier one of them first, ``PeriodBlock.arrive``)."""
         _, _, Zs, Us, outs, Fs, steps = res[:7]
         more = res[7] if len(res) > 7 else {}
+        at = [a]   # the first period of the piece the Simulator is not yet past
+        counts = steps.tolist()   # the steps of each period (ints: their sums are steps[a:b].sum())
+
+        def arrive(j):
+            """The Simulator at the end of period a + j of the block (j counted in the piece; forward only)."""
+            if a + j + 1 > at[0]:
+                self._arrive(at[0], a + j + 1, t_cmd, t_out, res, sum(counts[at[0]:a + j + 1]))
+                at[0] = a + j + 1
+            elif a + j + 1 < at[0]:
+                raise RuntimeError(f'the Simulator is past period {a + j} of the block')
+        if not whole:
+            arrive(b - a - 1)
+        commands = {} if self.program is None else {self.port: Us[a:b]}
+        position, velocity, effort = outs
+        odom, contacts = more.get('odom'), more.get('contacts')
+        block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
+                            velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
+                            template=self.template, z=Zs[a:b], odom=None if odom is None else odom[a:b],
+                            contacts=None if contacts is None else contacts[a:b], arrive=arrive if whole else None)
+        for s in self.sinks:
+            s.on_block(block, self.sim)
+        arrive(b - a - 1)
+
+    def _arrive(self, a, b, t_cmd, t_out, res, n_steps):
+        """The Simulator at the end of period b - 1 of the block, coming from the end of period a - 1:
+        the counters of periods a..b-1 (n_steps steps) added, the port holding period b - 1's command."""
+        sim, sys_ = self.sim, self.sim.system
+        _, _, Zs, Us, outs = res[:5]
         ny = sys_.ny
         z = Zs[b - 1]
-        st = IntegratorStats.of_fused_steps(sim.settings['integrator'], int(steps[a:b].sum()), b - a)
+        st = IntegratorStats.of_fused_steps(sim.settings['integrator'], n_steps, b - a)
         sim.integrator.stats.accumulate(st)
         sim.diag.count(st)
         sim.diag.block_periods += b - a
         sim.arrive(float(t_out[b - 1]), z[:ny].copy(), z)
-        commands = {}
         if self.program is not None:
             p = sim.ports[self.port]
             p.value = Us[b - 1].copy()
@@ -159,18 +193,9 @@ class BlockRunner:
             p.timed_out = False
             if p.limit is not None:   # the clamped components of these periods' commands, as set_command counts them
                 p.clamped += int(np.count_nonzero(np.abs(Us[a:b]) > p.limit))
-            commands[self.port] = Us[a:b]
-        position, velocity, effort = outs
         # each published state's velocities against their limits, as Simulator.outputs counts them
         sim.diag.velocity_limit_exceeded += sim.velocity_limits.count(sim.t, self.template.joint_names,
-                                                                      velocity[a:b])
+                                                                      outs[1][a:b])
         extra = getattr(sys_, 'state_extra', None)
         if extra is not None:   # what outputs() would have put in diag.extra at the last state
             sim.diag.extra.update(extra(sim.y))
-        odom, contacts = more.get('odom'), more.get('contacts')
-        block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
-                            velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
-                            template=self.template, z=Zs[a:b], odom=None if odom is None else odom[a:b],
-                            contacts=None if contacts is None else contacts[a:b])
-        for s in self.sinks:
-            s.on_block(block, sim)

@@ -63,10 +63,12 @@ class _Count:
 
     def __init__(self, monkeypatch):
         self.periods = 0
+        self.calls = 0   # the pieces handed to the sinks
         orig = B.BlockRunner._commit
 
         def commit(runner, a, b, *rest):
             self.periods += b - a
+            self.calls += 1
             return orig(runner, a, b, *rest)
         monkeypatch.setattr(B.BlockRunner, '_commit', commit)
 
@@ -84,7 +86,11 @@ def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None,
         s.writer.chunk_size = chunk_size   # chunk boundaries inside batches and blocks
     if refuse is not None:
         takes = sinks[0].block_periods
-        sinks[0].block_periods = lambda t_out, *a: 0 if refuse[0] <= t_out[0] < refuse[1] else takes(t_out, *a)
+        def refusing(t_out, *a):   # none in the window; up to it before (a lone recorder takes whole blocks)
+            if refuse[0] <= t_out[0] < refuse[1]:
+                return 0
+            return min(takes(t_out, *a), int(np.searchsorted(t_out, refuse[0], 'left')) or len(t_out))
+        sinks[0].block_periods = refusing
     err = None
     try:
         n = run_headless(sim, duration, rate, scene.script if script is None else script, sinks)
@@ -336,6 +342,19 @@ def test_block_path_edge_cases_record_the_per_period_bytes(tmp_path, monkeypatch
         assert blocked <= periods - 25
     assert fast == slow
     _same_simulator(sim_f, sim_s)
+
+
+def test_a_lone_recorder_takes_a_block_in_one_piece(tmp_path, monkeypatch):
+    """A lone recorder takes each block in one piece and puts the Simulator at each diagnostics
+    message's period itself (``PeriodBlock.arrive``): the per-period path's bytes and Simulator."""
+    scene = _scene('stanford_arm', 'numba')
+    count = _Count(monkeypatch)
+    fast = _run(tmp_path, scene, 'block', 1.0, diagnostics_periods=(0.05,))
+    assert count.periods >= 98 and count.calls <= 3, (count.periods, count.calls)   # not a piece per message (20)
+    monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    slow = _run(tmp_path, scene, 'period', 1.0, diagnostics_periods=(0.05,))
+    assert fast[0].count(b'diagnostic_msgs/msg/DiagnosticArray') >= 1 and fast[0] == slow[0]
+    _same_simulator(fast[2], slow[2])
 
 
 def test_is_selection():

@@ -138,6 +138,23 @@ def test_diagnostic_array_fast_path_is_byte_identical():
     assert cdr.encode('diagnostic_msgs/msg/DiagnosticArray', odd) == generic('diagnostic_msgs/msg/DiagnosticArray', odd)
 
 
+def test_diagnostic_array_bytes_align_every_string_length():
+    """Keys and values of every length mod 4 (and past the packed short lengths), after frame ids and
+    strings of every length: the fast encoder (keys and header encoded once per alignment) writes
+    the generic encoder's bytes, message after message."""
+    rng = np.random.default_rng(5)
+    n = 0
+    for frame in ('', 'a', 'ab', 'abc'):
+        for k in range(12):
+            values = {'k' * int(rng.integers(1, 9)) + str(i): 'v' * int(rng.integers(0, 80)) for i in range(k)}
+            msg = M.diagnostic_array(int(rng.integers(0, 2 ** 60)), 'n' * (k % 4), 0, 'm' * (k % 3), values,
+                                     hardware_id='h' * (k % 5))
+            msg['header']['frame_id'] = frame
+            assert cdr._fast_diagnostic_array(msg) == generic('diagnostic_msgs/msg/DiagnosticArray', msg)
+            n += 1
+    assert n == 48
+
+
 def test_layouts_put_the_numbers_where_the_generic_encoder_does():
     rng = np.random.default_rng(12)
     for k in range(20):

@@ -594,47 +594,59 @@ def _fast_diagnostic_array(msg):
 
 
 _PADS = (b'', b'\x00', b'\x00\x00', b'\x00\x00\x00')
-_KEY_BYTES: dict = {}   # key string -> its CDR string without alignment (length, UTF-8, NUL)
+_KEY_BYTES: dict = {}   # (key string, position mod 4) -> its padding, CDR string and the padding after it
+_LENGTHS = tuple(_U32.pack(n) for n in range(64))   # the CDR length of short strings, packed once
+_HEADS: dict = {}       # (frame_id, number of statuses) -> (their CDR after the stamp, position mod 4 after it)
 
 
 def diagnostic_array_bytes(sec: int, nsec: int, frame_id: str, statuses) -> bytes:
     """``diagnostic_msgs/DiagnosticArray`` as canonical CDR, from plain values: statuses
     ``[(level int, name, message, hardware_id, [(key, value string), ...])]`` (what
-    :meth:`_Encoder.message` writes for the message dict; keys, which repeat from message to
-    message, are encoded once)."""
-    out = [ENCAPSULATION_HEADER, _TIME.pack(sec, nsec)]
-    pos = 8   # bytes after the encapsulation header (CDR aligns relative to it)
-    keys = _KEY_BYTES
-    data = frame_id.encode('utf-8')
-    out.append(_U32.pack(len(data) + 1) + data + b'\x00')
-    pos += 5 + len(data)
-    out.append(_PADS[-pos % 4] + _U32.pack(len(statuses)))
-    pos += -pos % 4 + 4
+    :meth:`_Encoder.message` writes for the message dict; the header after the stamp and the keys,
+    which repeat from message to message, are encoded once, each key with its alignment).
+
+    CDR aligns a string's uint32 length to 4 bytes from the encapsulation header's end; only the
+    position mod 4 matters, and after a key (aligned) it is 0, after a string of n bytes (n + 1 with
+    its NUL) it is ``(n + 1) mod 4``."""
+    head = _HEADS.get((frame_id, len(statuses)))
+    if head is None:
+        data = frame_id.encode('utf-8')
+        h = _U32.pack(len(data) + 1) + data + b'\x00'
+        pos = 8 + len(h)
+        h += _PADS[-pos % 4] + _U32.pack(len(statuses))
+        head = _HEADS[(frame_id, len(statuses))] = (h, 0)
+    out = bytearray(ENCAPSULATION_HEADER)
+    out += _TIME.pack(sec, nsec)
+    out += head[0]
+    r = head[1]
+    keys, lengths = _KEY_BYTES, _LENGTHS
     for level, name, message, hw, pairs in statuses:
-        out.append(bytes((level,)))
-        pos += 1
+        out.append(level)
+        r = (r + 1) & 3
         for x in (name, message, hw):
             data = x.encode('utf-8')
-            pad = -pos % 4
-            out.append(_PADS[pad] + _U32.pack(len(data) + 1) + data + b'\x00')
-            pos += pad + 5 + len(data)
-        pad = -pos % 4
-        out.append(_PADS[pad] + _U32.pack(len(pairs)))
-        pos += pad + 4
+            out += _PADS[-r % 4]
+            out += _U32.pack(len(data) + 1)
+            out += data
+            out.append(0)
+            r = (len(data) + 1) & 3
+        out += _PADS[-r % 4]
+        out += _U32.pack(len(pairs))
+        r = 0
         for k, v in pairs:
-            kb = keys.get(k)
-            if kb is None:
+            kb = keys.get((k, r))
+            if kb is None:   # the key at position r (mod 4), then the padding up to its value's length
                 data = k.encode('utf-8')
-                kb = keys[k] = _U32.pack(len(data) + 1) + data + b'\x00'
-            pad = -pos % 4
-            out.append(_PADS[pad])
-            out.append(kb)
-            pos += pad + len(kb)
+                kb = _PADS[-r % 4] + _U32.pack(len(data) + 1) + data + b'\x00'
+                kb = keys[(k, r)] = kb + _PADS[-(r + len(kb)) % 4]
+            out += kb
             data = v.encode('utf-8')
-            pad = -pos % 4
-            out.append(_PADS[pad] + _U32.pack(len(data) + 1) + data + b'\x00')
-            pos += pad + 5 + len(data)
-    return b''.join(out)
+            n = len(data) + 1
+            out += lengths[n] if n < 64 else _U32.pack(n)
+            out += data
+            out.append(0)
+            r = n & 3
+    return bytes(out)
 
 
 #: canonical type name -> fast encoder returning bytes, or None to decline

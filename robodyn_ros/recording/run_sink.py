@@ -22,6 +22,8 @@ from .mcap_sink import McapSink
 #: writer's chunks, what a killed run loses)
 BATCH_SPAN = 0.5
 BATCH_SPAN_NS = int(BATCH_SPAN * 1e9)
+#: the gap a message record's header is written into (mcap_sink's 31-byte record header)
+_GAP = bytes(31)
 #: periods per vectorised pass in headless runs (``robodyn run``)
 HEADLESS_BATCH = 64
 #: seconds of simulation after which the node's recorder closes a chunk (a killed node loses at
@@ -190,6 +192,15 @@ class _PeriodLayout:
         self.stamp_at = np.array(stamp_at, dtype=np.int64)
         self.stamp_of = np.array(stamp_src, dtype=np.int64)   # 0: the commands' time, 1: the outputs'
         self.n_msgs = len(msgs)
+        self._starts = (None, None, None)   # record_starts' last K and its arrays
+
+    def record_starts(self, K):
+        """``(offsets (K, n), channels (K n,))`` of K rows' records: each record's start in the rows'
+        bytes and its channel id, row by row (kept for the last K)."""
+        if self._starts[0] != K:
+            R = self.template.size
+            self._starts = (K, np.arange(K, dtype=np.int64)[:, None] * R + self.rec_off, np.tile(self.channels, K))
+        return self._starts[1], self._starts[2]
 
     def fill(self, row, cmds, out):
         """Write one period's numbers into ``row`` (n_values,); cmds: ``[(t, port, values)]``."""
@@ -319,6 +330,8 @@ class McapRunSink:
         self._layouts = {}    # kind of period -> _PeriodLayout
         self._layout = None   # the layout of the periods held
         self._kind = None     # the kind of period of _layout
+        self._kind_of = (None, None, None)   # block_periods' last (template, commands, kind of period)
+        self._diag_topic = resolve('diagnostics', namespace)
         self._values = None   # (batch, n_values) numbers of the periods held
         self._times = None    # (batch, 2) int64 ns: commands, outputs
         self._after = {}      # period index -> [(topic, type, CDR)] written after it (markers, diagnostics)
@@ -452,32 +465,56 @@ class McapRunSink:
         """True when batching: the Simulator's block path may hand this sink many periods at once."""
         return self.batch > 0
 
-    def block_periods(self, t_out, template, cmd_kind) -> int:
+    #: with a lone sink, :class:`robodyn_ros.blocks.BlockRunner` hands this one the periods of a
+    #: block in one piece: :meth:`on_block` puts the Simulator at each diagnostics message's period
+    arrives_in_blocks = True
+
+    def block_periods(self, t_out, template, cmd_kind, arriving=False) -> int:
         """How many of the periods ending at ``t_out`` (s) :meth:`on_block` can take in one block:
         up to the first one that ends with a diagnostics message (inclusive: the Simulator is then
-        at its end), 0 when they are not of the kind of the periods held so far (the per-period
+        at its end), all of them when arriving (the block's ``arrive`` puts the Simulator at each
+        such period), 0 when they are not of the kind of the periods held so far (the per-period
         path registers new channels and layouts first)."""
-        if not self.batch or self._cmds or self._layout is None or \
-                self._period_kind(cmd_kind, template) != self._kind:
+        if not self.batch or self._cmds or self._layout is None:
+            return 0
+        if template is not self._kind_of[0] or cmd_kind != self._kind_of[1]:   # the kind of a template, once
+            self._kind_of = (template, cmd_kind, self._period_kind(cmd_kind, template))
+        if self._kind_of[2] != self._kind:
             return 0
         if self._next_diag is None:
             return len(t_out)
-        if resolve('diagnostics', self.namespace) not in self.writer._channels:
+        if self._diag_topic not in self.writer._channels:
             return 0
-        due = np.flatnonzero(t_out >= self._next_diag - 1e-9)
-        return int(due[0]) + 1 if due.size else len(t_out)
+        if arriving:
+            return len(t_out)
+        due = int(np.searchsorted(t_out, self._next_diag - 1e-9, 'left'))   # the first t_out >= it (ascending)
+        return due + 1 if due < len(t_out) else len(t_out)
 
     def on_block(self, blk, sim, level=0, message='running'):
         """Record K periods run in one block (:class:`robodyn_ros.blocks.PeriodBlock`): the
         records :meth:`on_command` and :meth:`on_output` write for each, batch by batch as they
-        would be (:meth:`block_periods` said this sink takes them; a diagnostics message is due
-        at most after the last one, where ``sim`` is)."""
+        would be (:meth:`block_periods` said this sink takes them). A diagnostics message is due
+        at most after the last one, where ``sim`` is, or, when the block has ``arrive``, after
+        any of them: ``blk.arrive(j)`` puts ``sim`` at the end of period j first."""
         if self._held and not self._filled:
             self._write_held()   # periods of the per-period path: their wrenches are computed when written
         L = self._layout
         K = blk.t_out.shape[0]
         t_out = np.rint(blk.t_out * 1e9).astype(np.int64)   # messages.to_ns of each
         t_cmd = np.rint(blk.t_cmd * 1e9).astype(np.int64) if blk.commands else t_out
+        # the periods that end with a diagnostics message (_diag_due of each, in turn)
+        due = []
+        if self._next_diag is not None:
+            nd = self._next_diag
+            j = int(np.searchsorted(blk.t_out, nd - 1e-9, 'left'))
+            while j < K:
+                due.append((j, nd))
+                nd += self.diagnostics_period   # one message per period at most, as on_output writes them
+                j = max(j + 1, int(np.searchsorted(blk.t_out, nd - 1e-9, 'left')))
+            if due and blk.arrive is None and due[0][0] != K - 1:
+                raise RuntimeError(f'a diagnostics message is due at period {due[0][0]} of {K}, '
+                                   'before the Simulator')
+        d = 0
         i = 0
         while i < K:
             h = self._held
@@ -500,11 +537,15 @@ class McapRunSink:
                     self._after[h + j] = [(MARKERS_TOPIC, MARKERS_TYPE, data[j])]
             self._held = h + m
             self._filled = True
+            while d < len(due) and due[d][0] < i + m:   # the diagnostics of these periods, the Simulator at each
+                j, nd = due[d]
+                if blk.arrive is not None:
+                    blk.arrive(j)
+                data = _diagnostics_bytes(int(t_out[j]), sim, level, message)
+                self._after.setdefault(h + j - i, []).append(('diagnostics', M.TOPIC_TYPES['diagnostics'], data))
+                self._next_diag = nd + self.diagnostics_period
+                d += 1
             i += m
-            if i == K and self._diag_due(blk.t_out[-1]):
-                data = _diagnostics_bytes(int(t_out[-1]), sim, level, message)
-                self._after.setdefault(self._held - 1, []).append(('diagnostics', M.TOPIC_TYPES['diagnostics'], data))
-                self._next_diag += self.diagnostics_period
             if self._batch_done(int(t_out[i - 1])):
                 self._write_held()
 
@@ -586,36 +627,46 @@ class McapRunSink:
         rows = L.rows(self._values[:K], self._times[:K], filled=self._filled)
         R = rows.shape[1]
         times = np.where(L.is_cmd, self._times[:K, 0:1], self._times[:K, 1:2])
-        offs = np.arange(K, dtype=np.int64)[:, None] * R + L.rec_off
+        offs, chans = L.record_starts(K)   # (K, n) each record's start in the rows, (K * n,) its channel
         if not self._after:
             records, offsets = rows.reshape(-1), offs.ravel()
-            channels, log_times = np.tile(L.channels, K), times.ravel()
+            channels, log_times = chans, times.ravel()
         else:   # records after some periods (markers, diagnostics): inserted after their rows, in one pass
-            extra = [(k, self._channel(topic, type_name), bytes(31) + data)
-                     for k in sorted(self._after) for topic, type_name, data in self._after[k]]
-            after = np.array([e[0] for e in extra], dtype=np.int64)           # the row each follows
-            blobs = [e[2] for e in extra]
-            size = np.array([len(b) for b in blobs], dtype=np.int64)
-            shift = np.zeros(K, dtype=np.int64)                                # extra bytes before row k
-            np.add.at(shift, after[after + 1 < K] + 1, size[after + 1 < K])
-            shift = np.cumsum(shift)
             n = L.n_msgs
-            at = (after + 1) * R                                               # in the rows' bytes
-            flat = rows.reshape(-1)
-            records = np.empty(flat.size + int(size.sum()), dtype=np.uint8)
-            a = b = 0                                                          # read, write positions
-            for end, blob in zip(at.tolist(), blobs):
-                records[b:b + end - a] = flat[a:end]
-                b += end - a
-                records[b:b + len(blob)] = np.frombuffer(blob, dtype=np.uint8)
-                b += len(blob)
-                a = end
-            records[b:] = flat[a:]
-            d_offs = at + np.cumsum(size) - size
-            pos = (after + 1) * n                                              # in the records' order
-            offsets = np.insert((offs + shift[:, None]).ravel(), pos, d_offs)
-            channels = np.insert(np.tile(L.channels, K), pos, [e[1] for e in extra])
-            log_times = np.insert(times.ravel(), pos, self._times[after, 1])
+            mv = rows.reshape(-1).data
+            pieces, after, e_offs, e_chans = [], [], [], []
+            shift = np.zeros(K + 1, dtype=np.int64)    # extra bytes right before row k (cumulated below)
+            a = 0        # bytes of the rows taken so far
+            added = 0    # bytes of the records inserted so far
+            for k in sorted(self._after):
+                end = (k + 1) * R
+                if end > a:
+                    pieces.append(mv[a:end])
+                    a = end
+                for topic, type_name, data in self._after[k]:
+                    pieces.append(_GAP)
+                    pieces.append(data)
+                    e_offs.append(end + added)
+                    e_chans.append(self._channel(topic, type_name))
+                    after.append(k)
+                    added += 31 + len(data)
+                    shift[k + 1] += 31 + len(data)
+            pieces.append(mv[a:])
+            records = np.frombuffer(bytearray().join(pieces), dtype=np.uint8)
+            # the i-th inserted record (after row k) lands at (k + 1) n + i in the records' order
+            pos = np.array(after, dtype=np.int64)
+            rest = np.ones(K * n + len(after), dtype=bool)
+            ins = (pos + 1) * n + np.arange(len(after))
+            rest[ins] = False
+            offsets = np.empty(rest.size, dtype=np.int64)
+            offsets[rest] = (offs + np.cumsum(shift[:K])[:, None]).ravel()
+            offsets[ins] = e_offs
+            channels = np.empty(rest.size, dtype=np.int64)
+            channels[rest] = chans
+            channels[ins] = e_chans
+            log_times = np.empty(rest.size, dtype=np.int64)
+            log_times[rest] = times.ravel()
+            log_times[ins] = self._times[pos, 1]
         self.writer.write_records(records, offsets, channels, log_times)
         self.count += len(offsets)
         self._held = 0
