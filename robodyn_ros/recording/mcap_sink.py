@@ -183,8 +183,7 @@ class _DirectMessages:
             self.stats.chunk_count += 1
             raw = cb.end()
             if self.compression == 'zstd':   # (a large chunk written before comes from chunk_cache: the same bytes)
-                data = chunk_cache.compress_zstd(raw, self._zstd, self._zstandard.ZstdDecompressor,
-                                                 self._zstandard.__version__)
+                data = chunk_cache.compress_zstd(raw, self._zstd, self._zstandard.__version__)
             elif self.compression == 'lz4':
                 data = self._lz4(raw)
             else:
