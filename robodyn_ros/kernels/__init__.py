@@ -319,16 +319,11 @@ class CompiledModel:
         qdd = np.empty(self.nv)
         if self.gen is not None:   # (what _fd does then, without its Python detour: a call from Python costs ~1 µs)
             c = np.ascontiguousarray
-            treefn.call_fd(self._gen_fd, self.mi_r, self.mf_r, c(q, dtype=float), c(v, dtype=float),
+            treefn.call_fd(self.gen[0].address, self.mi_r, self.mf_r, c(q, dtype=float), c(v, dtype=float),
                            c(tau, dtype=float), qdd)
         else:
             self._fd(q, v, tau, qdd, generic=False)
         return qdd
-
-    @property
-    def _gen_fd(self) -> int:
-        """The address of the generated fd in use (:attr:`gen`)."""
-        return self.gen[0].address
 
     def rnea(self, q, v, a, f_ext=None):
         """Inverse dynamics ``tau = M a + h`` (nv,)."""

@@ -395,17 +395,22 @@ def _key(model) -> str:
     return h.hexdigest()[:20]
 
 
+def _file(model) -> str:
+    """Where the generated module of ``model`` is (or goes)."""
+    return os.path.join(GENERATED_DIR, f'robodyn_gen_{_key(model)}.py')
+
+
 def written_path(model) -> str | None:
     """Path of the generated module of ``model`` when an earlier run has written it, else None (nothing
     generated here)."""
-    path = os.path.join(GENERATED_DIR, f'robodyn_gen_{_key(model)}.py')
+    path = _file(model)
     return path if os.path.exists(path) else None
 
 
 def module_path(model) -> str | None:
     """Path of the generated module of ``model`` (written if needed), or None when the model keeps the
     generic kernels or the directory is not writable."""
-    path = os.path.join(GENERATED_DIR, f'robodyn_gen_{_key(model)}.py')
+    path = _file(model)
     if os.path.exists(path):
         return path
     src = module_source(model)

@@ -218,9 +218,9 @@ class Markers:
     def _values(self, P):
         """The coordinates of :meth:`_items`' contact markers, as rows ``[x, x, x + s F]`` (n, 9) of the
         touching points: the sphere list's point, each arrow's tail and tip (:meth:`_order` puts them in
-        order)."""
-        x = P[:, 0:3]
-        return np.concatenate((x, x, x + self.scale * P[:, 3:6]), axis=1)
+        order); P (..., n, 6) gives (..., n, 9)."""
+        x = P[..., 0:3]
+        return np.concatenate((x, x, x + self.scale * P[..., 3:6]), axis=-1)
 
     def _sensor_values(self, m: MarkerInputs) -> np.ndarray:
         """The coordinates of :meth:`_items`' sensor markers, in their order: per IMU three arrows
@@ -296,8 +296,7 @@ class Markers:
                 buf[:, at:at + 8] = stamp
             if n:
                 P = points[idx][on[idx]].reshape(g, n, points.shape[2])   # the touching rows, in point order
-                x = P[:, :, PX:PX + 3]
-                values = np.concatenate((x, x, x + self.scale * P[:, :, PF:PF + 3]), axis=2)   # :meth:`_values`
+                values = self._values(np.concatenate((P[:, :, PX:PX + 3], P[:, :, PF:PF + 3]), axis=2))
                 f = np.ascontiguousarray(buf[:, 4:4 + 8 * layout.n_f64]).view('<f8')
                 f[:, layout.float_at] = values.reshape(g, 9 * n)
                 buf[:, 4:4 + 8 * layout.n_f64] = f.view(np.uint8)
