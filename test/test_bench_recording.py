@@ -24,4 +24,4 @@ def test_recording_section_measures_every_figure_of_the_issue():
     assert 0 < r['full'] < r['advance'] and r['ratio'] == r['full'] / r['advance']
     assert r['blocks'] > 0.9                     # stanford_arm runs in compiled blocks
     assert r['mujoco'] > 0                       # the MuJoCo peer ran, with its state copied out
-    assert 'zstd 3 (written)' in text and '| stanford_arm |' in text
+    assert 'zstd 1 (written)' in text and '| stanford_arm |' in text

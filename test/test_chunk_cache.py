@@ -8,7 +8,7 @@ import contextlib
 import io
 
 from robodyn_ros.cli import main
-from robodyn_ros.recording import chunk_cache
+from robodyn_ros.recording import chunk_cache, mcap_sink
 
 
 def _record(path) -> None:
@@ -18,6 +18,7 @@ def _record(path) -> None:
 
 def test_a_chunk_written_again_comes_from_the_cache_and_the_file_is_the_same(tmp_path, monkeypatch):
     monkeypatch.setattr(chunk_cache, 'MIN_BYTES', 1000)   # every chunk of this recording is large enough
+    monkeypatch.setattr(mcap_sink, 'DEFAULT_CHUNK_SIZE', 64 * 1024)   # and there are several
     monkeypatch.setenv('ROBODYN_CHUNK_CACHE', '0')
     _record(tmp_path / 'off.mcap')
     cache = tmp_path / 'cache'

@@ -15,10 +15,10 @@ PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'
 
 @pytest.fixture(scope='module')
 def recordings(tmp_path_factory):
-    """stanford_arm for 1 s and (when the scene exists) betancur_platform for 2 s, recorded by
+    """stanford_arm for 10 s (several 768 KiB chunks) and (when the scene exists) betancur_platform for 2 s, recorded by
     ``robodyn run`` in parallel."""
     d = tmp_path_factory.mktemp('plot')
-    jobs = {'stanford_arm': 1, 'betancur_platform': 2}
+    jobs = {'stanford_arm': 10, 'betancur_platform': 2}
     procs = {name: subprocess.Popen(ROBODYN + ['run', name, '--duration', str(t), '--record', str(d / f'{name}.mcap')],
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for name, t in jobs.items()}

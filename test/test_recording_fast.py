@@ -4,7 +4,10 @@ McapRunSink encodes joint_states, /tf, /clock and command arrays straight from t
 outputs (cdr.joint_state_bytes, tf_message_bytes, clock_bytes, float64_array_bytes), and McapSink
 writes message records straight into mcap's open chunk (_DirectMessages). Each is compared with
 the path it replaces: the message dicts of robodyn_ros.messages through cdr.encode, and
-mcap.Writer.add_message. Whole recordings of every scene kind must be byte-identical.
+mcap.Writer.add_message. Whole recordings of every scene kind must be byte-identical. mcap.Writer
+compresses at zstd level 3 (``zstandard.compress``); the sink writes level 1, the MCAP C++ writer's
+default, so the comparisons with mcap.Writer set the sink's level to 3, and
+test_chunks_are_zstd_level_1_of_the_same_records checks the level the sink writes.
 """
 from __future__ import annotations
 
@@ -62,6 +65,9 @@ def test_tf_bytes_equal_the_tf_message_encoding():
         assert data == cdr.encode('tf2_msgs/msg/TFMessage', tree.message(t_ns, out))
 
 
+cdr_joint_state_bytes, cdr_float64_array_bytes = cdr.joint_state_bytes, cdr.float64_array_bytes
+
+
 def _record(path, name, direct=True, fast=True, monkeypatch=None):
     sc = load_scene(name)
     with warnings.catch_warnings():
@@ -78,7 +84,9 @@ def _record(path, name, direct=True, fast=True, monkeypatch=None):
         run_headless(sim, 0.3, 50.0, sc.script, [sink])
     finally:
         sink.close()
-        monkeypatch.undo() if monkeypatch is not None else None
+        if not fast:
+            monkeypatch.setattr(cdr, 'joint_state_bytes', cdr_joint_state_bytes)
+            monkeypatch.setattr(cdr, 'float64_array_bytes', cdr_float64_array_bytes)
     return path.read_bytes()
 
 
@@ -86,12 +94,14 @@ def _record(path, name, direct=True, fast=True, monkeypatch=None):
                                   'unfried_free_flyer'])
 def test_fast_recording_is_byte_identical_to_the_generic_path(tmp_path, name, monkeypatch):
     assert mcap_sink._DirectMessages._self_test()
+    monkeypatch.setattr(mcap_sink, 'ZSTD_LEVEL', 3)   # mcap.Writer's
     fast = _record(tmp_path / 'fast.mcap', name)
     slow = _record(tmp_path / 'slow.mcap', name, direct=False, fast=False, monkeypatch=monkeypatch)
     assert len(fast) > 20000 and fast == slow
 
 
 def test_sink_falls_back_to_add_message_when_mcap_internals_differ(tmp_path, monkeypatch):
+    monkeypatch.setattr(mcap_sink, 'ZSTD_LEVEL', 3)   # mcap.Writer's
     monkeypatch.setattr(mcap_sink._DirectMessages, '_verified', False)
     with mcap_sink.McapSink(tmp_path / 'a.mcap') as s:
         assert s._direct is None
@@ -104,9 +114,10 @@ def test_sink_falls_back_to_add_message_when_mcap_internals_differ(tmp_path, mon
 
 
 @pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
-def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, compression):
+def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, compression, monkeypatch):
     # McapSink closes chunks itself (one reused zstd compressor, the chunk record in one piece);
     # the file must be the one mcap.Writer.flush writes, for each compression
+    monkeypatch.setattr(mcap_sink, 'ZSTD_LEVEL', 3)   # mcap.Writer's
     rng = np.random.default_rng(7)
     msgs = [(f'/t{int(rng.integers(0, 3))}', int(t), rng.normal(size=int(rng.integers(1, 40))))
             for t in np.cumsum(rng.integers(0, 5_000_000, size=600))]
@@ -122,3 +133,33 @@ def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, 
             assert s.chunk_count > 10
         files.append(path.read_bytes())
     assert files[0] == files[1]
+
+
+def test_chunks_are_zstd_level_1_of_the_same_records(tmp_path):
+    # the sink's own level (the MCAP C++ writer's CompressionLevel::Default, as rosbag2 writes):
+    # each chunk is zstandard's level-1 frame of the records mcap.Writer's file holds in the same chunk
+    import zstandard
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+    assert mcap_sink.ZSTD_LEVEL == 1 and mcap_sink.DEFAULT_CHUNK_SIZE == 768 * 1024
+    rng = np.random.default_rng(8)
+    msgs = [(f'/t{int(rng.integers(0, 3))}', int(t), rng.normal(size=int(rng.integers(1, 40))))
+            for t in np.cumsum(rng.integers(0, 5_000_000, size=600))]
+    chunks = []
+    for direct in (True, False):
+        path = tmp_path / f'{direct}.mcap'
+        with mcap_sink.McapSink(path, {'k': 'v'}, chunk_size=2500) as s:
+            if not direct:
+                s._direct = None
+            for topic, t, data in msgs:
+                s.write(topic, 'std_msgs/msg/Float64MultiArray', M.float64_array(data), t)
+        with open(path, 'rb') as f:
+            chunks.append([r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)])
+    ours, theirs = chunks
+    assert len(ours) == len(theirs) > 10
+    level1, level3 = zstandard.ZstdCompressor(level=1), zstandard.ZstdCompressor(level=3)
+    for a, b in zip(ours, theirs):
+        raw = zstandard.ZstdDecompressor().decompress(b.data, max_output_size=b.uncompressed_size)
+        assert (a.compression, a.uncompressed_size, a.uncompressed_crc) == ('zstd', b.uncompressed_size, b.uncompressed_crc)
+        assert a.data == level1.compress(raw) and b.data == level3.compress(raw)
+    assert sum(a.data != b.data for a, b in zip(ours, theirs)) > 0

@@ -1,16 +1,17 @@
 """Compressed chunks kept on disk by their content: a large chunk a recording writes again is not compressed again.
 
 A recording of a robot with meshes starts with its ``robot_description``, the meshes embedded as ``data:`` URIs
-(a1_stand: 27 MB of text, 8.6 MB in zstd, about 0.23 s of compression at level 3 on a 2-core machine). Every
+(a1_stand: 27 MB of text, 9.0 MB in zstd, about 0.11 s of compression at level 1 on a 2-core machine, 0.19 s
+at level 3). Every
 run of that robot writes the same chunk, so its compressed bytes are kept in ``$XDG_CACHE_HOME/robodyn_ros/chunks``
 (default ``~/.cache``; ``$ROBODYN_CHUNK_CACHE`` names another directory, ``0`` turns the cache off) under the
-sha256 of the uncompressed chunk, the compression and the zstandard version. An entry holds that key and the
+sha256 of the uncompressed chunk, the compression level and the zstandard version. An entry holds that key and the
 sha256 of its compressed bytes before them, and is used only when both match (a damaged file, or another chunk's
-entry under this name, is replaced): the bytes are then those ``ZstdCompressor(level=3).compress`` gave for this
+entry under this name, is replaced): the bytes are then those ``ZstdCompressor(level=level).compress`` gave for this
 chunk (zstd is deterministic for a given input, level and version), so a recording's bytes do not depend on the
 cache: the same file as compressing anew. (Checking the two hashes costs about 25 ms for the A1's 27 MB chunk;
 decompressing it to compare, about 100 ms.) Only chunks of at least :data:`MIN_BYTES` are kept (a
-recording's 64 KiB chunks differ from run to run); entries beyond :data:`MAX_TOTAL` bytes, oldest first, are
+recording's 768 KiB chunks differ from run to run); entries beyond :data:`MAX_TOTAL` bytes, oldest first, are
 removed when one is added. Anything the file system refuses (a read-only home) just compresses as before.
 """
 from __future__ import annotations
@@ -20,7 +21,7 @@ import os
 import tempfile
 
 #: smallest uncompressed chunk kept (bytes)
-MIN_BYTES = 1 << 20
+MIN_BYTES = 2 << 20
 #: bytes of entries the directory keeps at most
 MAX_TOTAL = 512 << 20
 #: lookups this process answered from the cache (tests)
@@ -38,16 +39,16 @@ def directory() -> str | None:
     return os.path.join(base, 'robodyn_ros', 'chunks')
 
 
-def compress_zstd(raw: bytes, compressor, version: str) -> bytes:
+def compress_zstd(raw: bytes, compressor, level: int, version: str) -> bytes:
     """``compressor.compress(raw)``, from the cache when an entry for raw is there whole (module docstring).
 
-    raw: the uncompressed chunk; compressor: a ``zstandard.ZstdCompressor`` (level 3); version:
-    ``zstandard.__version__`` (part of the key)."""
+    raw: the uncompressed chunk; compressor: a ``zstandard.ZstdCompressor`` at ``level``; level and
+    version (``zstandard.__version__``) are part of the key."""
     d = directory() if len(raw) >= MIN_BYTES else None
     if d is None:
         return compressor.compress(raw)
     key = hashlib.sha256(raw).digest()
-    path = os.path.join(d, f'{key.hex()}.zstd3-{version}')
+    path = os.path.join(d, f'{key.hex()}.zstd{level}-{version}')
     try:
         with open(path, 'rb') as f:
             entry = f.read()

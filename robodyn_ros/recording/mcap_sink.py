@@ -43,8 +43,13 @@ from . import cdr, chunk_cache, msgdefs
 METADATA_NAME = 'robodyn'
 #: Topics (last name component) recorded with transient-local durability, like a latched topic.
 TRANSIENT_LOCAL_TOPICS = ('robot_description',)
-#: Bytes of message records per chunk: small, so a crash loses little.
-DEFAULT_CHUNK_SIZE = 64 * 1024
+#: Bytes of message records per chunk: what the MCAP C++ writer (and so ``ros2 bag record -s mcap``)
+#: uses by default, 768 KiB. A crash loses at most the open chunk (the node also closes one every
+#: 0.5 s of simulation).
+DEFAULT_CHUNK_SIZE = 768 * 1024
+#: zstd level of the chunks: the MCAP C++ writer's ``CompressionLevel::Default`` (rosbag2's), 1.
+#: Level 3 (what ``mcap.Writer`` calls, ``zstandard.compress``) writes the same size in 1.6x the time.
+ZSTD_LEVEL = 1
 #: Bytes a Message record adds to its payload: opcode 1 + length 8 + channel 2 + sequence 4
 #: + log_time 8 + publish_time 8.
 _MESSAGE_RECORD_OVERHEAD = 31
@@ -95,6 +100,8 @@ class _DirectMessages:
     private attributes of mcap's Writer and ChunkBuilder (mcap is pinned in constraints.txt);
     :meth:`attach` checks that they exist *and* that a test file written both ways is identical
     (once per process), else returns None and the sink keeps calling ``Writer.add_message``.
+    Chunks are compressed at ``level`` (:data:`ZSTD_LEVEL`; the self-test uses mcap.Writer's 3). In
+    the fallback, mcap.Writer compresses them itself at level 3: the same records, other bytes.
     """
 
     #: opcode, record length, channel id, sequence, log time, publish time
@@ -105,8 +112,9 @@ class _DirectMessages:
     #: uncompressed crc, compression string length
     CHUNK_HEAD = struct.Struct('<BQQQQII')
 
-    def __init__(self, writer: Writer):
+    def __init__(self, writer: Writer, level: Optional[int] = None):
         self.writer = writer
+        level = ZSTD_LEVEL if level is None else level
         self.stats = writer._Writer__statistics
         self.chunk = writer._Writer__chunk_builder
         self.chunk_size = writer._Writer__chunk_size
@@ -124,7 +132,8 @@ class _DirectMessages:
         self.compression = {CompressionType.ZSTD: 'zstd', CompressionType.LZ4: 'lz4', CompressionType.NONE: ''}[kind]
         if self.compression == 'zstd':
             import zstandard
-            self._zstd = zstandard.ZstdCompressor(level=3)   # what zstandard.compress(data) uses
+            self._zstd = zstandard.ZstdCompressor(level=level)
+            self._level = level
             self._zstandard = zstandard
         elif self.compression == 'lz4':
             import lz4.frame
@@ -183,7 +192,7 @@ class _DirectMessages:
             self.stats.chunk_count += 1
             raw = cb.end()
             if self.compression == 'zstd':   # (a large chunk written before comes from chunk_cache: the same bytes)
-                data = chunk_cache.compress_zstd(raw, self._zstd, self._zstandard.__version__)
+                data = chunk_cache.compress_zstd(raw, self._zstd, self._level, self._zstandard.__version__)
             elif self.compression == 'lz4':
                 data = self._lz4(raw)
             else:
@@ -277,7 +286,7 @@ class _DirectMessages:
             c1 = w.register_channel(topic='/a', message_encoding=MessageEncoding.CDR, schema_id=sid)
             c2 = w.register_channel(topic='/b', message_encoding=MessageEncoding.CDR, schema_id=sid)
             ids = {1: c1, 2: c2}
-            d = cls(w) if how != 'writer' else None
+            d = cls(w, level=3) if how != 'writer' else None   # zstandard.compress's level, as mcap.Writer
             pending = []
 
             def bulk():
@@ -365,7 +374,7 @@ class McapSink:
     """
 
     def __init__(self, path, metadata: Optional[Dict[str, str]] = None,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE, compression: Optional[str] = 'zstd',
+                 chunk_size: Optional[int] = None, compression: Optional[str] = 'zstd',
                  fsync: bool = False, chunk_span: Optional[float] = None):
         """Create (truncate) the file and write the header and the ``robodyn`` metadata record.
 
@@ -374,7 +383,7 @@ class McapSink:
             metadata: key/value strings for the ``robodyn`` metadata record (scene file text,
                 integrator settings, package version, ...); keys are written sorted.
             chunk_size: bytes of message records after which the open chunk is closed and
-                written out; the most a crash can lose.
+                written out; the most a crash can lose (None: :data:`DEFAULT_CHUNK_SIZE`).
             compression: ``'zstd'`` (default), ``'lz4'``, or ``'none'``/None, per chunk.
             fsync: also ``os.fsync`` after each chunk (survives power loss, not only a killed
                 process; slower).
@@ -384,6 +393,8 @@ class McapSink:
         """
         if compression not in _COMPRESSIONS:
             raise ValueError(f'compression must be one of zstd, lz4, none; got {compression!r}')
+        if chunk_size is None:
+            chunk_size = DEFAULT_CHUNK_SIZE
         if chunk_size <= 0:
             raise ValueError(f'chunk_size must be positive, got {chunk_size}')
         metadata = dict(metadata or {})
@@ -608,6 +619,8 @@ class McapSink:
         try:
             if self._open_chunk_bytes:
                 self.chunk_count += 1
+                if self._direct is not None:   # the last chunk at the sink's level (mcap.Writer.finish would close it at 3)
+                    self._direct.flush()
             self._writer.finish()
             self.flushed_message_count = self.message_count
             self._file.flush()
