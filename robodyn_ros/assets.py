@@ -93,5 +93,9 @@ def embed_meshes(urdf: str, limit: int = EMBED_LIMIT) -> tuple:
         files[uri] = f'data:{media_type(uri)};base64,{base64.b64encode(data).decode("ascii")}'
     if not files:
         return urdf, tuple(notes)
-    text = _MESH_FILENAME.sub(lambda m: m.group(1) + files.get(m.group(2), m.group(2)) + m.group(3), urdf)
-    return text, tuple(notes)
+    pieces, at = [], 0   # what _MESH_FILENAME.sub would build, joined once (the meshes are MBs of text)
+    for m in _MESH_FILENAME.finditer(urdf):
+        pieces += [urdf[at:m.start()], m.group(1), files.get(m.group(2), m.group(2)), m.group(3)]
+        at = m.end()
+    pieces.append(urdf[at:])
+    return ''.join(pieces), tuple(notes)

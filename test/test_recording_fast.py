@@ -46,6 +46,11 @@ def test_direct_builders_equal_the_dict_encoding():
     assert cdr.joint_state_bytes(0, 0, cdr.joint_state_names('', ('a',)), np.array([1]), np.ones(1), np.ones(1)) \
         is None  # an integer array declines (the dict path converts it)
     assert cdr.float64_array_bytes(np.ones((2, 2))) is None
+    for text in ('', 'abc', 'ab', 'lïnk ' * 1000, '<robot name="é"/>'):   # std_msgs/String (a robot_description)
+        enc = cdr._Encoder()
+        enc.message('std_msgs/msg/String', {'data': text})
+        assert cdr.encode('std_msgs/msg/String', {'data': text}) == bytes(enc.buf)
+    assert cdr._fast_string_message({'data': b'x'}) is None and cdr._fast_string_message({'data': 'x', 'y': 1}) is None
 
 
 def test_tf_bytes_equal_the_tf_message_encoding():

@@ -561,6 +561,15 @@ def float64_array_bytes(values):
     return bytes(buf)
 
 
+def _fast_string_message(msg):
+    """``std_msgs/String`` of a dict ``{'data': str}`` in one join (a robot_description with its meshes
+    embedded is tens of MB: the generic encoder copies it three times); None for anything else."""
+    if type(msg) is not dict or msg.keys() != {'data'} or type(msg['data']) is not str:
+        return None
+    data = msg['data'].encode('utf-8')
+    return b''.join((ENCAPSULATION_HEADER, _U32.pack(len(data) + 1), data, b'\x00'))
+
+
 def _fast_diagnostic_array(msg):
     """DiagnosticArray of plain dicts (header, statuses with 1-byte level, strings, key/value
     strings), as :meth:`_Encoder.message` writes it; None for anything else."""
@@ -656,6 +665,7 @@ _FAST_ENCODERS = {
     'std_msgs/msg/Float64MultiArray': _fast_float64_multi_array,
     'tf2_msgs/msg/TFMessage': _fast_tf_message,
     'diagnostic_msgs/msg/DiagnosticArray': _fast_diagnostic_array,
+    'std_msgs/msg/String': _fast_string_message,
 }
 
 
