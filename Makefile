@@ -31,8 +31,10 @@ run: $(STAMP)
 	$(VENV)/bin/sim --ros-args -p scene:=stanford_arm -p scripted_commands:=true -p mode:=max \
 	  -p duration:=10.0 -p record:=runs/stanford_arm.mcap -p overwrite:=true
 
+# the suite in one worker process per core (pytest-xdist), each test file whole in one worker (its
+# module fixtures once; node tests claim their own ROS_DOMAIN_ID with a lock file, so workers never share one)
 test: $(WARM)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(PY) -m robodyn_ros.bench speed --out docs/bench_speed.md

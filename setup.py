@@ -46,7 +46,7 @@ setup(
                       'dask', 'distributed', 'pyarrow', 'websockets'],
     extras_require={
         'plot': ['matplotlib'],
-        'test': ['pytest', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data',
+        'test': ['pytest', 'pytest-xdist', 'pin', 'mujoco', 'rosbags', 'colcon-common-extensions', 'matplotlib', 'example-robot-data',
                  'yourdfpy'],
     },
     zip_safe=True,
