@@ -140,6 +140,10 @@ def _fmt(v) -> str:
     return str(v)
 
 
+#: a diagnostics value as its string (public name of the formatting diagnostic_pairs uses)
+format_value = _fmt
+
+
 def diagnostic_pairs(values: dict) -> list:
     """``[(key, value string)]`` of a diagnostics status: booleans true/false, integers in
     decimal, floats as ``repr`` (shortest round-trip), the rest by ``str``."""

@@ -1,6 +1,8 @@
 """The CDR fast path (JointState, Clock, Float64MultiArray, TFMessage) writes exactly the generic encoder's bytes."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -153,6 +155,33 @@ def test_diagnostic_array_bytes_align_every_string_length():
             assert cdr._fast_diagnostic_array(msg) == generic('diagnostic_msgs/msg/DiagnosticArray', msg)
             n += 1
     assert n == 48
+
+
+def test_diagnostic_values_bytes_equal_the_generic_encoding_of_the_status_dict():
+    """The recorder's diagnostics (cdr.diagnostic_values_bytes: a status's fields and keys laid out once
+    per set of keys) against the generic encoder of messages.diagnostic_array's dict: values of every
+    kind messages formats (floats, non-finite ones, ints, booleans, numpy scalars, strings) and of
+    every length mod 4, keys of every length, the same keys again with other values."""
+    rng = np.random.default_rng(9)
+    kinds = [lambda: float(rng.normal() * 10.0 ** rng.integers(-8, 8)), lambda: float('nan'), lambda: -math.inf,
+             lambda: int(rng.integers(-10 ** 9, 10 ** 9)), lambda: bool(rng.integers(0, 2)),
+             lambda: np.float64(rng.normal()), lambda: np.int64(rng.integers(0, 99)), lambda: np.bool_(True),
+             lambda: 'w' * int(rng.integers(0, 70)), lambda: 'rosenbrock2']
+    n = 0
+    for frame in ('', 'a', 'ab', 'abc'):
+        for k in range(10):
+            keys = ['é' * int(rng.integers(0, 3)) + 'k' * int(rng.integers(1, 9)) + str(i) for i in range(k)]
+            for again in range(3):   # the same keys (a cached layout), other values
+                values = {key: kinds[int(rng.integers(0, len(kinds)))]() for key in keys}
+                t_ns = int(rng.integers(0, 2 ** 60))
+                msg = M.diagnostic_array(t_ns, 'n' * (k % 4), k % 3, 'm' * (k % 3), values, hardware_id='h' * (k % 5))
+                msg['header']['frame_id'] = frame
+                sec, nsec = divmod(t_ns, 1_000_000_000)
+                assert cdr.diagnostic_values_bytes(sec, nsec, frame, k % 3, 'n' * (k % 4), 'm' * (k % 3), 'h' * (k % 5),
+                                                   values, M.format_value) == \
+                    generic('diagnostic_msgs/msg/DiagnosticArray', msg)
+                n += 1
+    assert n == 120
 
 
 def test_layouts_put_the_numbers_where_the_generic_encoder_does():

@@ -658,6 +658,46 @@ def diagnostic_array_bytes(sec: int, nsec: int, frame_id: str, statuses) -> byte
     return bytes(out)
 
 
+_DIAG_LAYOUTS: dict = {}   # (frame_id, level, name, message, hardware_id, keys) -> (prefix, key bytes by position)
+
+
+def diagnostic_values_bytes(sec: int, nsec: int, frame_id: str, level: int, name: str, message: str,
+                            hardware_id: str, values: dict, fmt) -> bytes:
+    """:func:`diagnostic_array_bytes` of one status whose pairs are ``(key, fmt(value))`` of ``values``
+    (a dict, in its order): the same bytes, the status's fields up to its values and each key with its
+    padding at each position mod 4 laid out once per set of keys (the recorder's diagnostics, 10 per
+    simulated second)."""
+    keys = tuple(values)
+    lay = _DIAG_LAYOUTS.get((frame_id, level, name, message, hardware_id, keys))
+    if lay is None:
+        empty = diagnostic_array_bytes(0, 0, frame_id, [(level, name, message, hardware_id, [])])
+        kbs = []
+        for k in keys:
+            data = k.encode('utf-8')
+            by_r = []
+            for r in range(4):   # as diagnostic_array_bytes writes the key at position r
+                kb = _PADS[-r % 4] + _U32.pack(len(data) + 1) + data + b'\x00'
+                by_r.append(kb + _PADS[-(r + len(kb)) % 4])
+            kbs.append(tuple(by_r))
+        lay = (empty[12:-4] + _U32.pack(len(keys)), tuple(kbs))
+        if len(_DIAG_LAYOUTS) < 256:
+            _DIAG_LAYOUTS[(frame_id, level, name, message, hardware_id, keys)] = lay
+    out = bytearray(ENCAPSULATION_HEADER)
+    out += _TIME.pack(sec, nsec)
+    out += lay[0]
+    r = 0
+    lengths = _LENGTHS
+    for kb, v in zip(lay[1], values.values()):
+        out += kb[r]
+        data = fmt(v).encode('utf-8')
+        n = len(data) + 1
+        out += lengths[n] if n < 64 else _U32.pack(n)
+        out += data
+        out.append(0)
+        r = n & 3
+    return bytes(out)
+
+
 #: canonical type name -> fast encoder returning bytes, or None to decline
 _FAST_ENCODERS = {
     'sensor_msgs/msg/JointState': _fast_joint_state,

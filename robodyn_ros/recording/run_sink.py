@@ -274,8 +274,8 @@ def _diagnostics_bytes(t_ns: int, sim, level: int, message: str) -> bytes:
     ``messages.diagnostic_array(t_ns, 'robodyn_ros: simulation', level, message,
     sim.diagnostics_values())``, without building the dicts."""
     sec, nsec = divmod(t_ns, 1_000_000_000)
-    return cdr.diagnostic_array_bytes(sec, nsec, '', [(level, 'robodyn_ros: simulation', message, 'robodyn_ros',
-                                                       M.diagnostic_pairs(sim.diagnostics_values()))])
+    return cdr.diagnostic_values_bytes(sec, nsec, '', level, 'robodyn_ros: simulation', message, 'robodyn_ros',
+                                       sim.diagnostics_values(), M.format_value)
 
 
 def run_metadata(scene, settings: dict, extra: dict | None = None) -> dict:
