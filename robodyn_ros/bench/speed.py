@@ -651,8 +651,8 @@ _RECORDING_NOTE = (
 def _compression_trade(raw: bytes, period_bytes: float) -> list:
     """Rows: chunk size x compression (zstd levels, lz4, none) -> size ratio and CPU time."""
     import zstandard
-    rows = []
     from ..recording import mcap_sink
+    rows = []
     written = (mcap_sink.ZSTD_LEVEL, mcap_sink.DEFAULT_CHUNK_SIZE)
     for size in (16 * 1024, 64 * 1024, 256 * 1024, 768 * 1024):
         pieces = [raw[i:i + size] for i in range(0, len(raw), size)]

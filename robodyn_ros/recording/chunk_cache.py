@@ -2,8 +2,8 @@
 
 A recording of a robot with meshes starts with its ``robot_description``, the meshes embedded as ``data:`` URIs
 (a1_stand: 27 MB of text, 9.0 MB in zstd, about 0.11 s of compression at level 1 on a 2-core machine, 0.19 s
-at level 3). Every
-run of that robot writes the same chunk, so its compressed bytes are kept in ``$XDG_CACHE_HOME/robodyn_ros/chunks``
+at level 3). Every run of that robot writes the same chunk, so its compressed bytes are kept in
+``$XDG_CACHE_HOME/robodyn_ros/chunks``
 (default ``~/.cache``; ``$ROBODYN_CHUNK_CACHE`` names another directory, ``0`` turns the cache off) under the
 sha256 of the uncompressed chunk, the compression level and the zstandard version. An entry holds that key and the
 sha256 of its compressed bytes before them, and is used only when both match (a damaged file, or another chunk's
