@@ -67,3 +67,25 @@ def test_a_rows_recording_is_a_valid_mcap(measured):
         assert summary.statistics.message_count == f['messages'] == n, name
         assert {'/joint_states', '/tf', '/diagnostics', '/robot_description'} <= topics, (name, topics)
         assert all(s.encoding == 'ros2msg' for s in summary.schemas.values())
+
+
+def test_the_ratio_of_each_repeat_cancels_the_machines_drift():
+    # synthetic children, the machine's speed changing between repeats (robodyn 1.5, 1, 3 s): with MuJoCo 2x
+    # robodyn's CPU in each repeat both statistics are 2; when one repeat's MuJoCo run alone is slower (a load
+    # spike during it), the ratio of the medians moves (8/3) and the median of the repeats' ratios stays 2
+    def full(cpu):
+        return {'cpu': cpu, 'wall': cpu, 'steps': 100, 't': 1.0, 'method': 'rk4', 'dt': 1e-3, 'rate': 100.0,
+                'kernels': 'generic', 'generic_s': 0.0, 'peak_rss': 1.0, 'rss_before': 1.0, 'messages': 10,
+                'sink_cpu': 0.1, 'sink_start_cpu': 0.0}
+    none = {'cpu': 0.5, 'integrating_cpu': 0.4, 'dyn_step': 1e-3, 'contact_step': 0.0, 'fd': 1e-6, 'bm': 1e-6}
+    runs = {'full': [full(1.0), full(2.0), full(3.0)], 'none': [none] * 3,
+            'mujoco': [{'cpu': c, 'wall': c, 'peak_rss': 1.0, 'rss_before': 1.0, 'what': 'x'} for c in (3.0, 2.0, 6.0)]}
+    runs['full'][0], runs['full'][1] = full(1.5), full(1.0)   # against MuJoCo 3, 2, 6
+    f = peers.row_figures(runs)
+    assert f['ratio_pairs'] == [2.0, 2.0, 2.0]
+    assert f['ratio_cpu'] == 3.0 / 1.5   # medians 3 and 1.5
+    runs['mujoco'][1]['cpu'] = 4.0        # the second repeat: MuJoCo's run 2x slower
+    f = peers.row_figures(runs)
+    assert f['ratio_pairs'] == [2.0, 4.0, 2.0] and f['ratio_cpu'] == 4.0 / 1.5
+    text = peers.report({'x': f}, 3)
+    assert '×2.00 (×2.00–4.00)' in text

@@ -387,6 +387,9 @@ def row_figures(runs: dict, recording=None) -> dict:
     split = {k: max(v, 0.0) * 1e6 for k, v in raw.items()}
     mj_cpu, mj_wall = med('mujoco', 'cpu'), med('mujoco', 'wall')
     cpu, wall = med('full', 'cpu'), med('full', 'wall')
+    # each repeat's own ratio (its two children ran minutes apart at most): the machine's speed drifting
+    # between repeats, which moves both medians, cancels in it
+    pairs = [m['cpu'] / f['cpu'] for f, m in zip(full, runs['mujoco']) if m.get('cpu') and f.get('cpu')]
     return {'duration': full[0]['t'], 'method': full[0]['method'], 'dt': full[0]['dt'], 'rate': full[0]['rate'],
             'steps': steps, 'kernels': [x['kernels'] for x in full], 'generic_s': med('full', 'generic_s'),
             'cpu': cpu, 'wall': wall, 'rss': med('full', 'peak_rss'), 'rss_before': med('full', 'rss_before'),
@@ -397,6 +400,7 @@ def row_figures(runs: dict, recording=None) -> dict:
             'mujoco_rss_before': med('mujoco', 'rss_before'),
             'mujoco_what': runs['mujoco'][0].get('what', runs['mujoco'][0].get('why')),
             'ratio_cpu': mj_cpu / cpu if mj_cpu else None, 'ratio_wall': mj_wall / wall if mj_wall else None,
+            'ratio_pairs': pairs,
             'split': split, 'whole': whole * 1e6, 'fd': statistics.median(x['fd'] for x in none),
             'bm': statistics.median(x['bm'] for x in none), 'recording': recording}
 
@@ -406,7 +410,7 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
     mb = 1024.0 ** 2
     head = ['row', 'robodyn (kernels at the end)', 'robodyn CPU / wall s', 'RTF (CPU)', 'peak RSS (before the run)',
             'MuJoCo', 'MuJoCo CPU / wall s', 'RTF (CPU)', 'peak RSS (before the run)',
-            'ratio robodyn / MuJoCo (CPU; wall)']
+            'ratio robodyn / MuJoCo (CPU; wall)', 'ratio of each repeat (CPU): median (range)']
     main_rows, split_rows = [], []
     for name, f in rows.items():
         kernels = ', '.join(sorted(set(f['kernels'])))
@@ -418,7 +422,9 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
             f['mujoco_what'], '—' if f['mujoco_cpu'] is None else f'{f["mujoco_cpu"]:.3f} / {f["mujoco_wall"]:.3f}',
             '—' if f['mujoco_cpu'] is None else f'{f["duration"] / f["mujoco_cpu"]:.0f}',
             '—' if f['mujoco_rss'] is None else f'{f["mujoco_rss"] / mb:.0f} MiB ({f["mujoco_rss_before"] / mb:.0f})',
-            '—' if f['ratio_cpu'] is None else f'×{f["ratio_cpu"]:.2f}; ×{f["ratio_wall"]:.2f}'])
+            '—' if f['ratio_cpu'] is None else f'×{f["ratio_cpu"]:.2f}; ×{f["ratio_wall"]:.2f}',
+            '—' if not f['ratio_pairs'] else f'×{statistics.median(f["ratio_pairs"]):.2f} '
+                                             f'(×{min(f["ratio_pairs"]):.2f}–{max(f["ratio_pairs"]):.2f})'])
         sp = f['split']
         split_rows.append([f'`{name}`', f'{f["whole"]:.2f}'] + [f'{sp[k]:.2f}' for k in PARTS]
                           + [f'{sum(sp.values()):.2f}', f'{f["fd"] * 1e6:.2f} / {f["bm"] * 1e6:.2f}',
@@ -432,7 +438,10 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
         'its resident set just before the timed run (imports, scene, a short warm-up run). The MuJoCo child loads '
         'robodyn\'s scene too (the URDF, initial state and PD gains it is set up from), so its RSS includes '
         'robodyn\'s imports (numba): MuJoCo\'s own share is roughly the peak minus the bracket. RTF: simulated '
-        '/ CPU seconds. Ratio: robodyn\'s real-time factor over MuJoCo\'s (> 1: robodyn faster).', '',
+        '/ CPU seconds. Ratio: robodyn\'s real-time factor over MuJoCo\'s (> 1: robodyn faster), from the medians '
+        'of each side; the last column takes the ratio within each repeat (its robodyn and MuJoCo children run '
+        'seconds apart), so that the machine\'s speed drifting between repeats cancels, and gives their median '
+        'and range.', '',
         table(head, main_rows), '',
         '## Where robodyn\'s recorded run spends its time, per integration step (µs of CPU)', '',
         table(['row', 'whole (recorded run)'] + list(PARTS) + ['sum of parts', 'fd / bm per call',
