@@ -5,6 +5,7 @@ The oracle is the recording made with the cache off (``ROBODYN_CHUNK_CACHE=0``: 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 
 from robodyn_ros.cli import main
@@ -26,19 +27,22 @@ def test_a_chunk_written_again_comes_from_the_cache_and_the_file_is_the_same(tmp
     h0 = chunk_cache.HITS[0]
     _record(tmp_path / 'first.mcap')
     entries = sorted(cache.iterdir())
-    assert len(entries) >= 3 and chunk_cache.HITS[0] == h0          # filled, nothing found in an empty cache
+    assert len(entries) >= 4 and chunk_cache.HITS[0] == h0          # filled, nothing found in an empty cache
     _record(tmp_path / 'second.mcap')
     assert chunk_cache.HITS[0] - h0 == len(entries)                   # every chunk found
     off = (tmp_path / 'off.mcap').read_bytes()
     assert (tmp_path / 'first.mcap').read_bytes() == off and (tmp_path / 'second.mcap').read_bytes() == off
 
-    # a damaged entry and an entry holding another chunk's bytes are not used, and are replaced
+    # a damaged entry, an entry holding another chunk's bytes and an entry whose hash does not cover the
+    # layout (the previous one: key, sha256 of the rest, the rest) are not used, and are replaced
     good = entries[0].read_bytes()
     entries[0].write_bytes(good[:len(good) // 2])
     entries[1].write_bytes(entries[2].read_bytes())
+    e3 = entries[3].read_bytes()
+    entries[3].write_bytes(e3[:32] + hashlib.sha256(e3[64:]).digest() + e3[64:])
     h1 = chunk_cache.HITS[0]
     _record(tmp_path / 'third.mcap')
-    assert chunk_cache.HITS[0] - h1 == len(entries) - 2
+    assert chunk_cache.HITS[0] - h1 == len(entries) - 3
     assert (tmp_path / 'third.mcap').read_bytes() == off
     assert entries[0].read_bytes() == good
 

@@ -3,14 +3,15 @@
 A recording of a robot with meshes starts with its ``robot_description``, the meshes embedded as ``data:`` URIs
 (a1_stand: 27 MB of text, 9.0 MB in zstd, about 0.11 s of compression at level 1 on a 2-core machine, 0.19 s
 at level 3). Every run of that robot writes the same chunk, so its compressed bytes are kept in
-``$XDG_CACHE_HOME/robodyn_ros/chunks``
-(default ``~/.cache``; ``$ROBODYN_CHUNK_CACHE`` names another directory, ``0`` turns the cache off) under the
-sha256 of the uncompressed chunk, the compression level and the zstandard version. An entry holds that key and the
-sha256 of its compressed bytes before them, and is used only when both match (a damaged file, or another chunk's
-entry under this name, is replaced): the bytes are then those ``ZstdCompressor(level=level).compress`` gave for this
-chunk (zstd is deterministic for a given input, level and version), so a recording's bytes do not depend on the
-cache: the same file as compressing anew. (Checking the two hashes costs about 25 ms for the A1's 27 MB chunk;
-decompressing it to compare, about 100 ms.) Only chunks of at least :data:`MIN_BYTES` are kept (a
+``$XDG_CACHE_HOME/robodyn_ros/chunks`` (default ``~/.cache``; ``$ROBODYN_CHUNK_CACHE`` names another directory,
+``0`` turns the cache off) under the sha256 of the uncompressed chunk, the compression level and the zstandard
+version. An entry holds that key, then the sha256 of the rest (after :data:`FORMAT`), then the chunk's CRC-32
+(the chunk record's uncompressed CRC) and its compressed bytes, and is used only when both hashes match (a
+damaged file, another chunk's entry under this name, or an entry of another layout is replaced): the bytes are
+then those ``ZstdCompressor(level=level).compress`` gave for this chunk (zstd is deterministic for a given
+input, level and version) and its CRC, so a recording's bytes do not depend on the cache: the same file as
+compressing anew. (Checking the two hashes costs about 25 ms for the A1's 27 MB chunk; decompressing it to
+compare, about 100 ms; computing its CRC, 14 ms.) Only chunks of at least :data:`MIN_BYTES` are kept (a
 recording's 768 KiB chunks differ from run to run); entries beyond :data:`MAX_TOTAL` bytes, oldest first, are
 removed when one is added. Anything the file system refuses (a read-only home) just compresses as before.
 """
@@ -19,11 +20,14 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import zlib
 
 #: smallest uncompressed chunk kept (bytes)
 MIN_BYTES = 2 << 20
 #: bytes of entries the directory keeps at most
 MAX_TOTAL = 512 << 20
+#: what an entry's second hash starts with: the layout of the entries (the CRC, then the compressed bytes)
+FORMAT = b'robodyn_ros chunk cache 2: crc32 le, zstd frame\n'
 #: lookups this process answered from the cache (tests)
 HITS = [0]
 
@@ -39,28 +43,34 @@ def directory() -> str | None:
     return os.path.join(base, 'robodyn_ros', 'chunks')
 
 
-def compress_zstd(raw: bytes, compressor, level: int, version: str) -> bytes:
-    """``compressor.compress(raw)``, from the cache when an entry for raw is there whole (module docstring).
+def compress_zstd(raw: bytes, compressor, level: int, version: str) -> tuple:
+    """``(compressor.compress(raw), zlib.crc32(raw))``, from the cache when an entry for raw is there whole
+    (module docstring): the chunk record's data and its uncompressed CRC.
 
     raw: the uncompressed chunk; compressor: a ``zstandard.ZstdCompressor`` at ``level``; level and
-    version (``zstandard.__version__``) are part of the key."""
+    version (``zstandard.__version__``) are part of the key. An entry is the key, the sha256 of :data:`FORMAT`
+    and what follows (so an entry of another layout never matches), the CRC (4 bytes, little-endian) and the
+    compressed bytes."""
     d = directory() if len(raw) >= MIN_BYTES else None
     if d is None:
-        return compressor.compress(raw)
+        return compressor.compress(raw), zlib.crc32(raw)
     key = hashlib.sha256(raw).digest()
-    path = os.path.join(d, f'{key.hex()}.zstd{level}-{version}')
+    path = os.path.join(d, f'{key.hex()}.zstd{level}-{version}.2')
     try:
         with open(path, 'rb') as f:
             entry = f.read()
-        data = entry[64:]
-        if entry[:32] == key and entry[32:64] == hashlib.sha256(data).digest():
+        h = hashlib.sha256(FORMAT)
+        h.update(memoryview(entry)[64:])
+        if len(entry) > 68 and entry[:32] == key and entry[32:64] == h.digest():
             HITS[0] += 1
-            return data
+            return entry[68:], int.from_bytes(entry[64:68], 'little')
     except OSError:   # missing or unreadable: compress anew
         pass
     data = compressor.compress(raw)
-    _store(d, path, key + hashlib.sha256(data).digest() + data)
-    return data
+    crc = zlib.crc32(raw)
+    body = crc.to_bytes(4, 'little') + data
+    _store(d, path, key + hashlib.sha256(FORMAT + body).digest() + body)
+    return data, crc
 
 
 def _store(d: str, path: str, data: bytes) -> None:

@@ -192,12 +192,12 @@ class _DirectMessages:
             self.stats.chunk_count += 1
             raw = cb.end()
             if self.compression == 'zstd':   # (a large chunk written before comes from chunk_cache: the same bytes)
-                data = chunk_cache.compress_zstd(raw, self._zstd, self._level, self._zstandard.__version__)
-            elif self.compression == 'lz4':
-                data = self._lz4(raw)
+                data, crc = chunk_cache.compress_zstd(raw, self._zstd, self._level, self._zstandard.__version__)
             else:
-                data = raw
-            crc = zlib.crc32(raw) if self.crcs else 0
+                data = self._lz4(raw) if self.compression == 'lz4' else raw
+                crc = zlib.crc32(raw)
+            if not self.crcs:
+                crc = 0
             flush = w._Writer__flush
             rb = w._Writer__record_builder
             flush()
