@@ -118,15 +118,13 @@ def test_sink_falls_back_to_add_message_when_mcap_internals_differ(tmp_path, mon
     assert (tmp_path / 'a.mcap').read_bytes() == (tmp_path / 'b.mcap').read_bytes()
 
 
-@pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
-def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, compression, monkeypatch):
-    # McapSink closes chunks itself (one reused zstd compressor, the chunk record in one piece);
-    # the file must be the one mcap.Writer.flush writes, for each compression
-    monkeypatch.setattr(mcap_sink, 'ZSTD_LEVEL', 3)   # mcap.Writer's
-    rng = np.random.default_rng(7)
+def _sample_files(tmp_path, seed, compression):
+    """The same 600 random messages on three topics written by McapSink in small chunks (2500 B): through its
+    direct records, and through mcap.Writer.add_message. Returns the two paths."""
+    rng = np.random.default_rng(seed)
     msgs = [(f'/t{int(rng.integers(0, 3))}', int(t), rng.normal(size=int(rng.integers(1, 40))))
             for t in np.cumsum(rng.integers(0, 5_000_000, size=600))]
-    files = []
+    paths = []
     for direct in (True, False):
         path = tmp_path / f'{direct}.mcap'
         with mcap_sink.McapSink(path, {'k': 'v'}, chunk_size=2500, compression=compression) as s:
@@ -136,8 +134,17 @@ def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, 
             for topic, t, data in msgs:
                 s.write(topic, 'std_msgs/msg/Float64MultiArray', M.float64_array(data), t)
             assert s.chunk_count > 10
-        files.append(path.read_bytes())
-    assert files[0] == files[1]
+        paths.append(path)
+    return paths
+
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
+def test_direct_chunks_equal_mcap_writer_chunks_for_every_compression(tmp_path, compression, monkeypatch):
+    # McapSink closes chunks itself (one reused zstd compressor, the chunk record in one piece);
+    # the file must be the one mcap.Writer.flush writes, for each compression
+    monkeypatch.setattr(mcap_sink, 'ZSTD_LEVEL', 3)   # mcap.Writer's
+    direct, writer = _sample_files(tmp_path, 7, compression)
+    assert direct.read_bytes() == writer.read_bytes()
 
 
 def test_chunks_are_zstd_level_1_of_the_same_records(tmp_path):
@@ -147,17 +154,8 @@ def test_chunks_are_zstd_level_1_of_the_same_records(tmp_path):
     from mcap.records import Chunk
     from mcap.stream_reader import StreamReader
     assert mcap_sink.ZSTD_LEVEL == 1 and mcap_sink.DEFAULT_CHUNK_SIZE == 768 * 1024
-    rng = np.random.default_rng(8)
-    msgs = [(f'/t{int(rng.integers(0, 3))}', int(t), rng.normal(size=int(rng.integers(1, 40))))
-            for t in np.cumsum(rng.integers(0, 5_000_000, size=600))]
     chunks = []
-    for direct in (True, False):
-        path = tmp_path / f'{direct}.mcap'
-        with mcap_sink.McapSink(path, {'k': 'v'}, chunk_size=2500) as s:
-            if not direct:
-                s._direct = None
-            for topic, t, data in msgs:
-                s.write(topic, 'std_msgs/msg/Float64MultiArray', M.float64_array(data), t)
+    for path in _sample_files(tmp_path, 8, 'zstd'):
         with open(path, 'rb') as f:
             chunks.append([r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)])
     ours, theirs = chunks

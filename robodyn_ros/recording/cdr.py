@@ -628,7 +628,7 @@ def diagnostic_array_bytes(sec: int, nsec: int, frame_id: str, statuses) -> byte
     out += _TIME.pack(sec, nsec)
     out += head[0]
     r = head[1]
-    keys, lengths = _KEY_BYTES, _LENGTHS
+    keys = _KEY_BYTES
     for level, name, message, hw, pairs in statuses:
         out.append(level)
         r = (r + 1) & 3
@@ -644,18 +644,27 @@ def diagnostic_array_bytes(sec: int, nsec: int, frame_id: str, statuses) -> byte
         r = 0
         for k, v in pairs:
             kb = keys.get((k, r))
-            if kb is None:   # the key at position r (mod 4), then the padding up to its value's length
-                data = k.encode('utf-8')
-                kb = _PADS[-r % 4] + _U32.pack(len(data) + 1) + data + b'\x00'
-                kb = keys[(k, r)] = kb + _PADS[-(r + len(kb)) % 4]
-            out += kb
-            data = v.encode('utf-8')
-            n = len(data) + 1
-            out += lengths[n] if n < 64 else _U32.pack(n)
-            out += data
-            out.append(0)
-            r = n & 3
+            out += kb if kb is not None else _key_bytes(k, r)
+            r = _put_value(out, v.encode('utf-8'))
     return bytes(out)
+
+
+def _key_bytes(k: str, r: int) -> bytes:
+    """A diagnostics key at position r (mod 4): its padding, CDR string and the padding up to its value's
+    length (cached in ``_KEY_BYTES``)."""
+    data = k.encode('utf-8')
+    kb = _PADS[-r % 4] + _U32.pack(len(data) + 1) + data + b'\x00'
+    kb = _KEY_BYTES[(k, r)] = kb + _PADS[-(r + len(kb)) % 4]
+    return kb
+
+
+def _put_value(out: bytearray, data: bytes) -> int:
+    """Append a value string's CDR (length, bytes, NUL; aligned by its key) to out; its end's position mod 4."""
+    n = len(data) + 1
+    out += _LENGTHS[n] if n < 64 else _U32.pack(n)
+    out += data
+    out.append(0)
+    return n & 3
 
 
 _DIAG_LAYOUTS: dict = {}   # (frame_id, level, name, message, hardware_id, keys) -> (prefix, key bytes by position)
@@ -671,30 +680,17 @@ def diagnostic_values_bytes(sec: int, nsec: int, frame_id: str, level: int, name
     lay = _DIAG_LAYOUTS.get((frame_id, level, name, message, hardware_id, keys))
     if lay is None:
         empty = diagnostic_array_bytes(0, 0, frame_id, [(level, name, message, hardware_id, [])])
-        kbs = []
-        for k in keys:
-            data = k.encode('utf-8')
-            by_r = []
-            for r in range(4):   # as diagnostic_array_bytes writes the key at position r
-                kb = _PADS[-r % 4] + _U32.pack(len(data) + 1) + data + b'\x00'
-                by_r.append(kb + _PADS[-(r + len(kb)) % 4])
-            kbs.append(tuple(by_r))
-        lay = (empty[12:-4] + _U32.pack(len(keys)), tuple(kbs))
+        kbs = tuple(tuple(_key_bytes(k, r) for r in range(4)) for k in keys)
+        lay = (empty[12:-4] + _U32.pack(len(keys)), kbs)
         if len(_DIAG_LAYOUTS) < 256:
             _DIAG_LAYOUTS[(frame_id, level, name, message, hardware_id, keys)] = lay
     out = bytearray(ENCAPSULATION_HEADER)
     out += _TIME.pack(sec, nsec)
     out += lay[0]
     r = 0
-    lengths = _LENGTHS
     for kb, v in zip(lay[1], values.values()):
         out += kb[r]
-        data = fmt(v).encode('utf-8')
-        n = len(data) + 1
-        out += lengths[n] if n < 64 else _U32.pack(n)
-        out += data
-        out.append(0)
-        r = n & 3
+        r = _put_value(out, fmt(v).encode('utf-8'))
     return bytes(out)
 
 
