@@ -108,6 +108,17 @@ def test_broken_scene_refused_with_file_key_reason(tmp_path):
     assert 'bad.yaml' in p.stderr and 'mass' in p.stderr
 
 
+@pytest.mark.parametrize('option, value', [('--rate', '-1'), ('--dt', '-1'), ('--dt', 'nan'), ('--duration', '-0.5'),
+                                           ('--rtol', '0'), ('--rate', 'abc')])
+def test_a_bad_number_is_refused_in_one_line_naming_the_option(option, value):
+    # (a negative rate ended in a traceback, a negative dt in a stability diagnosis, a negative duration in a run
+    # of no periods)
+    p = _run('run', 'stanford_arm', option, value, check=False)
+    assert p.returncode == 2 and 'Traceback' not in p.stderr, p.stderr
+    last = p.stderr.strip().splitlines()[-1]
+    assert last.startswith('robodyn run: error: argument ' + option) and repr(value) in last, last
+
+
 def test_unknown_integrator_refused():
     p = _run('run', 'betancur_pendulum', '--duration', '0.1', '--integrator', 'leapfrogg', check=False)
     assert p.returncode == 2 and 'leapfrogg' in p.stderr and 'rk4' in p.stderr

@@ -12,22 +12,40 @@ from ..runs import DEFAULT_RATE, DIAGNOSTICS_PERIOD, plan_run, resolve_settings,
 HELP = 'simulate a scene headless with its scripted commands'
 
 
+def _number(lowest: float, strict: bool, unit: str):
+    """An argparse type: a finite number above ``lowest`` (at least it when not strict), else argparse's
+    one-line usage error naming the option."""
+    import argparse
+    import math
+
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            x = math.nan
+        if not math.isfinite(x) or x < lowest or (strict and x == lowest):
+            raise argparse.ArgumentTypeError(f'expected a finite number{" of " + unit if unit else ""} '
+                                             f'{">" if strict else ">="} {lowest:g}, got {text!r}')
+        return x
+    return parse
+
+
 def add_parser(sub):
     """Register the subcommand and its options."""
     p = sub.add_parser('run', help=HELP)
     p.add_argument('scene', help='bundled scene name, path to a scene YAML file, or a URDF file (robot.urdf: '
                                  'the robot on a fixed base, no commands)')
-    p.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the scene\'s)')
+    p.add_argument('--duration', type=_number(0.0, False, 'seconds'), default=None, help='simulated seconds (default: the scene\'s)')
     p.add_argument('--record', default=None, help='MCAP file to write (default: none); an existing file is refused')
     p.add_argument('--overwrite', action='store_true', help='replace the --record file if it exists')
     p.add_argument('--integrator', default=None,
                    help='auto (default unless the scene names one: rk4, else rosenbrock2 for stiff passive forces, '
                         'else radau), euler, semi_implicit_euler, rk4, rosenbrock2, rk45, dop853, radau, ...')
-    p.add_argument('--dt', type=float, default=None,
+    p.add_argument('--dt', type=_number(0.0, True, 'seconds'), default=None,
                    help=f'fixed step (s) for fixed-step integrators (default: the scene\'s, else {DEFAULT_DT:g})')
-    p.add_argument('--rtol', type=float, default=None, help='relative tolerance (adaptive integrators)')
-    p.add_argument('--atol', type=float, default=None, help='absolute tolerance (adaptive integrators)')
-    p.add_argument('--rate', type=float, default=None,
+    p.add_argument('--rtol', type=_number(0.0, True, ''), default=None, help='relative tolerance (adaptive integrators)')
+    p.add_argument('--atol', type=_number(0.0, True, ''), default=None, help='absolute tolerance (adaptive integrators)')
+    p.add_argument('--rate', type=_number(0.0, True, 'Hz'), default=None,
                    help=f'publication/recording rate in Hz (default: the scene\'s, else {DEFAULT_RATE:g})')
     p.add_argument('--step-budget', type=float, default=None, metavar='N',
                    help='error-controlled integrators: stop (exit 1, naming the stiff mode) past N accepted steps '
