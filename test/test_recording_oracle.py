@@ -237,6 +237,26 @@ def test_adaptive_integrator_records_the_oracle_bytes(tmp_path):
     _compare(tmp_path, 'huston_p19_2_3', 0.2, chunk_size=2500, integrator='dop853', dt=None, diagnostics_period=0.1)
 
 
+def test_a_batch_holds_no_more_than_the_open_chunk_has_room_for(tmp_path, monkeypatch):
+    # crash safety in bytes: what a killed headless run has not handed to the file (the open chunk
+    # and the periods held) stays within about one chunk: when a batch is written, the open chunk and
+    # the batch's rows but its last fit in one chunk; and the batches are not one period each
+    seen = []
+    write_held = McapRunSink._write_held
+
+    def checked(self):
+        if self._held:
+            seen.append((self.writer._open_chunk_bytes, self._held, self._layout.template.size,
+                         self.writer.chunk_size))
+        write_held(self)
+    monkeypatch.setattr(McapRunSink, '_write_held', checked)
+    _compare(tmp_path, 'stanford_arm', 2.0, chunk_size=20_000, diagnostics_period=0.1, dt=1e-3)
+    assert len(seen) > 10
+    for open_bytes, held, row, chunk in seen:
+        assert open_bytes + (held - 1) * row < chunk, (open_bytes, held, row, chunk)
+    assert max(h for _, h, _, _ in seen) >= 8
+
+
 @pytest.mark.parametrize('batch', [0, HEADLESS_BATCH])
 def test_chunks_close_every_half_second_of_simulation(tmp_path, batch):
     # crash safety in time: a small recording (about 500 B per period, far below 64 KiB per

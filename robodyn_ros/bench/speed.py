@@ -635,8 +635,8 @@ def _replay_cost(scene, backend, periods, batch, repeat):
 _RECORDING_NOTE = (
     '"integration only": `Simulator.advance` per period and nothing else. "full recorded": the loop and the '
     "sink of `robodyn run`: the scene's scripted commands, outputs, and every default topic (joint_states, odom, "
-    'constraint wrenches, /tf, /clock, commands, diagnostics every 0.1 s) written in batches of {batch} periods '
-    '(or {span:g} s). "periods in compiled blocks": the share of that run\'s periods (of a 1 s run) that '
+    'constraint wrenches, /tf, /clock, commands, diagnostics every 0.1 s) written in batches of at most {batch} periods '
+    '(and no more rows than the open chunk has room for). "periods in compiled blocks": the share of that run\'s periods (of a 1 s run) that '
     "`run_headless`'s block path ran, many per compiled call with the scripted commands compiled (arms whose "
     'joint_states are their state; the rest run period by period in Python). "no recording": the same loop without a sink. "recorder per period": McapRunSink alone on '
     "stored publications (outputs computed beforehand; the recorder computes the arms' joint wrenches, one "
@@ -675,7 +675,7 @@ def section_recording(args, names) -> str:
     """Integration-only vs fully recorded real-time factor per scene, recorder cost per period and
     per message, and MuJoCo RK4 from Python with its state copied out every period."""
     from ..model import to_urdf
-    from ..recording.run_sink import BATCH_SPAN, HEADLESS_BATCH
+    from ..recording.run_sink import HEADLESS_BATCH
     rows, notes, zrows = [], [], []
     dur = args.duration
     figures = getattr(args, 'figures', {})
@@ -724,7 +724,7 @@ def section_recording(args, names) -> str:
                    'no recording (CPU RTF)', 'messages / bytes per period', 'recorder per period, batched',
                    'recorder per period, message by message', 'zstd of those bytes', 'batched / zstd',
                    'MuJoCo RK4 from Python + state copied out (CPU RTF)', 'full recorded / MuJoCo'], rows),
-            '', _RECORDING_NOTE.format(batch=HEADLESS_BATCH, span=BATCH_SPAN)] + [f'- {n}' for n in notes]
+            '', _RECORDING_NOTE.format(batch=HEADLESS_BATCH)] + [f'- {n}' for n in notes]
     if zrows:
         text += ['', '#### Compression of a chunk: size against time (stanford_arm, every default topic)\n',
                  table(['chunk size', 'compression', 'file size (of raw)', 'CPU per MB', 'per publication period'],

@@ -113,6 +113,10 @@ class Fanout:
                 tap.records(records, offsets, channels, log_times)
         self.message_count += len(offsets)
 
+    def room(self):
+        """The file's :meth:`McapSink.room`; None without a file."""
+        return None if self.mcap is None else self.mcap.room()
+
     def flush(self):
         """Hand the file's open chunk to the OS (nothing to do for the taps)."""
         if self.mcap is not None:

@@ -595,6 +595,11 @@ class McapSink:
                 self.flush()
             i = end
 
+    def room(self) -> int:
+        """Bytes of message records (31-byte headers included) the open chunk takes before it is closed:
+        the record that brings it to ``chunk_size`` closes it."""
+        return max(0, self.chunk_size - self._open_chunk_bytes)
+
     def flush(self):
         """Close the open chunk (if it holds messages) and hand everything written to the OS."""
         self._check_open()

@@ -18,14 +18,11 @@ from .markers import MarkerInputs, Markers
 from .mcap_sink import McapSink
 
 
-#: simulated time a batch of periods may span before it is written (crash safety: with the
-#: writer's chunks, what a killed run loses)
-BATCH_SPAN = 0.5
-BATCH_SPAN_NS = int(BATCH_SPAN * 1e9)
 #: the gap a message record's header is written into (mcap_sink's 31-byte record header)
 _GAP = bytes(31)
-#: periods per vectorised pass in headless runs (``robodyn run``)
-HEADLESS_BATCH = 64
+#: periods per vectorised pass in headless runs (``robodyn run``) at most; a pass also holds no more
+#: rows than the file's open chunk has room for (see ``McapRunSink``)
+HEADLESS_BATCH = 1024
 #: seconds of simulation after which the node's recorder closes a chunk (a killed node loses at
 #: most this much, plus one publication); headless runs chunk by size only (0.5 s of simulation
 #: is a few milliseconds of their wall time, and their files stay as they were)
@@ -297,8 +294,9 @@ class McapRunSink:
     record ``/tf`` at every publication and ``/tf_static`` once at the start (transient local),
     see :mod:`robodyn_ros.tf`; batch: publication periods encoded together in one vectorised
     pass (0: every message as it comes). A batch is written when it holds ``batch`` periods or
-    spans :data:`BATCH_SPAN` s of simulation, when the kind of period changes, and on
-    :meth:`close`; the file is the same byte for byte. Only for a sink that is the sole writer of
+    as many rows as the file's open chunk has room for (the last row closes the chunk, so that a
+    killed run loses about one chunk: the open one and the periods held), when the kind of period
+    changes, and on :meth:`close`; the file is the same byte for byte. Only for a sink that is the sole writer of
     its file (headless runs): the node, which also writes messages of its own, uses 0.
     chunk_span: close a chunk once it spans this many seconds of simulation (see
     :class:`McapSink`; the node, paced by the wall clock, uses :data:`NODE_CHUNK_SPAN`).
@@ -337,6 +335,7 @@ class McapRunSink:
         self._after = {}      # period index -> [(topic, type, CDR)] written after it (markers, diagnostics)
         self.markers = None   # the run's Markers (recording.markers), set in on_start; None: no markers topic
         self._held = 0        # periods held
+        self._cap = 0         # periods the batch being held takes (_batch_cap, when it starts)
         self._filled = False  # the periods held came from blocks (their wrenches are in _values)
 
     def _write(self, topic, type_name, msg, t_ns):
@@ -448,10 +447,17 @@ class McapRunSink:
         return self._next_diag is not None and t >= self._next_diag - 1e-9
 
     # -- batches of periods --------------------------------------------------------------
-    def _batch_done(self, t_ns: int) -> bool:
-        """True when the periods held, the last one ending at t_ns, are to be written: ``batch`` of
-        them, or spanning :data:`BATCH_SPAN` s."""
-        return self._held == self.batch or t_ns - int(self._times[0, 1]) >= BATCH_SPAN_NS
+    def _batch_cap(self) -> int:
+        """Periods the batch starting now takes at most: ``batch``, and no more rows of the layout than
+        the file's open chunk has room for (rounded up: the last one closes the chunk)."""
+        room = self.writer.room()
+        if room is None:   # no file: only the taps
+            return self.batch
+        return min(self.batch, max(1, -(-room // self._layout.template.size)))
+
+    def _batch_done(self) -> bool:
+        """True when the periods held are to be written (the batch's cap reached)."""
+        return self._held >= self._cap
 
     def _period_kind(self, cmd_kind, out) -> tuple:
         """What periods encoded together share: commands (port, size), joint_states names and
@@ -518,9 +524,9 @@ class McapRunSink:
         i = 0
         while i < K:
             h = self._held
-            first = int(self._times[0, 1]) if h else int(t_out[i])
-            # as many as fit, up to the period at which the per-period path writes (batch full or BATCH_SPAN spanned)
-            m = min(K - i, self.batch - h, int(np.searchsorted(t_out[i:], first + BATCH_SPAN_NS, 'left')) + 1)
+            if not h:
+                self._cap = self._batch_cap()
+            m = min(K - i, self._cap - h)   # as many as the batch takes
             L.fill_block(self._values[h:h + m], blk, i, m)
             self._times[h:h + m, 0] = t_cmd[i:i + m]
             self._times[h:h + m, 1] = t_out[i:i + m]
@@ -546,7 +552,7 @@ class McapRunSink:
                 self._next_diag = nd + self.diagnostics_period
                 d += 1
             i += m
-            if self._batch_done(int(t_out[i - 1])):
+            if self._batch_done():
                 self._write_held()
 
     def _hold(self, t, out, sim, level, message) -> bool:
@@ -582,6 +588,8 @@ class McapRunSink:
             self._values = np.empty((self.batch, layout.n_values))
             self._times = np.empty((self.batch, 2), dtype=np.int64)
         k = self._held
+        if not k:
+            self._cap = self._batch_cap()
         t_ns = M.to_ns(t)
         layout.fill(self._values[k], cmds, out)
         self._times[k] = (M.to_ns(cmds[0][0]) if cmds else t_ns, t_ns)
@@ -593,7 +601,7 @@ class McapRunSink:
             self._after.setdefault(k, []).append(
                 ('diagnostics', M.TOPIC_TYPES['diagnostics'], _diagnostics_bytes(t_ns, sim, level, message)))
             self._next_diag += self.diagnostics_period
-        if self._batch_done(t_ns):
+        if self._batch_done():
             self._write_held()
         return True
 
