@@ -135,6 +135,55 @@ def _compiled_in_new_process(runs, env) -> tuple:
     return tuple(json.loads(r.stdout.strip().splitlines()[-1]))
 
 
+_ONE_KERNEL = ('import json, sys\nfrom robodyn_ros.kernels import cache, tree\n'
+               'assert tree.__file__.startswith(sys.argv[1]), tree.__file__\n'
+               'tree.joint_nv(1)\n'
+               'print(json.dumps([cache.compiled_here(), cache.loaded_here(), cache.kernel_cache_dir()]))\n')
+
+
+def test_copies_of_the_same_sources_share_one_compilation_in_the_user_cache(tmp_path):
+    """Installs of the same sources at other paths (a second venv or clone, ``colcon build``'s copy) with
+    one user cache: the first compiles a kernel, the next loads it; a copy with an edited kernel module
+    compiles its own into a directory of its own, and the first's stays."""
+    import shutil
+
+    import robodyn_ros
+    src = Path(robodyn_ros.__file__).parent
+    for name in ('a', 'b', 'c'):
+        shutil.copytree(src, tmp_path / name / 'robodyn_ros', ignore=shutil.ignore_patterns('__pycache__'))
+    edited = tmp_path / 'c' / 'robodyn_ros' / 'kernels' / 'linalg.py'
+    edited.write_text(edited.read_text() + '\n# an edit\n')
+    got = {}
+    for name in ('a', 'b', 'c', 'a'):
+        env = {k: v for k, v in os.environ.items() if k not in ('NUMBA_CACHE_DIR', 'ROBODYN_BACKEND')}
+        env.update(XDG_CACHE_HOME=str(tmp_path / 'home'), PYTHONPATH=str(tmp_path / name),
+                   ROBODYN_COLD_START='compile', ROBODYN_INTERPRET_BUDGET='0')
+        r = subprocess.run([sys.executable, '-c', _ONE_KERNEL, str(tmp_path / name)], capture_output=True,
+                           text=True, env=env, cwd=str(tmp_path))
+        assert r.returncode == 0, r.stderr[-3000:]
+        got.setdefault(name, []).append(json.loads(r.stdout.strip().splitlines()[-1]))
+    (a, a_again), (b,), (c,) = got['a'], got['b'], got['c']
+    home = str(tmp_path / 'home' / 'robodyn_ros' / 'numba')
+    assert a[0] and a[2].startswith(home)                      # the first copy compiled, into the user cache
+    assert b[0] == [] and b[1] == ['robodyn_ros.kernels.tree.joint_nv'] and b[2] == a[2]   # the second loaded it
+    assert c[0] and c[2] != a[2] and c[2].startswith(home)     # other sources: their own directory
+    assert a_again[0] == [] and a_again[1] == b[1]             # and the first's is still there
+
+
+def test_a_new_kernel_cache_directory_removes_the_least_recently_used_beyond_keep(tmp_path):
+    from robodyn_ros.kernels import cache
+    for i in range(cache.KEEP + 2):
+        d = tmp_path / f'kernels-{i:016x}'
+        d.mkdir()
+        os.utime(d, (1000 + i, 1000 + i))   # 0 the least recently used
+    (tmp_path / 'other').mkdir()
+    os.utime(tmp_path / 'other', (1, 1))
+    made = tmp_path / 'kernels-new'
+    assert cache._writable(str(made))     # made now: the most recent; the two oldest go
+    assert sorted(p.name for p in tmp_path.iterdir()) == \
+        sorted(['other', 'kernels-new'] + [f'kernels-{i:016x}' for i in range(3, cache.KEEP + 2)])
+
+
 def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_path):
     """One process fills an empty cache with one robot (compiling); a new process runs two
     robots it never saw (other sizes, joint types, fixed links) and compiles nothing."""

@@ -917,8 +917,8 @@ def section_compile(args, names) -> str:
                'then the same run with backend=generated (generate + compile/load)',
                'then 0.1 s of betancur_platform (constrained kernels)', 'then 0.1 s of unfried_free_flyer'], rows),
         '', 'numba caches the machine code on disk (here a temporary NUMBA_CACHE_DIR; normally '
-        "the installed package's `robodyn_ros/kernels/__pycache__`), so only the first start of an install "
-        'pays the compilation.'])
+        "`~/.cache/robodyn_ros/numba`, one directory per version of the kernels' sources), so only the first "
+        'start of an install of new sources on a machine pays the compilation.'])
 
 
 # ----------------------------------------------------------------------------------------------

@@ -32,7 +32,8 @@ dynamics behind function addresses) and :mod:`.codegen` (a model's own code for 
 Compilation cache. Every kernel is ``@njit(cache=True)``: the first start of a new install
 compiles (a few minutes of CPU for every kernel; ``robodyn warm``, which ``make test`` runs first,
 does it for every function the bundled scenes and URDF robots use) and writes the machine code
-next to the source in ``robodyn_ros/kernels/__pycache__``; later starts load it, for any robot.
+to ``~/.cache/robodyn_ros/numba/kernels-<fingerprint>``; later starts, of this install or of any other
+of the same sources on the machine, load it, for any robot.
 Where the cache goes when that directory is not writable, and why any edit of a kernel module
 invalidates all of them: :mod:`.cache` (:data:`CACHE_DIR` says where it is). Set
 ``ROBODYN_BACKEND=numpy`` to switch the compiled path off, ``numba`` to keep an arm on the generic

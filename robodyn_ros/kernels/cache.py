@@ -7,12 +7,16 @@ fills the cache for every function the bundled scenes and URDF robots use, and t
 functions take do not depend on the robot (a model is packed into arrays of fixed dtype and
 rank), so a robot never seen before loads the same machine code.
 
-**Where.** In the package, ``robodyn_ros/kernels/__pycache__``, when that directory is
-writable (a source checkout, a user install); else under ``$NUMBA_CACHE_DIR`` when set; else
-``$XDG_CACHE_HOME/robodyn_ros/numba`` (``~/.cache/robodyn_ros/numba``: a system-wide install).
-``$NUMBA_CACHE_DIR`` set explicitly wins over the package directory (a benchmark measuring a
-fresh install points it at an empty directory). Only the kernels' functions are located here:
-other numba users in the same process keep numba's own rules.
+**Where.** In the user's cache, ``$XDG_CACHE_HOME/robodyn_ros/numba`` (``~/.cache/robodyn_ros/numba``),
+in a directory named after :data:`FINGERPRINT` (``kernels-<16 hex digits>``): every install, venv,
+clone or ``colcon build`` of the same kernel sources on this machine shares one compilation, and
+installs of other sources keep theirs side by side (the :data:`KEEP` most recently used are kept,
+older ones are removed when a new one is made). ``$NUMBA_CACHE_DIR``, when set, takes the place of
+``~/.cache/robodyn_ros/numba`` (a benchmark measuring a fresh install points it at an empty
+directory); when neither is writable, the package's ``robodyn_ros/kernels/__pycache__`` does. The
+machine code of another CPU or another numba is a miss, not an error: numba keys every entry on
+both. Only the kernels' functions are located here: other numba users in the same process keep
+numba's own rules.
 
 **When it is stale.** numba keys a cached function on the source file it is defined in; a kernel
 inlines functions and constants from other kernel modules (``arm.integrate_arm`` calls
@@ -77,47 +81,91 @@ def _fingerprint(directory: str = HERE) -> str:
 FINGERPRINT = _fingerprint()
 
 
+#: kernel cache directories (one per FINGERPRINT) kept in a cache root: the most recently used
+KEEP = 4
+
+
 def user_cache_dir() -> str:
     """``$XDG_CACHE_HOME/robodyn_ros/numba`` (default ``~/.cache/robodyn_ros/numba``)."""
     base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
     return os.path.join(base, 'robodyn_ros', 'numba')
 
 
+def _can_write(path: str) -> bool:
+    """True when ``path`` is a writable directory, or could be made (its nearest existing parent is one)."""
+    while not os.path.isdir(path):
+        parent = os.path.dirname(path)
+        if parent == path:
+            return False
+        path = parent
+    return os.access(path, os.W_OK)
+
+
 def cache_root() -> str:
-    """The directory the kernels' cache goes to (see "Where" in the module docstring)."""
+    """The directory the kernels' cache directories go in (see "Where" in the module docstring)."""
     env = os.environ.get('NUMBA_CACHE_DIR')
     if env:
         return env
-    pycache = os.path.join(HERE, '__pycache__')
-    if os.access(pycache if os.path.isdir(pycache) else HERE, os.W_OK):
-        return pycache
-    return user_cache_dir()
+    user = user_cache_dir()
+    return user if _can_write(user) else os.path.join(HERE, '__pycache__')
+
+
+def kernel_cache_dir() -> str:
+    """The cache directory of the kernels of these sources: ``kernels-<FINGERPRINT[:16]>`` in :func:`cache_root`."""
+    return os.path.join(cache_root(), 'kernels-' + FINGERPRINT[:16])
 
 
 @functools.lru_cache(maxsize=None)
 def _writable(path: str) -> bool:
-    """Create ``path`` if needed; True when a file can be written there (checked once per directory)."""
+    """Create ``path`` if needed; True when a file can be written there (checked once per directory).
+    A kernel cache directory is marked as used now (its time), and making a new one removes the
+    least recently used beyond :data:`KEEP` beside it."""
     import tempfile
     try:
+        new = not os.path.isdir(path)
         os.makedirs(path, exist_ok=True)
         tempfile.TemporaryFile(dir=path).close()
-        return True
     except OSError:
         return False
+    if os.path.basename(path).startswith('kernels-'):
+        try:
+            os.utime(path)
+        except OSError:
+            pass
+        if new:
+            prune(os.path.dirname(path))
+    return True
+
+
+def prune(root: str, keep: int = KEEP) -> list:
+    """Remove the kernel cache directories of ``root`` beyond the ``keep`` most recently used
+    (by their time, which :func:`_writable` sets when a process uses one); the removed ones."""
+    import shutil
+    try:
+        dirs = [(os.stat(os.path.join(root, n)).st_mtime, n) for n in os.listdir(root)
+                if n.startswith('kernels-') and os.path.isdir(os.path.join(root, n))]
+    except OSError:
+        return []
+    removed = []
+    for _, name in sorted(dirs, reverse=True)[keep:]:
+        shutil.rmtree(os.path.join(root, name), ignore_errors=True)
+        removed.append(name)
+    return removed
 
 
 def _cache_path(py_file: str) -> str:
-    """Cache directory of the functions of ``py_file``: ``__pycache__`` beside it when that is
-    the package's own (or a generated module's) writable directory and no ``$NUMBA_CACHE_DIR`` is
-    set, else a per-source-directory subdirectory of :func:`cache_root`."""
+    """Cache directory of the functions of ``py_file``: :func:`kernel_cache_dir` for the kernel
+    modules; for a generated module, ``__pycache__`` beside it when writable and no
+    ``$NUMBA_CACHE_DIR`` is set, else a per-source-directory subdirectory of :func:`cache_root`."""
     from numba.core.caching import _CacheLocator
     src_dir = os.path.dirname(os.path.abspath(py_file))
+    if src_dir == HERE:
+        return kernel_cache_dir()
     pycache = os.path.join(src_dir, '__pycache__')
     if not os.environ.get('NUMBA_CACHE_DIR') and os.access(pycache if os.path.isdir(pycache) else src_dir,
                                                             os.W_OK):
         return pycache
-    root = os.environ.get('NUMBA_CACHE_DIR') or user_cache_dir()
-    return os.path.join(root, _CacheLocator.get_suitable_cache_subpath(py_file))
+    return os.path.join(cache_root(), _CacheLocator.get_suitable_cache_subpath(py_file))
 
 
 @functools.lru_cache(maxsize=None)
@@ -159,14 +207,20 @@ def _locked_cache_file():
         def save(self, key, data):
             if self._cache_path not in _OURS:
                 return super().save(key, data)
-            with _dir_lock(self._cache_path, True):
-                return super().save(key, data)
+            try:
+                with _dir_lock(self._cache_path, True):
+                    return super().save(key, data)
+            except FileNotFoundError:   # the directory was pruned (prune) under a long run: not kept
+                return None
 
         def load(self, key):
             if self._cache_path not in _OURS:
                 return super().load(key)
-            with _dir_lock(self._cache_path, False):
-                return super().load(key)
+            try:
+                with _dir_lock(self._cache_path, False):
+                    return super().load(key)
+            except FileNotFoundError:   # (pruned): a miss
+                return None
 
     return _LockedCacheFile
 
