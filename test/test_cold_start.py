@@ -110,10 +110,20 @@ sys.exit(status)
 
 
 @pytest.mark.processes
-def test_a_cold_run_has_a_child_compile_what_the_next_run_loads(tmp_path):
+def test_a_cold_run_has_a_child_compile_what_the_next_run_loads_and_new_robots_load_it_too(tmp_path):
     """On an empty cache robodyn run interprets and asks a child for the machine code; once the child is done,
-    the same run in a new process neither interprets nor compiles anything, and records the same bytes."""
-    args = ['run', 'betancur_pendulum', '--duration', '0.2', '--record']
+    the same run in a new process neither interprets nor compiles anything and records the same bytes, and a
+    new process running two robots the cache never saw (other sizes, joint types, fixed links) compiles
+    nothing either: a model is packed into arrays of fixed types, so its kernels are every robot's."""
+    import json
+
+    from robodyn_ros.scene import load_scene
+    from robodyn_ros.urdf import example_robot_data_dir
+    erd = example_robot_data_dir()
+    assert erd is not None, 'example-robot-data (a test dependency) is not installed'
+    first = tmp_path / 'stanford_arm.urdf'
+    first.write_text(load_scene('stanford_arm').system.urdf())
+    args = ['run', str(first), '--duration', '0.2', '--record']
     env = _env('interpret', tmp_path / 'cache')
     env.pop('ROBODYN_COLD_START')   # robodyn run sets 'interpret' itself
     a = subprocess.run([PY, '-c', _COLD_THEN_WAIT, *args, str(tmp_path / 'a.mcap')], env=env, capture_output=True,
@@ -125,6 +135,22 @@ def test_a_cold_run_has_a_child_compile_what_the_next_run_loads(tmp_path):
     assert b.returncode == 0, b.stderr[-2000:]
     assert 'requested 0 compiled 0' in b.stdout, b.stdout
     assert (tmp_path / 'a.mcap').read_bytes() == (tmp_path / 'b.mcap').read_bytes()
+    others = [['run', str(next(erd.rglob(f))), '--duration', '0.05'] for f in ('go2.urdf', 'ur5_robot.urdf')]
+    env.update(ROBODYN_COLD_START='compile',     # a miss would compile here (interpreted, it would hide)
+               ROBODYN_INTERPRET_BUDGET='0')     # (and runs this short would not load numba: test_deferred_numba)
+    c = subprocess.run([PY, '-c', _COMPILED, json.dumps(others)], env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert c.returncode == 0, c.stderr[-3000:]
+    compiled, loaded = json.loads(c.stdout.strip().splitlines()[-1])
+    assert compiled == [] and len(loaded) >= 3, (compiled, loaded)
+
+
+_COMPILED = ('import io, contextlib, json, sys\nfrom robodyn_ros.cli import main\n'
+             'for argv in json.loads(sys.argv[1]):\n'
+             '    with contextlib.redirect_stdout(io.StringIO()):\n'
+             '        assert main(argv) == 0, argv\n'
+             'from robodyn_ros.kernels.cache import compiled_here, loaded_here\n'
+             'print(json.dumps([compiled_here(), loaded_here()]))\n')
 
 
 def test_where_python_raises_the_call_is_compiled_and_gives_the_compiled_result(monkeypatch):

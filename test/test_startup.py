@@ -8,7 +8,9 @@ Properties of our code, not timings (``robodyn bench startup`` measures those):
 * every kernel is cached on disk, stamped with the fingerprint of every kernel module's source
   (an edit of one invalidates all: they inline each other);
 * the kernels' argument types do not depend on the robot: a robot never run before loads every
-  kernel from a cache that other robots filled, in a new process;
+  kernel from a cache that other robots filled, in a new process (``test_cold_start.py``, on the
+  cache a cold run's child filled);
+* copies of the same sources at other paths (venvs, clones, ``colcon build``) share one compilation;
 * ``robodyn warm`` (``make run``) meets every kernel signature the runs of the bundled scenes and of
   URDF robots use.
 """
@@ -120,21 +122,6 @@ def test_the_fingerprint_changes_with_any_kernel_module(tmp_path):
     assert cache._fingerprint(str(tmp_path)) == cache.FINGERPRINT
 
 
-_COMPILED = ('import io, contextlib, json, sys\nfrom robodyn_ros.cli import main\n'
-             'for argv in json.loads(sys.argv[1]):\n'
-             '    with contextlib.redirect_stdout(io.StringIO()):\n'
-             '        assert main(argv) == 0, argv\n'
-             'from robodyn_ros.kernels.cache import compiled_here, loaded_here\n'
-             'print(json.dumps([compiled_here(), loaded_here()]))\n')
-
-
-def _compiled_in_new_process(runs, env) -> tuple:
-    r = subprocess.run([sys.executable, '-c', _COMPILED, json.dumps(runs)], capture_output=True, text=True,
-                       env=env, cwd=ROOT)
-    assert r.returncode == 0, r.stderr[-3000:]
-    return tuple(json.loads(r.stdout.strip().splitlines()[-1]))
-
-
 _ONE_KERNEL = ('import json, sys\nfrom robodyn_ros.kernels import cache, tree\n'
                'assert tree.__file__.startswith(sys.argv[1]), tree.__file__\n'
                'tree.joint_nv(1)\n'
@@ -182,26 +169,6 @@ def test_a_new_kernel_cache_directory_removes_the_least_recently_used_beyond_kee
     assert cache._writable(str(made))     # made now: the most recent; the two oldest go
     assert sorted(p.name for p in tmp_path.iterdir()) == \
         sorted(['other', 'kernels-new'] + [f'kernels-{i:016x}' for i in range(3, cache.KEEP + 2)])
-
-
-def test_a_new_robot_loads_every_kernel_from_a_cache_other_robots_filled(tmp_path):
-    """One process fills an empty cache with one robot (compiling); a new process runs two
-    robots it never saw (other sizes, joint types, fixed links) and compiles nothing."""
-    from robodyn_ros.scene import load_scene
-    from robodyn_ros.urdf import example_robot_data_dir
-    d = example_robot_data_dir()
-    assert d is not None, 'example-robot-data (a test dependency) is not installed'
-    first = tmp_path / 'stanford_arm.urdf'
-    first.write_text(load_scene('stanford_arm').system.urdf())
-    env = {k: v for k, v in os.environ.items() if k != 'ROBODYN_BACKEND'}
-    env['NUMBA_CACHE_DIR'] = str(tmp_path / 'cache')
-    env['ROBODYN_COLD_START'] = 'compile'   # (robodyn run would interpret while a child compiles: test_cold_start)
-    env['ROBODYN_INTERPRET_BUDGET'] = '0'     # (and runs this short without numba: test_deferred_numba)
-    compiled, _ = _compiled_in_new_process([['run', str(first), '--duration', '0.05']], env)
-    assert compiled                                   # the cache was empty: this process compiled
-    others = [str(next(d.rglob('go2.urdf'))), str(next(d.rglob('ur5_robot.urdf')))]
-    compiled, loaded = _compiled_in_new_process([['run', p, '--duration', '0.05'] for p in others], env)
-    assert compiled == [] and len(loaded) >= 3, (compiled, loaded)
 
 
 def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path, monkeypatch):
