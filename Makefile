@@ -20,6 +20,7 @@ venv: $(STAMP)
 # process per processor, so that first runs start without compiling; again when a kernel changes.
 # `make test` runs it first: the suite's processes then load the kernels instead of each compiling them
 $(WARM): $(STAMP) $(wildcard robodyn_ros/kernels/*.py)
+	@$(PY) -m compileall -q -j 0 robodyn_ros > /dev/null
 	$(VENV)/bin/robodyn warm --quiet
 	@touch $(WARM)
 
@@ -28,12 +29,17 @@ $(WARM): $(STAMP) $(wildcard robodyn_ros/kernels/*.py)
 # (same format as `robodyn run`). On an empty kernel cache the node compiles only what this run uses
 # (`robodyn warm`, which `make test` runs, compiles the other scenes' kernels)
 run: $(STAMP)
+	@$(PY) -m compileall -q -j 0 robodyn_ros > /dev/null
 	$(VENV)/bin/sim --ros-args -p scene:=stanford_arm -p scripted_commands:=true -p mode:=max \
 	  -p duration:=10.0 -p record:=runs/stanford_arm.mcap -p overwrite:=true
 
 # the suite in one worker process per core (pytest-xdist), each test file whole in one worker (its
-# module fixtures once; node tests claim their own ROS_DOMAIN_ID with a lock file, so workers never share one)
+# module fixtures once; node tests claim their own ROS_DOMAIN_ID with a lock file, so workers never share one).
+# The package's bytecode is written first (compileall; what pip does for an installed package): an editable
+# checkout in an environment with PYTHONDONTWRITEBYTECODE set never gets it, and each of the suite's
+# hundreds of child processes (nodes, CLI runs, workers) then compiles the package's source again (~0.2 s CPU each)
 test: $(WARM)
+	@$(PY) -m compileall -q -j 0 robodyn_ros test > /dev/null
 	$(PY) -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
