@@ -38,12 +38,6 @@ def _env(mode, cache):
     return env
 
 
-def _run(scene, out, mode, cache, duration, extra=()):
-    cmd = [PY, '-m', 'robodyn_ros.cli', 'run', scene, '--duration', str(duration), '--record', str(out),
-           '--overwrite', *extra]
-    return subprocess.run(cmd, env=_env(mode, cache), capture_output=True, text=True, timeout=1800)
-
-
 def _urdf_variants(tmp_path):
     """robodyn warm's URDF robots (stanford_arm's arm as URDF: friction and effort limits, a mimic joint,
     stiff damping), written here."""
@@ -58,35 +52,67 @@ def test_every_bundled_scene_is_covered():
     assert len(SCENES) >= 17 and {'a1_stand', 'huston_human17_fall', 'unfried_free_flyer'} <= set(SCENES)
 
 
+_RUNS = r'''
+import contextlib, io, json, sys, traceback
+from robodyn_ros.cli import main
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            status = main(argv)
+    except BaseException:
+        status, err = 99, io.StringIO(traceback.format_exc())
+    print(json.dumps([status, err.getvalue()[-2000:]]), flush=True)
+'''
+
+VARIANTS = ['friction', 'mimic', 'damped']
+
+
+@pytest.fixture(scope='module')
+def recorded(tmp_path_factory):
+    """``{what: (status and stderr of each run, file of the interpreted run, file of the compiled one)}`` of
+    ``robodyn run WHAT --record`` for every bundled scene and the URDF variants robodyn warm runs: every
+    run of a mode in one process (one start instead of one per scene), mode 'python' on an empty cache."""
+    import json
+    d = tmp_path_factory.mktemp('cold')
+    loads = dict(_urdf_variants(d))
+    runs = [(scene, scene, DURATION.get(scene, 0.2)) for scene in SCENES]
+    for variant in VARIANTS:
+        loads[f'stanford_arm as URDF, {variant}']()   # writes the URDF file
+        runs.append((variant, str(d / f'robot_{variant}.urdf'), 0.2))
+    out = {}
+    for mode, cache in (('python', d / 'empty'), ('compile', None)):
+        argv = [['run', target, '--duration', str(dur), '--record', str(d / f'{mode}-{k}.mcap'), '--overwrite']
+                for k, (_, target, dur) in enumerate(runs)]
+        r = subprocess.run([PY, '-c', _RUNS, json.dumps(argv)], env=_env(mode, cache), capture_output=True,
+                           text=True, timeout=3600)
+        assert r.returncode == 0, r.stderr[-3000:]
+        for k, ((what, _, _), line) in enumerate(zip(runs, r.stdout.strip().splitlines()[-len(runs):])):
+            out.setdefault(what, []).append((*json.loads(line), d / f'{mode}-{k}.mcap'))
+    assert not (d / 'empty').exists() or not list((d / 'empty').rglob('*.nbc'))   # nothing compiled
+    return out
+
+
 @pytest.mark.processes
 @pytest.mark.parametrize('scene', SCENES)
-def test_interpreted_kernels_record_the_compiled_bytes(tmp_path, scene):
+def test_interpreted_kernels_record_the_compiled_bytes(recorded, scene):
     """robodyn run SCENE --record, once with every kernel interpreted (an empty cache, nothing compiled) and
     once on the compiled kernels: the same file."""
-    d = DURATION.get(scene, 0.2)
-    a = _run(scene, tmp_path / 'python.mcap', 'python', tmp_path / 'empty', d)
-    b = _run(scene, tmp_path / 'compiled.mcap', 'compile', None, d)
-    assert a.returncode == 0, a.stderr[-2000:]
-    assert b.returncode == 0, b.stderr[-2000:]
-    assert not (tmp_path / 'empty').exists() or not list((tmp_path / 'empty').rglob('*.nbc'))   # nothing compiled
-    pa, pb = (tmp_path / 'python.mcap').read_bytes(), (tmp_path / 'compiled.mcap').read_bytes()
-    assert len(pa) > 1000 and pa == pb
+    (sa, ea, pa), (sb, eb, pb) = recorded[scene]
+    assert sa == 0 and sb == 0, ea + eb
+    a, b = pa.read_bytes(), pb.read_bytes()
+    assert len(a) > 1000 and a == b
 
 
 @pytest.mark.processes
-@pytest.mark.parametrize('variant', ['friction', 'mimic', 'damped'])
-def test_interpreted_urdf_robots_record_the_compiled_bytes(tmp_path, variant):
+@pytest.mark.parametrize('variant', VARIANTS)
+def test_interpreted_urdf_robots_record_the_compiled_bytes(recorded, variant):
     """The URDF paths robodyn warm covers (Coulomb friction and effort limits, the coupled dynamics of a
     mimic joint, rosenbrock2 on stiff damping), interpreted and compiled: the same file."""
-    label = f'stanford_arm as URDF, {variant}'
-    load = dict(_urdf_variants(tmp_path))[label]
-    load()   # writes the URDF file
-    urdf = tmp_path / f'robot_{variant}.urdf'
-    assert urdf.exists()
-    a = _run(str(urdf), tmp_path / 'python.mcap', 'python', tmp_path / 'empty', 0.2)
-    b = _run(str(urdf), tmp_path / 'compiled.mcap', 'compile', None, 0.2)
-    assert a.returncode == 0 and b.returncode == 0, a.stderr[-2000:] + b.stderr[-2000:]
-    assert (tmp_path / 'python.mcap').read_bytes() == (tmp_path / 'compiled.mcap').read_bytes()
+    (sa, ea, pa), (sb, eb, pb) = recorded[variant]
+    assert sa == 0 and sb == 0, ea + eb
+    a, b = pa.read_bytes(), pb.read_bytes()
+    assert len(a) > 1000 and a == b
 
 
 _COLD_THEN_WAIT = r'''

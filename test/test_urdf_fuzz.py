@@ -98,7 +98,7 @@ def test_the_hang_check_fires_on_a_mutant_that_never_returns_and_the_rest_still_
     mutant is reported as a hang within the timeout, and the mutants after it run in a fresh worker."""
     files = [ERD / FILES[0], tmp_path / 'spin.hang', ERD / FILES[0]]
     files[1].write_text('')
-    got = run_mutants([files[0], files[1], tmp_path / 'again.urdf'], workers=1, case_timeout=20)
+    got = run_mutants([files[0], files[1], tmp_path / 'again.urdf'], workers=1, case_timeout=10)
     assert got[str(files[1])][0] == 'bug: hang', got
     assert got[str(files[0])][0] == 'ran' and got[str(tmp_path / 'again.urdf')][0] == 'refused', got
     assert len(got) == 3
