@@ -87,3 +87,16 @@ def pytest_sessionfinish(session, exitstatus):
     helpers = sys.modules.get('ros_helpers')
     if helpers is not None:
         helpers.kill_left_over(0)
+
+
+#: the test files that keep a worker longest (half a minute or more each, mostly in child processes),
+#: collected first: pytest-xdist hands out whole files (``--dist loadfile``) in collection order, so
+#: these start at once and the short files fill in around them, and the two workers end together
+#: (in alphabetical order test_sweep.py and test_urdf_fuzz.py came last, one worker running them alone)
+LONG_FILES = ('test_cold_start.py', 'test_sweep.py', 'test_startup.py', 'test_live.py', 'test_determinism.py',
+              'test_bench_peers.py', 'test_urdf_fuzz.py', 'test_node_urdf.py', 'test_step_budget.py')
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONG_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FILES)))   # stable: the rest keep their order
