@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -98,5 +99,7 @@ LONG_FILES = ('test_cold_start.py', 'test_sweep.py', 'test_startup.py', 'test_li
 
 
 def pytest_collection_modifyitems(config, items):
+    if not os.environ.get("PYTEST_XDIST_WORKER"):   # only to spread xdist's workers; a serial run (.ci/run's
+        return                                      # loaded step) keeps the alphabetical order it passed in
     rank = {name: i for i, name in enumerate(LONG_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FILES)))   # stable: the rest keep their order
