@@ -171,6 +171,25 @@ def test_a_new_kernel_cache_directory_removes_the_least_recently_used_beyond_kee
         sorted(['other', 'kernels-new'] + [f'kernels-{i:016x}' for i in range(3, cache.KEEP + 2)])
 
 
+def test_a_kernel_called_with_constants_and_with_variables_is_compiled_once():
+    """Kernels call kernels with constant offsets and flags (``xmot(W, 12, 12, ...)``, ``aba_ws(..., True)``)
+    as well as with variables: one signature of plain types serves them all (numba alone compiled one per
+    constant: Literal[int](3), Literal[bool](True), then int64 and bool again), and the results are the
+    plain Python function's."""
+    from robodyn_ros.kernels.jit import njit
+
+    def scale(x, k, flag):
+        return x * k if flag else x - k
+
+    def both(x, n, f):
+        return callee(x, 3, True) + callee(x, n, f) + callee(x, 5, False)
+
+    callee = njit(cache=False)(scale)
+    caller = njit(cache=False)(both)
+    assert caller(2.0, 4, False) == scale(2.0, 3, True) + scale(2.0, 4, False) + scale(2.0, 5, False)
+    assert [str(s) for s in callee.signatures] == ['(float64, int64, bool)']
+
+
 def test_warm_meets_every_kernel_signature_the_runs_use(tmp_path, monkeypatch):
     """After ``robodyn warm``'s runs, the runs of ``robodyn run`` (every bundled scene, with and
     without recording) and of example-robot-data robots (friction, mimic joints) add no kernel

@@ -257,6 +257,15 @@ def _kernel_dispatcher_class(base):
             COMPILER.request(('kernel', self.py_func.__module__, self.py_func.__name__, sig))
             return lambda *a: run_interpreted(self, sig, a)
 
+        def get_call_template(self, args, kws):
+            # a call from another kernel: typed by its arguments' plain types, never their literal ones.
+            # numba otherwise compiles a kernel again for each constant a caller passes (xmot(W, 12, 12, ...),
+            # aba_ws(..., True)): 31 of the 113 signatures a1_stand compiled were such copies. A caller's
+            # constant is cast to the plain type at the call; LLVM still sees it once the callee is inlined.
+            from numba.core.types import unliteral
+            return super().get_call_template(tuple(unliteral(a) for a in args),
+                                             {k: unliteral(v) for k, v in kws.items()})
+
         def __reduce__(self):   # pickled (Dask) as numba's own class
             red = super().__reduce__()
             return (red[0], (base,) + tuple(red[1][1:])) if red[1] and red[1][0] is type(self) else red
