@@ -212,3 +212,69 @@ def test_interpreted_calls_use_the_python_source_of_every_kernel_they_reach():
     ns = f.__globals__
     assert not any(isinstance(ns[name], Dispatcher) for name in f.__code__.co_names if name in ns)
     assert ns['rnea_ws'].__code__ is tree.rnea_ws.py_func.__code__
+
+
+def _kinds_of_arguments(rng):
+    """Arguments of many numba types: arrays of several dtypes and dimensions, C, F and strided, read-only and
+    misaligned ones, Python and numpy scalars (ints near the int64 and uint64 limits), None, nested tuples."""
+    base = [np.zeros(3), np.zeros((2, 3)), np.zeros((2, 3), order='F'), np.zeros((3, 4))[:, ::2], np.zeros(4)[::2],
+            np.zeros(3, dtype=np.int64), np.zeros(3, dtype=np.int32), np.zeros(2, dtype=bool), np.zeros(5, np.uint8),
+            np.zeros((2, 2, 2)), np.zeros(()), np.zeros((1, 1)), np.zeros((1, 3)), np.zeros((3, 1), order='F')]
+    ro = np.zeros(3)
+    ro.flags.writeable = False
+    odd = np.frombuffer(bytes(25), dtype=np.uint8)[1:].view(np.float64)   # 8-byte floats at an odd address
+    scalars = [0, -1, 2 ** 63 - 1, 2 ** 63, 2 ** 64 - 1, -2 ** 63, 1.5, True, False, None, np.float64(1),
+               np.int64(1), np.int32(1), np.bool_(True), np.float32(1)]
+    pool = base + [ro, odd] + scalars
+    out = []
+    for _ in range(300):
+        n = int(rng.integers(1, 4))
+        args = [pool[int(i)] for i in rng.integers(0, len(pool), n)]
+        if rng.random() < 0.3:
+            args.append(tuple(pool[int(i)] for i in rng.integers(0, len(pool), int(rng.integers(0, 3)))))
+        out.append(tuple(args))
+    return out + [(a,) for a in pool]
+
+
+def test_the_cheap_key_of_argument_types_tells_apart_what_numbas_typeof_tells_apart():
+    """jit._types_key stands in for numba's typeof of each argument on the interpreted path: arguments with
+    equal keys have equal numba signatures (checked against typeof on 300+ seeded argument lists), and the
+    key tells the layouts, dtypes, read-only and misaligned arrays and the int ranges apart."""
+    from robodyn_ros.kernels import tree
+    d = tree.aba_into
+    seen = {}
+    lists = _kinds_of_arguments(np.random.default_rng(7))
+    for args in lists:
+        key = jit._types_key(args)
+        assert key is not None
+        sig = tuple(d.typeof_pyval(a) for a in args)
+        assert seen.setdefault(key, sig) == sig, (args, key, seen[key], sig)
+    assert len(seen) > 100
+    assert jit._types_key(([1],)) is None and jit._types_key(('a',)) is None   # typed by numba each call
+
+
+def test_an_interpreted_kernel_types_its_arguments_once(monkeypatch):
+    """On a cold cache (mode 'python' here) a kernel called again with the same kinds of arguments is not typed
+    by numba again, and still gives the compiled kernel's result; other kinds of arguments are typed anew."""
+    from robodyn_ros.kernels import tree
+    from robodyn_ros.scene import load_scene
+    model = load_scene('betancur_pendulum').system.model
+    mi, mf = kernels.pack_model(model, merge=True)
+    rng = np.random.default_rng(3)
+    q, v, tau = (rng.normal(size=model.nq), rng.normal(size=model.nv), rng.normal(size=model.nv))
+    ref = np.empty(model.nv)
+    tree.aba_into(mi, mf, q, v, tau, ref)   # compiled
+    typed = []
+    real = type(tree.aba_into).typeof_pyval
+    monkeypatch.setattr(type(tree.aba_into), 'typeof_pyval', lambda self, a: typed.append(a) or real(self, a))
+    monkeypatch.setattr(jit, 'MODE', 'python')
+    fresh = jit.njit(cache=False)(tree.aba_into.py_func)   # no machine code in memory: every call misses
+    outs = []
+    for _ in range(3):
+        out = np.empty(model.nv)
+        fresh(mi, mf, q, v, tau, out)
+        outs.append(out)
+    assert len(typed) == 6   # the six arguments, typed at the first call only
+    assert all(np.array_equal(o, ref) for o in outs)
+    fresh(mi, mf, q, v, tau, np.empty((model.nv, 2))[:, 0])   # a strided out: another signature
+    assert len(typed) >= 12   # its six typed anew (numba's own dispatch types a strided array once more)

@@ -248,7 +248,14 @@ def _kernel_dispatcher_class(base):
             from numba.core.dispatcher import OmittedArg
             if any(isinstance(a, OmittedArg) for a in args):
                 return super()._compile_for_args(*args, **kws)
-            sig = tuple(self.typeof_pyval(a) for a in args)
+            key = _types_key(args)
+            known = _SIGS.get((id(self), key)) if key is not None else None
+            if known is not None:
+                sig = known[1]
+            else:
+                sig = tuple(self.typeof_pyval(a) for a in args)
+                if key is not None:   # (self kept with it: its id is not reused while it is here)
+                    _SIGS[(id(self), key)] = (self, sig)
             if MODE == 'python':
                 return lambda *a: run_interpreted(self, sig, a)
             entry = load_cached(self, sig)
@@ -270,6 +277,38 @@ def _kernel_dispatcher_class(base):
             red = super().__reduce__()
             return (red[0], (base,) + tuple(red[1][1:])) if red[1] and red[1][0] is type(self) else red
     return KernelDispatcher
+
+
+#: ``{(id(dispatcher), _types_key(args)): (dispatcher, signature)}`` of the calls from Python that missed: a kernel interpreted on
+#: a cold cache is called with the same kinds of arguments again and again (xarm7_trajectory's first run: 4939
+#: calls), and numba's ``typeof`` of each argument cost more than the call's own bookkeeping (3.3 s of 29 s)
+_SIGS: dict = {}
+
+
+def _types_key(args):
+    """What numba's type of each argument depends on, cheap to compute: an array's dtype, dimensions, layout
+    (C, F or neither), writeability and alignment; a tuple's items; a Python int's range (int64, uint64); the
+    class of what numba types by its class alone (float, bool, None, numpy numbers). None for any
+    other argument (its signature is then computed by numba every time)."""
+    import numpy as np
+    key = []
+    for a in args:
+        t = type(a)
+        if t is np.ndarray:
+            f = a.flags
+            key.append((a.dtype, a.ndim, f.c_contiguous, f.f_contiguous, f.writeable, f.aligned))
+        elif t is tuple:
+            k = _types_key(a)
+            if k is None:
+                return None
+            key.append(k)
+        elif t is int:   # int64, else uint64, else no numba type
+            key.append((int, -2 ** 63 <= a < 2 ** 63, 0 <= a < 2 ** 64))
+        elif t is float or t is bool or a is None or isinstance(a, (np.number, np.bool_)):
+            key.append(t)
+        else:
+            return None
+    return tuple(key)
 
 
 #: ``{(id(dispatcher), signature): generation}`` of cache lookups that found nothing (retried when the
