@@ -82,6 +82,20 @@ def _no_process_outlives_its_test():
         helpers.kill_left_over(since)
 
 
+def pytest_configure(config):
+    """Take Ctrl-C (SIGINT) as a terminal's foreground process does, also when started ignoring it.
+
+    A command started in the background of a non-interactive shell (``pytest ... &`` in a script)
+    inherits SIGINT ignored, and so does every process it starts: Python then installs no
+    KeyboardInterrupt handler. The tests that Ctrl-C a child (the sweep's, the live run's) stand for
+    a user at a terminal; with SIGINT ignored their child would go on and the test would wait for its
+    exit until its timeout (the loaded ``-m processes`` step run that way: "the sweep made no
+    progress"). A handler here becomes SIG_DFL in each child at exec, where Python installs its own."""
+    import signal
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def pytest_sessionfinish(session, exitstatus):
     """Kill any helper process still running at the end of the session."""
     import sys
@@ -99,7 +113,7 @@ LONG_FILES = ('test_cold_start.py', 'test_sweep.py', 'test_startup.py', 'test_li
 
 
 def pytest_collection_modifyitems(config, items):
-    if not os.environ.get("PYTEST_XDIST_WORKER"):   # only to spread xdist's workers; a serial run (.ci/run's
-        return                                      # loaded step) keeps the alphabetical order it passed in
+    if not os.environ.get("PYTEST_XDIST_WORKER"):   # only to spread xdist's workers; a serial run keeps
+        return                                      # the alphabetical order
     rank = {name: i for i, name in enumerate(LONG_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FILES)))   # stable: the rest keep their order
