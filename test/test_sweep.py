@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -709,3 +710,21 @@ def test_a_local_workers_heartbeat_to_a_closed_scheduler_is_not_logged_but_its_o
         log.exception('Compute Failed')
     log.error('Worker stream died during communication: %s', 'tcp://127.0.0.1:1')
     assert seen == ['Compute Failed', 'Worker stream died during communication: tcp://127.0.0.1:1']
+
+
+def test_a_suite_started_with_sigint_ignored_gives_its_children_a_terminals_ctrl_c(tmp_path):
+    """The Ctrl-C tests above stand for a user at a terminal. A suite started in the background of a script
+    (``pytest ... &``) inherits SIGINT ignored, and would pass that on to the sweep it signals, which then
+    never stops (.ci/run's loaded step hung so, twice): conftest restores Python's handler, so a child the
+    suite starts has SIGINT at its default. Checked on a suite of one test, started with SIGINT ignored."""
+    probe = tmp_path / 'test_probe.py'
+    probe.write_text('import signal, subprocess, sys\n'
+                     'def test_child_takes_sigint():\n'
+                     '    code = "import signal; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"\n'
+                     '    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout\n'
+                     '    assert out.strip() == "True", out\n')
+    (tmp_path / 'conftest.py').write_text((Path(__file__).resolve().parent / 'conftest.py').read_text())
+    r = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', str(probe)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120,
+                       preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    assert r.returncode == 0 and '1 passed' in r.stdout, r.stdout + r.stderr
