@@ -89,8 +89,8 @@ def pytest_configure(config):
     inherits SIGINT ignored, and so does every process it starts: Python then installs no
     KeyboardInterrupt handler. The tests that Ctrl-C a child (the sweep's, the live run's) stand for
     a user at a terminal; with SIGINT ignored their child would go on and the test would wait for its
-    exit until its timeout (the loaded ``-m processes`` step run that way: "the sweep made no
-    progress"). A handler here becomes SIG_DFL in each child at exec, where Python installs its own."""
+    exit until its timeout (the loaded ``-m processes`` step, run that way, timed out in the sweep's
+    Ctrl-C test). A handler here becomes SIG_DFL in each child at exec, where Python installs its own."""
     import signal
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
