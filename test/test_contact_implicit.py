@@ -232,35 +232,11 @@ def test_broken_ground_refused_by_robodyn_run_with_exit_2(tmp_path):
 # --------------------------------------------------------------------------------------------
 def _scene_run(name, integrator=None, dt=None):
     """The scene over its duration with its settings (or integrator/dt): per publication the joint
-    positions, the base height and whether a point touches."""
-    import warnings
-
-    from robodyn_ros.scene import load_scene
-    from robodyn_ros.simulation import run_headless
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
-        sc = load_scene(name)
-        sim = Simulator(sc.system, sc.y0, integrator=integrator or sc.settings['integrator'],
-                        dt=dt or sc.settings['dt'])
-    s = sc.system
-    rows = []
-
-    class Sink:
-        def on_start(self, sim):
-            pass
-
-        def on_command(self, t, port, values):
-            pass
-
-        def on_output(self, t, out, sim):
-            on = (s.contact.point_outputs(s._km, sim.y[:s.nq], sim.y[s.nq:])[:, PACTIVE] > 0).any()
-            rows.append((sim.y[7:s.nq].copy(), sim.y[2], on))
-
-        def close(self):
-            pass
-    run_headless(sim, sc.settings['duration'], sc.settings['publish_rate'], sc.script, sinks=[Sink()])
-    q = np.array([r[0] for r in rows])
-    return q, np.array([r[1] for r in rows]), int(np.flatnonzero([r[2] for r in rows])[0]), sim, sc
+    positions, the base height and whether a point touches (the run ``robodyn bench contact --steps``
+    tabulates: ``bench.contact.scene_run``)."""
+    from robodyn_ros.bench.contact import scene_run
+    r = scene_run(name, integrator, dt)
+    return r['q'], r['z'], r['first'], r['sim'], r['scene']
 
 
 @pytest.mark.parametrize('name, integrator, dt, q_err, z_err, q_rest', [
