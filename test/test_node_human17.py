@@ -8,7 +8,6 @@ recorded messages alone — ``robot_description`` loaded by Pinocchio with its o
 per spherical joint) and the child-frame angular velocities (converted to Bryan-angle rates here) —
 the linear and angular momentum are rebuilt and must stay constant (joint torques are internal).
 """
-import math
 import os
 import signal
 import sys
@@ -21,6 +20,7 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ros_helpers import Domain, RosClient, lockstep_step, start_sim  # noqa: E402
 from test_node_freeflyer import _read  # noqa: E402  (mcap + mcap_ros2 decoder: topic -> [(t, msg)])
+from pin_helpers import centroidal_momenta  # noqa: E402
 
 pytestmark = pytest.mark.processes   # a lockstep node subprocess driven from here, SIGINT
 
@@ -76,33 +76,9 @@ def test_momentum_constant_from_recorded_messages_alone(run):
     msgs = _read(run['record'])
     urdf = msgs['/robot_description'][0][1].data
     pm = pin.buildModelFromXML(urdf, pin.JointModelFreeFlyer())
-    pd = pm.createData()
     assert pm.nq == 7 + 48
-    odom = dict(msgs['/odom'])
-    ps, Ls, moved = [], [], []
-    for t_ns, js in msgs['/joint_states']:
-        o = odom[t_ns]
-        q = pin.neutral(pm)
-        v = np.zeros(pm.nv)
-        P, Q = o.pose.pose.position, o.pose.pose.orientation
-        q[:7] = [P.x, P.y, P.z, Q.x, Q.y, Q.z, Q.w]
-        lin, ang = o.twist.twist.linear, o.twist.twist.angular
-        v[:6] = [lin.x, lin.y, lin.z, ang.x, ang.y, ang.z]
-        pos = dict(zip(js.name, js.position))
-        vel = dict(zip(js.name, js.velocity))
-        for j in {n[:-2] for n in js.name}:
-            a, b, g = (pos[j + s] for s in ('_x', '_y', '_z'))
-            w = [vel[j + s] for s in ('_x', '_y', '_z')]          # child-frame angular velocity
-            ad = (math.cos(g) * w[0] - math.sin(g) * w[1]) / math.cos(b)
-            rates = (ad, math.sin(g) * w[0] + math.cos(g) * w[1], w[2] - math.sin(b) * ad)
-            for s, x, xd in zip(('_x', '_y', '_z'), (a, b, g), rates):
-                jm = pm.joints[pm.getJointId(j + s)]
-                q[jm.idx_q], v[jm.idx_v] = x, xd
-        hg = pin.computeCentroidalMomentum(pm, pd, q, v)
-        ps.append(np.array(hg.linear))
-        Ls.append(np.array(hg.angular))
-        moved.append(pos['left_shoulder_x'])
-    ps, Ls = np.array(ps), np.array(Ls)
+    ps, Ls, positions = centroidal_momenta(pm, msgs)
+    moved = [pos['left_shoulder_x'] for pos in positions]
     dp = np.linalg.norm(ps - ps[0], axis=1).max() / np.linalg.norm(ps[0])
     dL = np.linalg.norm(Ls - Ls[0], axis=1).max() / np.linalg.norm(Ls[0])
     print(f'from messages: |dp|/|p| {dp:.1e}, |dL|/|L| {dL:.1e}')

@@ -15,7 +15,6 @@ recording holds the simulator's conservation, and the drawn shapes fit their lin
 """
 from __future__ import annotations
 
-import math
 import re
 import subprocess
 import sys
@@ -25,6 +24,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from pin_helpers import centroidal_momenta
 from robodyn_ros.model import FREE, SPHERICAL, random_tree, to_urdf
 from robodyn_ros.scene import list_scenes, load_scene
 from robodyn_ros.spatial import rpy_to_R
@@ -142,29 +142,7 @@ def test_momentum_rebuilt_from_the_recording_is_conserved_to_round_off(human17_r
     relative over 0.5 s: measured 2e-12 (p) and 3e-13 (L)."""
     msgs = human17_recording
     pm = pin.buildModelFromXML(msgs['/robot_description'][0][1].data, pin.JointModelFreeFlyer())
-    pd = pm.createData()
-    odom = dict(msgs['/odom'])
-    ps, Ls = [], []
-    for t_ns, js in msgs['/joint_states']:
-        o = odom[t_ns]
-        q, v = pin.neutral(pm), np.zeros(pm.nv)
-        P, Q = o.pose.pose.position, o.pose.pose.orientation
-        q[:7] = [P.x, P.y, P.z, Q.x, Q.y, Q.z, Q.w]
-        lin, ang = o.twist.twist.linear, o.twist.twist.angular
-        v[:6] = [lin.x, lin.y, lin.z, ang.x, ang.y, ang.z]
-        pos, vel = dict(zip(js.name, js.position)), dict(zip(js.name, js.velocity))
-        for j in {n[:-2] for n in js.name}:
-            a, b, g = (pos[j + s] for s in ('_x', '_y', '_z'))
-            w = [vel[j + s] for s in ('_x', '_y', '_z')]          # child-frame angular velocity
-            ad = (math.cos(g) * w[0] - math.sin(g) * w[1]) / math.cos(b)
-            rates = (ad, math.sin(g) * w[0] + math.cos(g) * w[1], w[2] - math.sin(b) * ad)
-            for s, x, xd in zip(('_x', '_y', '_z'), (a, b, g), rates):
-                jm = pm.joints[pm.getJointId(j + s)]
-                q[jm.idx_q], v[jm.idx_v] = x, xd
-        hg = pin.computeCentroidalMomentum(pm, pd, q, v)
-        ps.append(np.array(hg.linear))
-        Ls.append(np.array(hg.angular))
-    ps, Ls = np.array(ps), np.array(Ls)
+    ps, Ls, _ = centroidal_momenta(pm, msgs)
     assert len(ps) == 51 and np.linalg.norm(ps[0]) > 10 and np.linalg.norm(Ls[0]) > 10
     dp = np.linalg.norm(ps - ps[0], axis=1).max() / np.linalg.norm(ps[0])
     dL = np.linalg.norm(Ls - Ls[0], axis=1).max() / np.linalg.norm(Ls[0])
