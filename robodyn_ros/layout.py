@@ -5,10 +5,10 @@ of the scene publishes, read either from the scene (its outputs and ``/tf`` at t
 :func:`scene_info`) or from a recording (its channels and first messages, :func:`recording_info`);
 both give the same :class:`LayoutInfo` for a recording of the scene, hence the same layout. Panels:
 
-* 3D: ``/robot_description`` switched on (Foxglove hides it until clicked), ``/markers`` too on a
-  ground or with sensors, the TF axes hidden (the robot's shapes stand for them), the camera at a
-  distance of about four times the robot's size (from ``/tf`` at the start), following the floating
-  base if any;
+* 3D: ``/robot_description`` switched on (Foxglove hides it until clicked), its STL and OBJ meshes
+  read Z-up as ROS writes them (Foxglove's default is Y-up), ``/markers`` too on a ground or with
+  sensors, the TF axes hidden (the robot's shapes stand for them), the camera at a distance of about
+  four times the robot's size (from ``/tf`` at the start), following the floating base if any;
 * plots of the joint positions and efforts (up to :data:`MAX_LINES` joints, labelled by name);
 * a plot of the reactions that characterise the system: on a ground the contact forces (``force.z``
   of every ``contact_wrenches/<link>``); else the named contacts and drives (wheel contacts, the
@@ -218,7 +218,10 @@ def layout(info: LayoutInfo, live: bool = False) -> dict:
                         'target': [0, 0, 0], 'targetOffset': [0, 0, 0] if info.follow else [cx, cy, cz],
                         'targetOrientation': [0, 0, 0, 1], 'fovy': 45, 'near': 0.01, 'far': 1000},
         'followMode': 'follow-position' if info.follow else 'follow-none',
-        'scene': {'transforms': {'showLabel': False, 'axisScale': round(0.2 * r, 3)}},
+        # URDF meshes are Z-up (ROS REP-103; RViz reads an STL as it is), but Foxglove reads STL and OBJ meshes
+        # as Y-up unless told (3D panel > Scene > Mesh up axis; Studio 1.48's DEFAULT_MESH_UP_AXIS = "y_up"):
+        # without this an STL robot (xarm7, solo12, ur5) is drawn with every link's mesh turned 90° about x
+        'scene': {'meshUpAxis': 'z_up', 'transforms': {'showLabel': False, 'axisScale': round(0.2 * r, 3)}},
         'transforms': {f'frame:{f}': {'visible': False} for f in info.frames},
         'topics': {f'{p}/robot_description': {'visible': True},
                    **({f'{p}/markers': {'visible': True}} if info.markers else {})},
