@@ -220,7 +220,7 @@ def layout(info: LayoutInfo, live: bool = False) -> dict:
         'followMode': 'follow-position' if info.follow else 'follow-none',
         # URDF meshes are Z-up (ROS REP-103; RViz reads an STL as it is), but Foxglove reads STL and OBJ meshes
         # as Y-up unless told (3D panel > Scene > Mesh up axis; Studio 1.48's DEFAULT_MESH_UP_AXIS = "y_up"):
-        # without this an STL robot (xarm7, solo12, ur5) is drawn with every link's mesh turned 90° about x
+        # without this an STL robot (xarm7, solo12) is drawn with every link's mesh turned 90° about x
         'scene': {'meshUpAxis': 'z_up', 'transforms': {'showLabel': False, 'axisScale': round(0.2 * r, 3)}},
         'transforms': {f'frame:{f}': {'visible': False} for f in info.frames},
         'topics': {f'{p}/robot_description': {'visible': True},

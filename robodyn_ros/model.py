@@ -316,14 +316,15 @@ def _check_inertia(spec: LinkSpec, where: str):
         raise ModelError(f'{where}: inertia must be symmetric, got {Ic.tolist()}')
     ev = np.linalg.eigvalsh(Ic)
     tol = 1e-12 * max(1.0, ev.max())
+    # the eigenvalues to six significant digits: LAPACK's last bits differ between CPUs (OpenBLAS picks its
+    # kernels per CPU), and a message, like the table of example-robot-data that quotes it, must not
+    def shown():
+        return '[' + ', '.join(f'{e:.6g}' for e in ev) + ']'
     if ev.min() < -tol:
-        # six significant digits: LAPACK's last bits differ between CPUs (OpenBLAS picks its kernels per
-        # CPU), and a message, like the table of example-robot-data that quotes it, must not
-        shown = ', '.join(f'{e:.6g}' for e in ev)
-        raise ModelError(f'{where}: inertia is not positive semi-definite (eigenvalues [{shown}])')
+        raise ModelError(f'{where}: inertia is not positive semi-definite (eigenvalues {shown()})')
     # principal moments must satisfy the triangle inequality of a real body
     if ev.sum() > tol and (ev[0] + ev[1] < ev[2] - 1e-9 * ev.sum()) and not spec.inertia_as_given:
-        raise ModelError(f'{where}: principal moments {ev.tolist()} violate the triangle inequality '
+        raise ModelError(f'{where}: principal moments {shown()} violate the triangle inequality '
                          '(no physical body has them)')
 
 
