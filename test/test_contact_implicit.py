@@ -6,6 +6,7 @@ the compiled step against the generic W-method step; and the step on closed form
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -230,10 +231,12 @@ def test_broken_ground_refused_by_robodyn_run_with_exit_2(tmp_path):
 # --------------------------------------------------------------------------------------------
 # the bundled ground scenes' integrator and step (figures in docs/contact.md)
 # --------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=None)
 def _scene_run(name, integrator=None, dt=None, text=None):
     """The scene over its duration with its settings (or integrator/dt): per publication the joint
     positions, the base height and whether a point touches (the run ``robodyn bench contact --steps``
-    tabulates: ``bench.contact.scene_run``)."""
+    tabulates: ``bench.contact.scene_run``). Cached: the tests below share their rk4 references (the
+    runs are deterministic, and the callers only read them)."""
     from robodyn_ros.bench.contact import scene_run
     r = scene_run(name, integrator, dt, text=text)
     return r['q'], r['z'], r['first'], r['sim'], r['scene']
