@@ -80,7 +80,8 @@ class BlockRunner:
         """A BlockRunner for this run, or None when the block path does not apply (class docstring)."""
         sys_ = sim.system
         if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
-                or sim.integrator.spec.kind != 'fixed' or len(sys_.inputs) != 1 \
+                or sim.integrator.spec.kind != 'fixed' or getattr(sim.integrator, 'tolerance', None) is not None \
+                or len(sys_.inputs) != 1 \
                 or not all(getattr(s, 'takes_blocks', False) for s in sinks):
             return None
         (port, spec), = sys_.inputs.items()

@@ -131,12 +131,14 @@ class IntegratorPlan:
         """A fresh :class:`robodyn_ros.integrators.Integrator` of this plan for ``system`` (its ``nq`` and
         ``config_rate`` for the symplectic Euler split); the settings that do not apply to the method's kind
         are left out. Raises ValueError for settings the integrator refuses (a tolerance below round-off)."""
-        from .integrators import INTEGRATORS, make_integrator
+        from .integrators import CONTROLLABLE, INTEGRATORS, make_integrator
         spec = INTEGRATORS[self.integrator]
         if spec.kind == 'fixed':
             kw = {'dt': self.dt}
             if spec.name == 'semi_implicit_euler':
                 kw.update(nq=system.nq, qdot=system.config_rate)
+            if spec.name in CONTROLLABLE and self.rtol is not None and not self.auto:
+                kw.update(rtol=self.rtol, atol=self.atol)   # error control, dt the largest step
             return make_integrator(spec.name, **kw)
         return make_integrator(spec.name, rtol=self.rtol, atol=self.atol)
 
@@ -152,8 +154,9 @@ class IntegratorPlan:
         mode = stiff_mode(system, y, u, t)
         text += (f'{mode}; ' if mode else '')
         if INTEGRATORS[name].implicit:
-            text += (f'{name} is stable on it, so its error control needs these steps: loosen rtol/atol '
-                     'or raise the budget')
+            text += (f'{name} is stable on it, so its error control needs these steps' if mode else
+                     f'no mode is stiff there: its error control needs these steps for rtol={self.rtol:g}')
+            text += ': loosen rtol/atol or raise the budget'
         else:
             stiff = ['radau', 'bdf'] + [n for n, s in INTEGRATORS.items() if s.kind == 'fixed' and s.implicit]
             text += (f'an explicit method ({name}) must take steps about as short as that time constant, for '
@@ -204,7 +207,7 @@ def plan_integrator(system, y, integrator=AUTO, dt=DEFAULT_DT, rtol=None, atol=N
     """
     import numpy as np
 
-    from .integrators import INTEGRATORS
+    from .integrators import CONTROLLABLE, INTEGRATORS
     from .stability import preflight
     budget = check_step_budget(step_budget)
     budget = STEP_BUDGET if budget is None else budget
@@ -218,6 +221,8 @@ def plan_integrator(system, y, integrator=AUTO, dt=DEFAULT_DT, rtol=None, atol=N
         name, dt, rtol, atol, reason, analysis = _auto(system, y, dt, rtol, atol, t, u)
     else:
         reason, analysis = '', _check_named(system, name, dt, y, t, u)
+        if name in CONTROLLABLE and rtol is not None and atol is None:
+            atol = rtol   # rosenbrock2 under error control: atol defaults to rtol (make_integrator)
     warns = (analysis.message,) if analysis is not None and analysis.verdict == 'warn' else ()
     return IntegratorPlan(name, dt, rtol, atol, step_budget=budget, auto=auto, reason=reason, analysis=analysis,
                           warnings=warns)

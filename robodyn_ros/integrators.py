@@ -567,11 +567,95 @@ class Rosenbrock2(FixedStepIntegrator):
         dfdt: optional ``dfdt(t, y) -> f_t (n,)``, evaluated once per step at its start; None: 0.
     """
 
-    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None, dfdt=None):
+    def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None, dfdt=None, rtol=None, atol=None,
+                 controlled=None):
         super().__init__(spec, dt)
         self.jac = jac
         self.dfdt = dfdt
         self.gamma = GAMMA if gamma is None else float(gamma)
+        self.rtol = rtol
+        self.atol = atol
+        #: how many leading components of the state the error control measures (None: all); the Simulator
+        #: sets it to the system's state, leaving out the work quadrature it appends
+        self.controlled = controlled
+
+    def settings(self) -> dict:
+        out = super().settings()
+        if self.rtol is not None:
+            out.update(rtol=self.rtol, atol=self.atol)
+        return out
+
+    @property
+    def tolerance(self):
+        """``(rtol, atol)`` under error control, else None (fixed steps of dt)."""
+        return None if self.rtol is None else (self.rtol, self.atol)
+
+    def _advance(self, f, t0, y, t1, project, delta):
+        if self.rtol is None:
+            return super()._advance(f, t0, y, t1, project, delta)
+        return self._advance_controlled(f, t0, y, t1, project, delta)
+
+    def _advance_controlled(self, f, t0, y, t1, project, delta):
+        """Error-controlled steps from t0 to t1, dt the largest and the first one tried, the last ending on
+        t1 (nothing carried over from the call before). The error of a step is that of the embedded
+        first-order solution ``y + h k1`` (Verwer et al. 1999): ``e = y_new − y − h k1``, measured as the root
+        mean square of ``e_i / (atol + rtol max(|y_i|, |y_new,i|))`` over the controlled components; a step
+        with a measure ≤ 1 is kept and projected, the next one ``h min(5, max(0.2, 0.9/√err))``, at most
+        dt. The systems' compiled loops have their own (``kernels.arm.arm_controlled_steps``, positions in
+        tangent coordinates)."""
+        if y.shape[0] != self._n:
+            self._allocate(y.shape[0])
+        from .kernels.arm import GROW_MAX, H_MIN, SAFETY, SHRINK_MAX   # the controller's constants: one place
+        m = y.shape[0] if self.controlled is None else self.controlled
+        rtol, atol, dt = self.rtol, self.atol, self.dt
+        span = t1 - t0
+        done, h = 0.0, dt
+        y0 = np.empty_like(y)
+        accepted = rejected = nfev = 0
+        while done < span:
+            rest = span - done
+            hs = min(h, rest)
+            y0[:] = y
+            nfev += self._step(f, t0 + done, y, hs)
+            e = (y[:m] - y0[:m]) - hs * self._k1[:m]
+            sc = atol + rtol * np.maximum(np.abs(y0[:m]), np.abs(y[:m]))
+            err = float(np.sqrt(np.mean((e / sc) ** 2))) if m else 0.0
+            if err <= 1.0:
+                accepted += 1
+                if project is not None:
+                    p = _apply_projection(project, y)
+                    if p is not y:
+                        y[:] = p
+                if not np.isfinite(y).all():
+                    break
+                if hs >= rest:
+                    done = span
+                    break
+                done += hs
+                if self._max_steps is not None and accepted >= self._max_steps:
+                    break
+                h = min(dt, hs * min(GROW_MAX, max(SHRINK_MAX, SAFETY / math.sqrt(max(err, 1e-12)))))
+            else:
+                rejected += 1
+                y[:] = y0
+                h = hs * (max(SHRINK_MAX, SAFETY / math.sqrt(err)) if math.isfinite(err) else SHRINK_MAX)
+                if h < H_MIN * dt:
+                    break
+        delta.steps += accepted
+        delta.rejected_steps = (delta.rejected_steps or 0) + rejected
+        delta.rhs_evals += nfev
+        self._count_linear_algebra(delta, accepted + rejected)
+        if project is not None:
+            delta.projections += accepted
+        if done < span:
+            t = t0 + done
+            if self._max_steps is not None and accepted >= self._max_steps:
+                raise StepBudgetError(self.name, t, accepted)
+            if not np.isfinite(y).all():
+                raise IntegrationError(self.name, t, f'state became non-finite (components '
+                                       f'{_nonfinite_indices(y)}) in a step from t={t:.12g} s')
+            raise IntegrationError(self.name, t, tolerance_failure(t, h, rtol, atol, dt))
+        return y
 
     def _allocate(self, n):
         super()._allocate(n)
@@ -607,6 +691,12 @@ class Rosenbrock2(FixedStepIntegrator):
         if self.jac is not None:
             delta.njev += n_steps
             delta.nlu += n_steps
+
+
+def tolerance_failure(t: float, h: float, rtol: float, atol: float, dt: float) -> str:
+    """The message of an error-controlled rosenbrock2 run whose step fell below its floor."""
+    return (f'rosenbrock2 could not meet rtol={rtol:g}, atol={atol:g} at t={t:.12g} s: its step fell to '
+            f'{h:.3g} s, below 1e-9 of dt={dt:g} s; loosen the tolerances or check the model')
 
 
 #: γ of :class:`Rosenbrock2` (the L-stable root of 2γ² − 4γ + 1 = 0; kernels.rosenbrock.GAMMA)
@@ -814,7 +904,7 @@ INTEGRATORS: dict[str, IntegratorSpec] = {s.name: s for s in (
                    projection='step', multistep=False,
                    summary='linearly implicit Rosenbrock-W, order 2, L-stable on the stiff passive forces '
                            '(damping, friction, joint limits, ground contact, motor electrics, joint servos), explicit '
-                           'in the rest',
+                           'in the rest; with rtol (atol: rtol) error-controlled, dt its largest step',
                    options=('jac', 'gamma', 'dfdt'), factory=_fixed(Rosenbrock2)),
     IntegratorSpec(name='rk45', kind='adaptive', order=5, symplectic=False, implicit=False,
                    projection='step', multistep=False,
@@ -884,12 +974,23 @@ def make_integrator(name: str, dt: float | None = None, rtol: float | None = Non
         raise ValueError(f'{spec.name}: unexpected option(s) {", ".join(unknown)}; '
                          f'accepted options: {accepted}')
     if spec.kind == 'fixed':
-        if rtol is not None or atol is not None:
+        if (rtol is not None or atol is not None) and spec.name not in CONTROLLABLE:
             raise ValueError(f'{spec.name} is a fixed-step integrator: give dt, not rtol/atol '
-                             f'(error-controlled ones: {", ".join(_names("adaptive"))})')
+                             f'(error-controlled ones: {", ".join(_names("adaptive") + list(CONTROLLABLE))})')
         if dt is None:
             raise ValueError(f'{spec.name} is a fixed-step integrator: dt (s) is required')
         dt = _positive_finite('dt', spec.name, dt)
+        if rtol is not None or atol is not None:   # rosenbrock2 under error control, dt its largest step
+            if rtol is None:
+                raise ValueError(f'{spec.name}: atol needs rtol (error control, dt the largest step)')
+            rtol = _positive_finite('rtol', spec.name, rtol)
+            if rtol < MIN_RTOL:
+                raise ValueError(f'{spec.name}: rtol={rtol:g} is below 100 machine epsilon '
+                                 f'({MIN_RTOL:.3g}) and cannot be met')
+            if atol is not None and np.ndim(atol) != 0:
+                raise ValueError(f'{spec.name}: atol must be one number (m, rad, m/s, rad/s), got {atol!r}')
+            atol = rtol if atol is None else _positive_finite('atol', spec.name, atol)
+            kw.update(rtol=rtol, atol=atol)
         if spec.name == 'semi_implicit_euler':
             nq = kw.get('nq')
             if isinstance(nq, bool) or not isinstance(nq, (int, np.integer)) or nq <= 0:
@@ -929,6 +1030,10 @@ def make_integrator(name: str, dt: float | None = None, rtol: float | None = Non
         raise ValueError(f'{spec.name}: jac must be callable jac(t, y) -> (n, n) array')
     kw = {k: v for k, v in kw.items() if v is not None}
     return spec.factory(spec, rtol, atol, **kw)
+
+
+#: fixed-step methods that also run under error control when given rtol (dt then their largest step)
+CONTROLLABLE = ('rosenbrock2',)
 
 
 def _names(kind: str) -> list[str]:

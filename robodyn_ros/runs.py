@@ -62,13 +62,13 @@ def plan_run(st: dict, system, y0, t0: float = 0.0):
     :func:`~robodyn_ros.integrator_choice.plan_integrator` (hand it to the Simulator: ``Simulator(...,
     plan=plan)``), and the settings with the plan written in: an ``'auto'`` integrator replaced by the
     method it chose (its dt, or rtol/atol for radau) and the reason under ``'auto'``, a new dict; ``st``
-    itself when it names its integrator. Raises ValueError naming the cause (plan_integrator)."""
+    itself when it names its integrator (with the atol rosenbrock2 under error control defaults to: rtol). Raises ValueError naming the cause (plan_integrator)."""
     from .integrator_choice import plan_integrator
     dt = st.get('dt')
     plan = plan_integrator(system, y0, st.get('integrator'), DEFAULT_DT if dt is None else dt, st.get('rtol'),
                            st.get('atol'), st.get('step_budget'), t0)
     if not plan.auto:
-        return plan, st
+        return plan, (st if plan.atol == st.get('atol') else {**st, 'atol': plan.atol})   # rosenbrock2: atol = rtol
     return plan, {**st, 'integrator': plan.integrator, 'dt': plan.dt if plan.dt is not None else dt,
                   'rtol': plan.rtol, 'atol': plan.atol, 'auto': plan.reason}
 
@@ -79,7 +79,8 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     e = sim.energy_report()
     d = sim.diag
     ran = sim.integrator.settings()   # what ran: the method and its dt, or its rtol and atol
-    method = ran['integrator'] + (f' dt={ran["dt"]:g} s' if 'dt' in ran else
+    method = ran['integrator'] + (f' dt={ran["dt"]:g} s' + (f' (the largest step) rtol={ran["rtol"]:g} atol={ran["atol"]:g}'
+                                                         if 'rtol' in ran else '') if 'dt' in ran else
                                   f' rtol={ran["rtol"]:g} atol=' + (f'{ran["atol"]:g}' if np.ndim(ran['atol']) == 0
                                                                     else 'per component'))
     lines = [

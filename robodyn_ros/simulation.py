@@ -165,9 +165,18 @@ class Simulator:
         parts = self._work_parts
         z0 = self.work_state()
         fused = getattr(sys_, 'fused_advance', None)
+        tol = getattr(integ, 'tolerance', None)   # rosenbrock2 under error control: (rtol, atol)
+        if tol is not None and not getattr(sys_, 'fused_tolerance', False):
+            fused = None
         if fused is not None and integ.spec.kind == 'fixed':
             # fast path: the system runs the same method, grid and projection in compiled code
-            res = fused(integ.name, integ.dt, self.t, z0, t1, u)
+            if tol is None:
+                res = fused(integ.name, integ.dt, self.t, z0, t1, u)
+            else:   # under error control, within the step budget
+                limit = self._budget.limit(t1 - self.t)
+                res = fused(integ.name, integ.dt, self.t, z0, t1, u, tol=tol + (limit,))
+                if res is not None and limit is not None:
+                    self._budget.spend(limit, res[1].steps)
             if res is not None:
                 z1, st = res
                 integ.stats.accumulate(st)
@@ -187,9 +196,10 @@ class Simulator:
             return z
 
         if integ.name == 'rosenbrock2':   # its W-matrix: the system's passive Jacobian, inputs held over the call
+            integ.controlled = ny   # its error control (under a tolerance) measures y, not the work
             integ.jac = self._passive_jacobian(u, ny, z0.shape[0])
             integ.dfdt = self._time_derivative(u, ny, z0.shape[0])
-        limit = self._budget.limit(t1 - self.t) if integ.spec.kind == 'adaptive' else None
+        limit = self._budget.limit(t1 - self.t) if integ.spec.kind == 'adaptive' or tol is not None else None
         z1, st = integ.advance(f, self.t, z0, t1, project=project, max_steps=limit)
         if limit is not None:
             self._budget.spend(limit, st.steps)

@@ -310,13 +310,30 @@ def speed(duration, integrator, dt, repeat):
 # ------------------------------------------------------------------------------------------------
 #: the reference of the steps table: rk4 at this step (s)
 REFERENCE_DT = 2.5e-5
-#: per ground scene, the (integrator, step) rows of the steps table
-STEP_ROWS = {'a1_stand': [('rosenbrock2', 1e-3), ('rosenbrock2', 5e-4), ('rk4', 1e-3), ('rk4', 5e-5)],
-             'solo12_drop': [('rosenbrock2', 1e-3), ('rosenbrock2', 5e-4), ('rk4', 5e-4), ('rk4', 1e-4), ('rk4', 5e-5)],
-             'huston_human17_fall': [('rk4', 5e-5), ('rosenbrock2', 1e-3), ('rosenbrock2', 5e-4), ('rk4', 5e-4)]}
+#: per ground scene, its reference ``(integrator, dt, rtol)``: rk4 at 25 µs, or where the friction slope is stiff
+#: for rk4 (its error falls slowly with the step), rk4 at 5 µs (solo12_drop: 5 µs and 10 µs 1.1e-4 rad apart) or
+#: rosenbrock2 under error control at rtol 1e-6 (huston_human17_fall, whose fall is sensitive: rk4 down to
+#: 2.5 µs ends it in another rest posture)
+REFERENCES = {'a1_stand': ('rk4', REFERENCE_DT, None), 'solo12_drop': ('rk4', 5e-6, None),
+              'huston_human17_fall': ('rosenbrock2', 1e-3, 1e-6)}
+#: per ground scene, the ``(integrator, step, rtol)`` rows of the steps table (rtol: rosenbrock2 under error
+#: control, the step its largest)
+STEP_ROWS = {'a1_stand': [('rosenbrock2', 1e-3, None), ('rosenbrock2', 5e-4, None), ('rosenbrock2', 1e-3, 1e-5),
+                          ('rk4', 1e-3, None), ('rk4', 5e-5, None)],
+             'solo12_drop': [('rosenbrock2', 1e-3, 1e-5), ('rosenbrock2', 1e-3, 1e-4), ('rosenbrock2', 1e-3, 1e-6),
+                             ('rosenbrock2', 1e-3, None), ('rosenbrock2', 5e-4, None), ('rk4', 5e-4, None),
+                             ('rk4', 1e-4, None), ('rk4', 5e-5, None), ('rk4', 2.5e-5, None)],
+             'huston_human17_fall': [('rosenbrock2', 1e-3, 1e-4), ('rosenbrock2', 1e-3, 1e-5),
+                                     ('rosenbrock2', 1e-3, None), ('rosenbrock2', 5e-4, None), ('rk4', 5e-4, None),
+                                     ('rk4', 5e-5, None), ('rk4', 2.5e-5, None), ('rk4', 5e-6, None)]}
 
 
-def scene_run(name, integrator=None, dt=None, generic_gamma=None, text=None):
+def method_label(integ, dt, rtol=None) -> str:
+    """``rk4, 0.05 ms`` or ``rosenbrock2, rtol 1e-05, ≤ 1 ms``."""
+    return f'{integ}, {dt * 1e3:g} ms' if rtol is None else f'{integ}, rtol {rtol:g}, ≤ {dt * 1e3:g} ms'
+
+
+def scene_run(name, integrator=None, dt=None, generic_gamma=None, text=None, rtol=None, step_budget=None):
     """Scene ``name`` over its duration with its settings (or integrator, dt), its scripted commands
     held per publication period: ``{'q': joint positions per publication (n+1, nq − 7), 'z': base
     height per publication, 'first': the first publication where a point touches, 'energy':
@@ -324,7 +341,8 @@ def scene_run(name, integrator=None, dt=None, generic_gamma=None, text=None):
     Simulator's Python path (``integrators.Rosenbrock2`` on the system's right-hand side and passive
     Jacobian) with this γ in every step, instead of the compiled loop (which takes 1 + 1/√2 while a
     point touches, 1 − 1/√2 otherwise). text: a variant of the scene, its YAML edited, instead of the
-    bundled file."""
+    bundled file. rtol: rosenbrock2 under error control, dt its largest step; step_budget: the Simulator's
+    (inf: none, for a tight reference)."""
     from ..kernels.contact import PACTIVE
     from ..scene import load_scene, parse_scene
     from ..simulation import Simulator, run_headless
@@ -332,7 +350,9 @@ def scene_run(name, integrator=None, dt=None, generic_gamma=None, text=None):
         warnings.simplefilter('ignore')
         sc = load_scene(name) if text is None else parse_scene(text, file=f'{name}.yaml')
         s = sc.system
-        sim = Simulator(s, sc.y0, integrator=integrator or sc.settings['integrator'], dt=dt or sc.settings['dt'])
+        sim = Simulator(s, sc.y0, integrator=integrator or sc.settings['integrator'], dt=dt or sc.settings['dt'],
+                        rtol=rtol if integrator else sc.settings.get('rtol'),
+                        atol=None if integrator else sc.settings.get('atol'), step_budget=step_budget)
     if generic_gamma is not None:
         assert sim.settings['integrator'] == 'rosenbrock2', sim.settings
         s.fused_advance = lambda *a, **k: None      # this instance only: the Simulator's Python path
@@ -367,20 +387,23 @@ def step_row(run, ref) -> dict:
     return {'q_max': float(np.abs(run['q'] - ref['q']).max()), 'q_rest': float(np.abs(run['q'][-1] - ref['q'][-1]).max()),
             'z_rest': float(run['z'][-1] - ref['z'][-1]), 'balance': float(e['drift']), 'work': float(e['work']),
             'same_impact': run['first'] == ref['first'],
-            'cpu_per_s': run['cpu'] / float(run['scene'].settings['duration'])}
+            'cpu_per_s': run['cpu'] / float(run['scene'].settings['duration']),
+            'steps_per_s': run['sim'].integrator.stats.steps / float(run['scene'].settings['duration'])}
 
 
 def steps(progress=print) -> dict:
-    """The steps table: ``{scene: [(integrator, dt, row)]}`` (the reference first, then :data:`STEP_ROWS`
-    against rk4 at :data:`REFERENCE_DT`) and ``'gamma'``: A1 at 1 ms on the generic step with γ = 1 − 1/√2 and 1 + 1/√2."""
+    """The steps table: ``{scene: [(integrator, dt, rtol, row)]}`` (its reference first, :data:`REFERENCES`, then
+    :data:`STEP_ROWS` against it) and ``'gamma'``: A1 at 1 ms on the generic step with γ = 1 − 1/√2 and 1 + 1/√2."""
     from ..kernels.rosenbrock import GAMMA, GAMMA_STOP
     out = {}
     for name, rows in STEP_ROWS.items():
-        ref = scene_run(name, 'rk4', REFERENCE_DT)
-        out[name] = [('rk4', REFERENCE_DT, step_row(ref, ref))]   # the reference's own balance and cost
-        for integ, dt in rows:
-            out[name].append((integ, dt, step_row(scene_run(name, integ, dt), ref)))
-            progress(f'{name} {integ} {dt:g}: {out[name][-1][2]}')
+        r_integ, r_dt, r_tol = REFERENCES[name]
+        ref = scene_run(name, r_integ, r_dt, rtol=r_tol, step_budget=math.inf)
+        out[name] = [(r_integ, r_dt, r_tol, step_row(ref, ref))]   # the reference's own balance and cost
+        for integ, dt, rtol in rows:
+            out[name].append((integ, dt, rtol, step_row(scene_run(name, integ, dt, rtol=rtol, step_budget=math.inf),
+                                                        ref)))
+            progress(f'{name} {method_label(integ, dt, rtol)}: {out[name][-1][3]}')
         if name == 'a1_stand':
             out['gamma'] = [(g, step_row(scene_run(name, 'rosenbrock2', 1e-3, generic_gamma=g), ref))
                             for g in (GAMMA, GAMMA_STOP)]
@@ -390,19 +413,25 @@ def steps(progress=print) -> dict:
 
 def steps_report(t: dict) -> str:
     """Markdown of :func:`steps`."""
-    lines = [f'Each bundled ground scene against rk4 at {REFERENCE_DT * 1e6:g} µs over its duration (joint positions '
-             'at every publication; CPU time per simulated second, this machine, this run):', '',
+    lines = ['Each bundled ground scene against its reference over its duration (joint positions at every '
+             'publication; accepted steps and CPU time per simulated second, this machine, this run). The '
+             'references: rk4 at 25 µs (a1_stand), rk4 at 5 µs (solo12_drop, whose friction slope is stiff for '
+             'rk4), rosenbrock2 under error control at rtol 1e-6 (huston_human17_fall, whose fall is sensitive: '
+             'rk4 down to 2.5 µs ends it in another rest posture). "rtol r, ≤ h": rosenbrock2 under error control '
+             '(atol = rtol), steps of at most h.', '',
              '| scene | method | joint positions (max) | at rest | base height at rest | E − E0 − W | W | same first '
-             'contact | CPU per simulated s |', '|---|---|---|---|---|---|---|---|---|']
+             'contact | steps per simulated s | CPU per simulated s |', '|---|---|---|---|---|---|---|---|---|---|']
     for name in STEP_ROWS:
-        for integ, dt, r in t[name]:
-            if dt == REFERENCE_DT:
-                lines.append(f'| `{name}` | {integ}, {dt * 1e3:g} ms (the reference) | | | | {r["balance"]:+.2g} J | '
-                             f'{r["work"]:+.3g} J | | {1e3 * r["cpu_per_s"]:.0f} ms |')
+        for k, (integ, dt, rtol, r) in enumerate(t[name]):
+            label = method_label(integ, dt, rtol)
+            if k == 0:
+                lines.append(f'| `{name}` | {label} (the reference) | | | | {r["balance"]:+.2g} J | '
+                             f'{r["work"]:+.4g} J | | {r["steps_per_s"]:.0f} | {1e3 * r["cpu_per_s"]:.0f} ms |')
                 continue
-            lines.append(f'| `{name}` | {integ}, {dt * 1e3:g} ms | {r["q_max"]:.2g} rad | {r["q_rest"]:.2g} rad | '
-                         f'{r["z_rest"]:+.2g} m | {r["balance"]:+.2g} J | {r["work"]:+.3g} J | '
-                         f'{"yes" if r["same_impact"] else "no"} | {1e3 * r["cpu_per_s"]:.0f} ms |')
+            lines.append(f'| `{name}` | {label} | {r["q_max"]:.2g} rad | {r["q_rest"]:.2g} rad | '
+                         f'{r["z_rest"]:+.2g} m | {r["balance"]:+.2g} J | {r["work"]:+.4g} J | '
+                         f'{"yes" if r["same_impact"] else "no"} | {r["steps_per_s"]:.0f} | '
+                         f'{1e3 * r["cpu_per_s"]:.0f} ms |')
     lines += ['', 'A1 (`a1_stand`) at 1 ms on the generic rosenbrock2 step (the Python path) with one root of γ in '
                   'every step, against the same reference:', '',
               '| γ | joint positions (max) | at rest | E − E0 − W |', '|---|---|---|---|']

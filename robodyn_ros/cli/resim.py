@@ -237,7 +237,8 @@ def main(args) -> int:
     st = rs.settings
     print(f'resim        {args.input} -> {args.record}')
     print(f'scene        {rs.scene.name}; {st["integrator"]} '
-          + (f'dt={st["dt"]:g} s' if st.get('dt') else f'rtol={st.get("rtol")} atol={st.get("atol")}')
+          + (f'dt={st["dt"]:g} s' if st.get('dt') else '') + (' ' if st.get('dt') and st.get('rtol') else '')
+          + (f'rtol={st.get("rtol")} atol={st.get("atol")}' if st.get('rtol') else '')
           + f', {rs.rate:g} Hz, recorded in mode {st.get("mode", "?")} by robodyn_ros '
             f'{rs.metadata.get("package_version", "?")}')
     if counts:

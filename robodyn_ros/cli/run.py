@@ -43,8 +43,12 @@ def add_parser(sub):
                         'else radau), euler, semi_implicit_euler, rk4, rosenbrock2, rk45, dop853, radau, ...')
     p.add_argument('--dt', type=_number(0.0, True, 'seconds'), default=None,
                    help=f'fixed step (s) for fixed-step integrators (default: the scene\'s, else {DEFAULT_DT:g})')
-    p.add_argument('--rtol', type=_number(0.0, True, ''), default=None, help='relative tolerance (adaptive integrators)')
-    p.add_argument('--atol', type=_number(0.0, True, ''), default=None, help='absolute tolerance (adaptive integrators)')
+    p.add_argument('--rtol', type=_number(0.0, True, ''), default=None,
+                   help='relative tolerance (error-controlled integrators; with rosenbrock2: error control, --dt '
+                        'its largest step)')
+    p.add_argument('--atol', type=_number(0.0, True, ''), default=None,
+                   help='absolute tolerance (error-controlled integrators; rosenbrock2: m, rad, m/s, rad/s, default '
+                        'rtol)')
     p.add_argument('--rate', type=_number(0.0, True, 'Hz'), default=None,
                    help=f'publication/recording rate in Hz (default: the scene\'s, else {DEFAULT_RATE:g})')
     p.add_argument('--step-budget', type=float, default=None, metavar='N',

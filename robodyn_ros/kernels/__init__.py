@@ -404,30 +404,41 @@ class CompiledModel:
         tree.normalize_into(self.mi, q)
         return q
 
-    def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last, t0=0.0, srv=None) -> int:
+    def integrate_arm(self, method: str, z, tau_app, dt, n_full, h_last, t0=0.0, srv=None, tol=None) -> int:
         """Fused fixed-step integration of ``z = [q, v, W]`` in place (see ``arm.arm_steps``): one period
         of :meth:`run_periods`, the applied forces given.
 
         method: a key of :data:`FUSED_METHODS`; z (nq + nv + 1,) float64, modified in place;
         tau_app (nv,) = B u held over the call; dt, n_full, h_last: the step grid; t0: the time of
-        its first step (s); srv: None, or a joint servo (:mod:`.servo`) evaluated at every stage.
-        Returns the index of the first non-finite step or -1.
+        its first step (s); srv: None, or a joint servo (:mod:`.servo`) evaluated at every stage; tol:
+        None, or ``(rtol, atol)`` or ``(rtol, atol, most steps)`` for rosenbrock2 under error control
+        (``arm.arm_controlled_steps``; dt its largest step, :meth:`control_counts` what it did). Returns the index of the first non-finite step or -1.
         """
         e2 = np.zeros((0, 0))
         out = self.run_periods(method, e2, z, dt, np.array([float(t0)]), np.array([int(n_full)], dtype=np.int64),
                                np.array([float(h_last)]), None, np.ascontiguousarray(tau_app, dtype=np.float64),
                                np.empty((1, z.shape[0])), np.empty((1, self.nv)), np.empty((1, self.nv)),
                                np.empty((0, self.nb, 6)), False, np.full(self.nv, np.inf), np.empty((1, 0, 6)),
-                               np.array([float(t0)]), srv, np.empty((1, 0, 6)))
+                               np.array([float(t0)]), srv, np.empty((1, 0, 6)), tol)
         return out[2]
 
+    def control_counts(self) -> dict:
+        """What the error-controlled rosenbrock2 steps of the last :meth:`run_periods` call did
+        (``arm.arm_controlled_steps``): ``{accepted, rejected, h_min (s), underflow, budget (bools),
+        done (s from its start)}``."""
+        ctl = self._ros[4]
+        return {'accepted': int(ctl[arm.CTL_ACCEPTED]), 'rejected': int(ctl[arm.CTL_REJECTED]),
+                'h_min': float(ctl[arm.CTL_H_MIN]), 'underflow': bool(ctl[arm.CTL_UNDERFLOW]),
+                'budget': bool(ctl[arm.CTL_BUDGET]), 'done': float(ctl[arm.CTL_DONE])}
+
     def run_periods(self, method: str, B, z, dt, t_start, n_full, h_last, program, u, Zs, Us, TAUs, Fs, want_f,
-                    ulim, Cs, t_end, srv=None, SVs=None):
+                    ulim, Cs, t_end, srv=None, SVs=None, tol=None):
         """K publication periods in one compiled call (``arm.run_arm_periods``, the loops' one entry): the
         per-period path (:meth:`integrate_arm`) and the block path (``ArmSystem.fused_periods``). program:
         a compiled command profile ``(kind, P, times, values, BT, Bq)`` or None (u held); B (nv, nu), or no
         rows (u is τ_app); t_end (K,) the periods' ends; srv: None, or a joint servo (:mod:`.servo`), whose
-        outputs go to SVs (K, ns, 6) when it has rows. Returns ``(k, code, step)``. Between two calls a run on backend 'auto' takes up the
+        outputs go to SVs (K, ns, 6) when it has rows; tol: see :meth:`integrate_arm`. Returns ``(k, code,
+        step)``. Between two calls a run on backend 'auto' takes up the
         model's generated code (:meth:`poll_generated`)."""
         import time
         self.poll_generated()
@@ -442,6 +453,12 @@ class CompiledModel:
             if self._ros is None:
                 self._ros = arm.rosenbrock_work(self.nv, self.nr if self.coupled is not None else self.nv)
             ros = self._ros
+            ctl = ros[4]
+            ctl[:] = 0.0
+            ctl[arm.CTL_H_MIN] = np.inf
+            if tol is not None:   # rosenbrock2 under error control (arm.arm_controlled_steps)
+                ctl[arm.CTL_RTOL], ctl[arm.CTL_ATOL] = float(tol[0]), float(tol[1])
+                ctl[arm.CTL_MAX_STEPS] = float(tol[2]) if len(tol) > 2 and tol[2] is not None else 0.0
         generic = self.gen is None
         dyn, tokens = self.dynamics(z)
         t0 = time.perf_counter()

@@ -138,11 +138,16 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
     at ``t0 + k dt``); srv: None, or the joint servo of :func:`arm_rhs`, evaluated at each stage's time.
     ros: the linearly implicit step's work arrays
     ``(vec (ROS_VECTORS, nv), mat (ROS_MATRICES, nv, nv), (red (2, nr, nr), red (2, nr)), (cj (3, nv),
-    cj (nv,) int64))`` (:func:`rosenbrock_work`), or None for the other methods (a None argument prunes the
+    cj (nv,) int64), ctl (CTL_SIZE,))`` (:func:`rosenbrock_work`; a tolerance in ctl: the span under error
+    control, :func:`arm_controlled_steps`), or None for the other methods (a None argument prunes the
     implicit step's code at compile time: an rk4 run compiles none of it). dyn: the dynamics' addresses
     (:mod:`.treefn`). Returns the index of the first step whose result is non-finite (z then holds that
     result), or -1.
     """
+    if ros is not None:   # rosenbrock2 under error control (a tolerance in its control row): its own loop
+        if method == M_ROSENBROCK2 and ros[4][CTL_RTOL] > 0.0:
+            return arm_controlled_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, z, dt, n_full, h_last, cpl,
+                                        con, t0, srv, ros, dyn)
     nb = mi.shape[0]
     fx = np.zeros((nb, 6))
     n = z.shape[0]
@@ -223,6 +228,117 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
         for a in range(n):
             if not math.isfinite(z[a]):
                 return k
+    return -1
+
+
+#: the control row ``ros[4]`` of :func:`rosenbrock_work`: the tolerances and the most steps the call may accept
+#: (set by the caller; rtol 0: fixed steps; steps 0: no limit), and what the controlled loop adds up (accepted
+#: and rejected steps, the smallest accepted step, 1 where the step fell below :data:`H_MIN` of dt, 1 where it
+#: stopped at its most steps, and how far it got, s)
+CTL_RTOL, CTL_ATOL, CTL_MAX_STEPS, CTL_ACCEPTED, CTL_REJECTED, CTL_H_MIN, CTL_UNDERFLOW, CTL_BUDGET, CTL_DONE = range(9)
+CTL_SIZE = 9
+#: the controller (here and in ``integrators.Rosenbrock2`` under error control): safety factor, the largest
+#: growth and shrinking of the step, and the smallest step, relative to dt, before the run fails
+SAFETY, GROW_MAX, SHRINK_MAX, H_MIN = 0.9, 5.0, 0.2, 1e-9
+
+
+@njit(**_JIT)
+def arm_controlled_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, z, dt, n_full, h_last, cpl, con, t0, srv,
+                         ros, dyn):
+    """rosenbrock2 under error control over the span ``n_full dt + h_last`` from t0 (what :func:`arm_steps`
+    would take in fixed steps), in place; dt is the largest step, the first one tried, and the last step
+    ends on the span's end.
+
+    Each step is :func:`arm_rosenbrock_step` (events at stiff stops, touch-downs in J, as in fixed steps).
+    Its local error is that of the embedded first-order solution ``zₙ ⊕ h k1`` (Verwer, Spee, Blom &
+    Hundsdorfer 1999), ``e = h (k1 + k2) / 2`` in the tangent coordinates of q and in v, measured as the
+    root mean square of ``e_q / atol`` and ``e_v / (atol + rtol max(|vₙ|, |vₙ₊₁|))`` over the 2 nv
+    components. A step with a measure ≤ 1 is taken, then projected (quaternions, mimic joints) as a fixed
+    step is; a larger one is undone. The next step is ``h min(GROW_MAX, max(SHRINK_MAX, SAFETY / √err))``
+    (order 2: the error of the embedded pair goes as h²), at most dt. Nothing is carried from one call
+    to the next: each publication period starts again at dt, so a run is the same whichever path (per
+    period or blocks of periods) takes it.
+
+    ros[4] (:data:`CTL_SIZE`): the tolerances and the most steps, read; the counters, added to. Returns -1,
+    or (a step non-finite, the step below ``H_MIN dt``, or the most steps taken short of the span; the latter
+    two flagged in ros[4]) the index of the fixed step of dt the failure falls in, z holding the failed result
+    (non-finite; at the most steps: the last step's state)."""
+    ctl = ros[4]
+    rtol = ctl[CTL_RTOL]
+    atol = ctl[CTL_ATOL]
+    vec = ros[0]
+    kq1, kv1, kq2, kv2 = vec[2], vec[3], vec[4], vec[5]
+    nb = mi.shape[0]
+    fx = np.zeros((nb, 6))
+    n = z.shape[0]
+    nv = damping.shape[0]
+    W = workspace(nb)
+    buf = np.empty(4 * n + nv)
+    K = buf[:n]
+    Y = buf[n:2 * n]
+    acc = buf[2 * n:3 * n]
+    z0 = buf[3 * n:4 * n]
+    tauv = buf[4 * n:]
+    cs = coupled_scratch(cpl, nv)
+    span = n_full * dt + h_last
+    done = 0.0
+    h = dt
+    splits = 0
+    while done < span:
+        rest = span - done
+        hs = h
+        last = hs >= rest
+        if last:
+            hs = rest
+        for a in range(n):
+            z0[a] = z[a]
+        servo_side(srv, 1.0)
+        taken = arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, hs, splits < MAX_SPLITS,
+                                    W, K, Y, acc, tauv, ros[0], ros[1], cpl, cs, ros[2], con, fx, ros[3], t0 + done,
+                                    srv, dyn)
+        servo_side(srv, 0.0)
+        if taken == -math.inf:
+            z[nq] = math.nan   # the iteration matrix was not positive definite: a failed step
+            return int(done / dt)
+        if taken < 0.0:        # a stiff stop met within the step: take the part up to it (z untouched)
+            h = -taken
+            splits += 1
+            continue
+        s = 0.0
+        half = 0.5 * hs
+        for a in range(nv):
+            eq = half * (kq1[a] + kq2[a]) / atol
+            ev = half * (kv1[a] + kv2[a]) / (atol + rtol * max(abs(z0[nq + a]), abs(z[nq + a])))
+            s += eq * eq + ev * ev
+        err = math.sqrt(s / (2 * nv))
+        if err <= 1.0:
+            ctl[CTL_ACCEPTED] += 1.0
+            if hs < ctl[CTL_H_MIN]:
+                ctl[CTL_H_MIN] = hs
+            splits = 0
+            normalize_into(mi, z[:nq])
+            if cpl is not None:
+                couple_into(cpl[0], z[:nq], z[nq:nq + nv])
+            for a in range(n):
+                if not math.isfinite(z[a]):
+                    return int(done / dt)
+            if last:
+                break
+            done += hs
+            ctl[CTL_DONE] = done
+            if ctl[CTL_MAX_STEPS] > 0.0 and ctl[CTL_ACCEPTED] >= ctl[CTL_MAX_STEPS]:
+                ctl[CTL_BUDGET] = 1.0   # the step budget spent: z is the last step's state, ``done`` in
+                return int(done / dt)
+            h = min(dt, hs * min(GROW_MAX, max(SHRINK_MAX, SAFETY / math.sqrt(max(err, 1e-12)))))
+        else:
+            ctl[CTL_REJECTED] += 1.0
+            for a in range(n):
+                z[a] = z0[a]
+            h = hs * (max(SHRINK_MAX, SAFETY / math.sqrt(err)) if math.isfinite(err) else SHRINK_MAX)
+            if h < H_MIN * dt:
+                ctl[CTL_UNDERFLOW] = 1.0
+                z[nq] = math.nan
+                return int(done / dt)
     return -1
 
 
@@ -474,9 +590,11 @@ ROS_VECTORS, ROS_MATRICES = 13, 9
 def rosenbrock_work(nv: int, nr: int):
     """The work arrays ``ros`` of :func:`arm_steps` for the linearly implicit step of a tree with nv
     velocities, nr of them independent (nv without mimic joints): vectors, matrices, the iteration matrix
-    in the independent joints, a contact point's Jacobian and its columns."""
+    in the independent joints, a contact point's Jacobian and its columns, and the error control's row
+    (:data:`CTL_SIZE`; rtol 0: fixed steps, :func:`arm_controlled_steps`)."""
     return (np.empty((ROS_VECTORS, nv)), np.empty((ROS_MATRICES, nv, nv)),
-            (np.empty((2, nr, nr)), np.empty((2, nr))), (np.empty((3, nv)), np.empty(nv, dtype=np.int64)))
+            (np.empty((2, nr, nr)), np.empty((2, nr))), (np.empty((3, nv)), np.empty(nv, dtype=np.int64)),
+            np.zeros(CTL_SIZE))
 
 
 @njit(**_JIT)

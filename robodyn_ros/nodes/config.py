@@ -23,7 +23,8 @@ PARAMETERS = {
                                         "the URDF on robot_description (transient local)"),
     'integrator': ('', "integrator name (auto, rk4, rosenbrock2, dop853, ...); '' = the scene's (default auto)"),
     'dt': (0.0, "fixed step (s) of fixed-step integrators; 0 = the scene's"),
-    'rtol': (0.0, "relative tolerance of error-controlled integrators; 0 = the scene's or the default"),
+    'rtol': (0.0, "relative tolerance of error-controlled integrators (rosenbrock2: error control, dt its largest "
+                  "step); 0 = the scene's or the default"),
     'atol': (0.0, "absolute tolerance of error-controlled integrators; 0 = the scene's or the default"),
     'step_budget': (0.0, "error-controlled integrators: accepted steps per simulated second past which the "
                          "simulation stops, naming the stiff mode; .inf = none; 0 = the scene's or the default"),
@@ -219,7 +220,7 @@ def resolve_config(p: dict, scene) -> Config:
     headless run of the same scene use the same defaults.
     """
     from ..integrator_choice import is_auto
-    from ..integrators import INTEGRATORS
+    from ..integrators import CONTROLLABLE, INTEGRATORS
     from ..runs import plan_run, resolve_settings
     if not isinstance(p['integrator'], str):
         raise ConfigError(f"parameter 'integrator' must be a string, got {p['integrator']!r}")
@@ -266,7 +267,11 @@ def resolve_config(p: dict, scene) -> Config:
     except ValueError as e:
         raise ConfigError(f'cannot build the simulator: {e}') from None
     kind = INTEGRATORS[st['integrator']].kind
-    dt, rtol, atol = (st['dt'], None, None) if kind == 'fixed' else (None, st['rtol'], st['atol'])
+    if kind == 'fixed':   # rosenbrock2 may also run under error control (rtol), dt its largest step
+        keep = st['integrator'] in CONTROLLABLE
+        dt, rtol, atol = st['dt'], st['rtol'] if keep else None, st['atol'] if keep else None
+    else:
+        dt, rtol, atol = None, st['rtol'], st['atol']
     return Config(scene=scene.name, integrator=st['integrator'], dt=dt, rtol=rtol, atol=atol, auto=st.get('auto', ''),
                   publish_rate=float(st['rate']), mode=mode,
                   rate_factor=check_number('rate_factor', p['rate_factor'], positive=True),

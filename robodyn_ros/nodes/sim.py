@@ -212,7 +212,8 @@ def make_node_class():
             self._publish_initial_state()
             self.get_logger().info(
                 f'scene {self.scene.name}: {cfg.integrator} '
-                + (f'dt={cfg.dt:g} s' if cfg.dt else f'rtol={cfg.rtol:g} atol={cfg.atol:g}')
+                + (f'dt={cfg.dt:g} s' if cfg.dt else '') + (' ' if cfg.dt and cfg.rtol else '')
+                + (f'rtol={cfg.rtol:g} atol={cfg.atol:g}' if cfg.rtol else '')
                 + f', {cfg.publish_rate:g} Hz, mode {cfg.mode}'
                 + (f' x{cfg.rate_factor:g}' if cfg.mode == 'realtime' else '')
                 + (', scripted commands' if cfg.scripted_commands else

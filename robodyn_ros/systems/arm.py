@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import dynamics as dyn
 from .. import kernels
-from ..integrators import IntegrationError, IntegratorStats, make_integrator
+from ..integrators import IntegrationError, IntegratorStats, StepBudgetError, make_integrator
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL, Model, bryan_angles, limit_table
 from .base import (BACKENDS, InputPort, LazyValues, LazyWrenches, System, SystemOutputs,  # noqa: F401
                    default_backend, effort_actuation, keeps_methods)
@@ -458,7 +458,10 @@ class ArmSystem(System):
             return self._km.energies(q, v)
         return dyn.kinetic_energy(self.model, q, v), dyn.potential_energy(self.model, q)
 
-    def fused_advance(self, integrator_name, dt, t0, z0, t1, u):
+    #: fused_advance takes ``tol`` (rosenbrock2 under error control)
+    fused_tolerance = True
+
+    def fused_advance(self, integrator_name, dt, t0, z0, t1, u, tol=None):
         """Integrate ``z = [y, W]`` from t0 to t1 in one compiled call, or None to decline.
 
         The Simulator's fast path for fixed-step integrators (``euler``,
@@ -468,8 +471,10 @@ class ArmSystem(System):
         computed by :func:`robodyn_ros.kernels.arm.integrate_arm`. Declines (returns None) on
         the numpy backend, for other integrators, and in subclasses that change the dynamics.
         ``z = [y, W, W_lim]`` also integrates :meth:`limit_power` (the Simulator does so when
-        :attr:`work_components` names it). Returns ``(z1, IntegratorStats)``; raises ``IntegrationError`` like the
-        reference integrator when the state becomes non-finite.
+        :attr:`work_components` names it). tol: None, or ``(rtol, atol)``: rosenbrock2 under error control, dt
+        its largest step (``kernels.arm.arm_controlled_steps``), or ``(rtol, atol, most steps)`` (then
+        ``StepBudgetError`` where they do not reach t1). Returns ``(z1, IntegratorStats)``; raises
+        ``IntegrationError`` like the reference integrator when the state becomes non-finite.
         """
         z = np.array(z0, dtype=np.float64)
         if not self._fuses(integrator_name, z):
@@ -480,10 +485,29 @@ class ArmSystem(System):
         n_full, h_last = grid.step_grid(float(t0), float(t1)) if t1 > t0 else (0, 0.0)
         n_steps = n_full + (1 if h_last > 0.0 else 0)
         tau_app = np.ascontiguousarray(self._tau_cmd(u), dtype=np.float64)
-        k = self._km.integrate_arm(integrator_name, z, tau_app, dt, n_full, h_last, t0, self._srv(u))
+        k = self._km.integrate_arm(integrator_name, z, tau_app, dt, n_full, h_last, t0, self._srv(u), tol)
         if k == 0 and not np.isfinite(z0).all():  # checked after the fact: the loop reports step 0
             raise IntegrationError(integrator_name, t0, 'initial state is non-finite at components '
                                    f'{np.flatnonzero(~np.isfinite(np.asarray(z0)))[:8].tolist()}')
+        if tol is not None:
+            c = self._km.control_counts()
+            accepted, rejected = c['accepted'], c['rejected']
+            if c['budget']:
+                raise StepBudgetError(integrator_name, t0 + c['done'], accepted)
+            if c['underflow']:
+                from ..integrators import tolerance_failure
+                from ..kernels.arm import H_MIN
+                t = t0 + c['done']
+                raise IntegrationError(integrator_name, t, tolerance_failure(t, H_MIN * dt, tol[0], tol[1], dt))
+            if k >= 0:
+                t = t0 + k * dt
+                raise IntegrationError(
+                    integrator_name, t,
+                    f'state became non-finite (components {np.flatnonzero(~np.isfinite(z))[:8].tolist()}) in a '
+                    f'step after t={t:.12g} s (error-controlled, dt={dt:g} s its largest); check the model')
+            st = IntegratorStats.of_fused_steps(integrator_name, accepted + rejected)
+            st.steps, st.rejected_steps, st.projections = accepted, rejected, accepted
+            return z, st
         if k >= 0:
             t = t0 + k * dt
             h = dt if k < n_full else h_last

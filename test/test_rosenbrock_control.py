@@ -1,0 +1,127 @@
+"""rosenbrock2 under error control (``rtol``; dt its largest step): the compiled loop of the trees
+(``kernels.arm.arm_controlled_steps``) and the generic one (``integrators.Rosenbrock2``) against closed forms
+and fine references of other methods; the settings it is given and refuses; its step budget.
+
+The contact scenes that use it (solo12_drop, huston_human17_fall) are tested in test_contact_implicit.py.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from robodyn_ros.integrators import make_integrator
+from robodyn_ros.scene import load_scene
+from robodyn_ros.simulation import SimulationError, Simulator
+
+from test_contact_implicit import _slide
+from test_diffdrive import K_T, M_TOT, R_A, R_W, I_W, platform
+
+
+def _sim(system, y0, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        return Simulator(system, y0, **kw)
+
+
+def test_the_error_follows_the_tolerance_on_a_sliding_box():
+    """The box sliding down a stiff slope on its 4 corners (contacts in J, saturated friction; steps of at most
+    2 ms) against rk4 at 10 µs: for rtol = atol from 1e-5 to 1e-8 the error stays below 0.1 rtol (measured 6.5e-3,
+    2.6e-2, 3.2e-2 and 3.2e-2 of it), and the steps grow as rtol^(-1/2) between 1e-6 and 1e-8 (slope -0.50):
+    the controller's signature for an embedded pair of orders 2 and 1. In fixed 2 ms steps the error is 1.7e-6."""
+    ref, _ = _slide(1e-5, 'rk4')
+    rtols = (1e-5, 1e-6, 1e-7, 1e-8)
+    errs, steps = [], []
+    for r in rtols:
+        y, sim = _slide(2e-3, 'rosenbrock2', rtol=r)
+        errs.append(np.abs(y - ref).max())
+        steps.append(sim.integrator.stats.steps)
+        assert sim.settings['rtol'] == r and sim.integrator.settings() == {
+            'integrator': 'rosenbrock2', 'dt': 2e-3, 'rtol': r, 'atol': r}
+    assert all(e < 0.1 * r for e, r in zip(errs, rtols)), errs
+    slope = np.polyfit(np.log(rtols[1:]), np.log(steps[1:]), 1)[0]
+    assert -0.6 < slope < -0.4, (steps, slope)
+    y, _ = _slide(2e-3, 'rosenbrock2')
+    assert np.abs(y - ref).max() > 100 * errs[-1]     # the fixed step is far coarser: the control did the work
+
+
+def test_the_generic_path_follows_the_tolerance_on_the_platforms_closed_form():
+    """The differential-drive platform (no compiled controlled loop: ``integrators.Rosenbrock2`` on its right-hand
+    side) driven by equal voltages from rest: x(t) = v_ss (t − τ(1 − e^(−t/τ))) (test_diffdrive's closed form). With
+    steps of at most 0.5 s over 2 s (τ = 0.84 s) the error stays below rtol·v_ss·t for rtol 1e-4 .. 1e-8 and falls
+    by more than 100 over that range; each step is taken or refused by its own estimate (rejected steps counted)."""
+    m_eff = M_TOT + 2 * I_W / R_W ** 2
+    tau = m_eff * R_A * R_W ** 2 / (2 * K_T ** 2)
+    V = 6.0
+    v_ss = R_W * V / K_T
+    t = 2.0
+    x_exact = v_ss * (t - tau * (1 - math.exp(-t / tau)))
+    errs = []
+    for r in (1e-4, 1e-6, 1e-8):
+        s = platform()
+        sim = _sim(s, s.initial_state(), integrator='rosenbrock2', dt=0.5, rtol=r)
+        sim.set_command('wheel_voltage', [V, V])
+        sim.advance(t)
+        e = abs(sim.outputs().odom['position'][0] - x_exact)
+        assert e < r * v_ss * t, (r, e)
+        assert sim.integrator.stats.steps > 4 and sim.integrator.stats.rejected_steps is not None
+        errs.append(e)
+    assert errs[-1] < 1e-2 * errs[0], errs
+    assert not getattr(platform(), 'fused_tolerance', False)   # so the generic path is the one tested here
+
+
+def test_the_compiled_and_generic_loops_meet_the_same_reference_on_the_stanford_arm():
+    """The Stanford arm (compiled kernels: ``arm_controlled_steps``; and with the system's fused path declined: the
+    generic loop) over 1 s under its scene's script, rtol 1e-8, steps of at most 10 ms, against dop853 at rtol
+    1e-12: both within 1e-6 of it; the two differ in how they measure (tangent coordinates against the state's
+    own), not in what they converge to."""
+    sc = load_scene('stanford_arm')
+
+    ref = _sim(sc.system, sc.y0, integrator='dop853', rtol=1e-12, atol=1e-12)
+    ref.advance(1.0)
+    compiled = _sim(sc.system, sc.y0, integrator='rosenbrock2', dt=1e-2, rtol=1e-8)
+    compiled.advance(1.0)
+    generic_sys = load_scene('stanford_arm').system
+    generic_sys.fused_advance = lambda *a, **k: None     # this instance only: the Simulator's Python path
+    generic = _sim(generic_sys, sc.y0, integrator='rosenbrock2', dt=1e-2, rtol=1e-8)
+    generic.advance(1.0)
+    for sim in (compiled, generic):
+        assert np.abs(sim.y - ref.y).max() < 1e-6, np.abs(sim.y - ref.y).max()
+        assert sim.integrator.stats.steps > 100       # the tolerance, not the 10 ms cap, set the steps
+    assert not np.array_equal(compiled.y, generic.y)
+
+
+def test_the_step_budget_stops_a_tolerance_the_model_cannot_afford():
+    """solo12_drop at rtol 1e-9 with a budget of 2000 steps per simulated second: the run stops in the compiled loop
+    (in its first period: the body is still falling) with the budget's message saying no mode is stiff there, so
+    the tolerance costs the steps, and keeps the state and time of its last good period."""
+    sc = load_scene('solo12_drop')
+    sim = _sim(sc.system, sc.y0, integrator='rosenbrock2', dt=1e-3, rtol=1e-9, step_budget=2000)
+    good = sim.y.copy(), sim.t
+    with pytest.raises(SimulationError, match='spent its step budget') as e:
+        for k in range(1, 101):
+            sim.advance(0.01 * k)
+            good = sim.y.copy(), sim.t
+    assert 'no mode is stiff there: its error control needs these steps for rtol=1e-09' in str(e.value)
+    assert np.array_equal(sim.y, good[0]) and sim.t == good[1]
+    with pytest.raises(SimulationError, match='spent its step budget'):
+        sim.advance(1.0)       # refused until reset
+
+
+@pytest.mark.parametrize('kw, message', [
+    ({'atol': 1e-6}, 'atol needs rtol'),
+    ({'rtol': 1e-20}, 'below 100 machine epsilon'),
+    ({'rtol': float('nan')}, 'rtol must be finite and > 0'),
+    ({'rtol': 1e-6, 'atol': [1e-6, 1e-6]}, 'atol must be one number'),
+])
+def test_bad_tolerances_are_refused_with_the_reason(kw, message):
+    with pytest.raises(ValueError, match=message):
+        make_integrator('rosenbrock2', dt=1e-3, **kw)
+
+
+def test_the_other_fixed_step_methods_refuse_a_tolerance_and_name_the_ones_that_take_it():
+    with pytest.raises(ValueError, match='rk4 is a fixed-step integrator: give dt, not rtol/atol') as e:
+        make_integrator('rk4', dt=1e-3, rtol=1e-6)
+    assert 'rosenbrock2' in str(e.value)
