@@ -605,7 +605,6 @@ class Rosenbrock2(FixedStepIntegrator):
         tangent coordinates)."""
         if y.shape[0] != self._n:
             self._allocate(y.shape[0])
-        from .kernels.arm import GROW_MAX, H_MIN, SAFETY, SHRINK_MAX   # the controller's constants: one place
         m = y.shape[0] if self.controlled is None else self.controlled
         rtol, atol, dt = self.rtol, self.atol, self.dt
         span = t1 - t0
@@ -1031,6 +1030,11 @@ def make_integrator(name: str, dt: float | None = None, rtol: float | None = Non
     kw = {k: v for k, v in kw.items() if v is not None}
     return spec.factory(spec, rtol, atol, **kw)
 
+
+#: the step controller of rosenbrock2 under error control, here and in the trees' compiled loop
+#: (``kernels.arm.arm_controlled_steps``, whose cache fingerprint holds them): safety factor, the largest growth
+#: and shrinking of the step, and the smallest step, relative to dt, before the run fails
+SAFETY, GROW_MAX, SHRINK_MAX, H_MIN = 0.9, 5.0, 0.2, 1e-9
 
 #: fixed-step methods that also run under error control when given rtol (dt then their largest step)
 CONTROLLABLE = ('rosenbrock2',)

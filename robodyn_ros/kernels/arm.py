@@ -25,6 +25,7 @@ from .passive import add_coulomb_friction, friction_jacobian_add
 from .profiles import CMD_GRAVITY_SINE, CMD_NONE, CMD_PD_HOLD, command_eval
 from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix, mat_vec, stage_rhs, stage_velocity
 from .servo import SW_SAT, servo_forces_add, servo_jacobian_add, servo_side, servo_state, servo_time_rate
+from ..integrators import GROW_MAX, H_MIN, SAFETY, SHRINK_MAX   # the controller's constants (in the fingerprint)
 from ..model import SPHERICAL
 from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
@@ -237,9 +238,6 @@ def arm_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, method, z, dt, n
 #: stopped at its most steps, and how far it got, s)
 CTL_RTOL, CTL_ATOL, CTL_MAX_STEPS, CTL_ACCEPTED, CTL_REJECTED, CTL_H_MIN, CTL_UNDERFLOW, CTL_BUDGET, CTL_DONE = range(9)
 CTL_SIZE = 9
-#: the controller (here and in ``integrators.Rosenbrock2`` under error control): safety factor, the largest
-#: growth and shrinking of the step, and the smallest step, relative to dt, before the run fails
-SAFETY, GROW_MAX, SHRINK_MAX, H_MIN = 0.9, 5.0, 0.2, 1e-9
 
 
 @njit(**_JIT)

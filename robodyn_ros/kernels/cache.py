@@ -22,8 +22,9 @@ numba's own rules.
 inlines functions and constants from other kernel modules (``arm.integrate_arm`` calls
 ``tree.aba_ws``), so an edit of ``tree.py`` alone would leave ``arm.py``'s cached code running
 the old ``tree.py``. Here every kernel's freshness stamp is :data:`FINGERPRINT`, a hash of the
-source of every module of this package that defines compiled functions and of the joint-type
-codes the kernels take from :mod:`robodyn_ros.model`: any edit of a kernel module invalidates
+source of every module of this package that defines compiled functions, of the joint-type
+codes the kernels take from :mod:`robodyn_ros.model` and of the step controller's constants they take from
+:mod:`robodyn_ros.integrators`: any edit of a kernel module invalidates
 every kernel at once, and the next start compiles them again (numba then replaces the stale
 index entries; nothing accumulates). The generated
 modules of :mod:`.codegen` (which import ``arm.py``'s forces and the kernels' constants) are
@@ -65,9 +66,11 @@ _KERNEL = re.compile(rb'^@(njit|intrinsic)\b', re.MULTILINE)
 
 def _fingerprint(directory: str = HERE) -> str:
     """sha256 of the source of every module in ``directory`` (the kernels) and of the joint-type
-    codes the kernels compile in."""
+    codes and step-controller constants the kernels compile in."""
+    from ..integrators import GROW_MAX, H_MIN, SAFETY, SHRINK_MAX
     from ..model import FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL
     h = hashlib.sha256(repr((FIXED, FREE, PRISMATIC, REVOLUTE, SPHERICAL)).encode())
+    h.update(repr((SAFETY, GROW_MAX, SHRINK_MAX, H_MIN)).encode())   # rosenbrock2's controller (kernels/arm.py)
     for path in sorted(glob.glob(os.path.join(directory, '*.py'))):
         with open(path, 'rb') as f:
             text = f.read()
