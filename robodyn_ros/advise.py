@@ -28,16 +28,17 @@ __all__ = ['choose', 'Advice', 'advise', 'format_advice', 'run_command']
 
 def choose(runs, tolerance: float):
     """``(best, others)``: the cheapest run with error <= tolerance, and the other qualifying runs
-    cheapest first (one per integrator and formulation). ``best`` is None when none qualifies."""
+    cheapest first (one per method (an integrator, and for rosenbrock2 fixed or under error control) and
+    formulation). ``best`` is None when none qualifies."""
     ok = [r for r in runs if r.status == 'ok' and math.isfinite(r.error) and r.error <= tolerance]
     ok.sort(key=cost_key)
     if not ok:
         return None, []
-    seen = {(ok[0].integrator, ok[0].formulation)}
+    seen = {(ok[0].integrator, ok[0].kind, ok[0].formulation)}
     others = []
     for r in ok[1:]:
-        if (r.integrator, r.formulation) not in seen:
-            seen.add((r.integrator, r.formulation))
+        if (r.integrator, r.kind, r.formulation) not in seen:
+            seen.add((r.integrator, r.kind, r.formulation))
             others.append(r)
     return ok[0], others
 
@@ -93,6 +94,9 @@ def run_command(scene: str, run) -> str:
     """The ``robodyn run`` command line that uses a run's integrator setting."""
     if run.kind == 'fixed':
         return f'robodyn run {scene} --integrator {run.integrator} --dt {run.dt:g}'
+    if run.kind == 'controlled':   # rosenbrock2 under error control, dt its largest step
+        return (f'robodyn run {scene} --integrator {run.integrator} --dt {run.dt:g} --rtol {run.rtol:g} '
+                f'--atol {run.atol:g}')
     return f'robodyn run {scene} --integrator {run.integrator} --rtol {run.rtol:g} --atol {run.atol:g}'
 
 

@@ -70,13 +70,16 @@ class Run:
 
     @property
     def setting(self) -> str:
-        """``dt=0.001`` or ``rtol=1e-06``."""
+        """``dt=0.001``, ``rtol=1e-06`` or (rosenbrock2 under error control) ``rtol=1e-06 dt<=0.01``."""
+        if self.kind == 'controlled':
+            return f'rtol={self.rtol:g} dt<={self.dt:g}'
         return f'dt={self.dt:g}' if self.kind == 'fixed' else f'rtol={self.rtol:g}'
 
     @property
     def label(self) -> str:
-        """Method and formulation, for plot legends."""
-        return self.integrator + (f' ({self.formulation})' if self.formulation else '')
+        """Method (``rosenbrock2+rtol`` under error control) and formulation, for plot legends."""
+        return self.integrator + ('+rtol' if self.kind == 'controlled' else '') + \
+            (f' ({self.formulation})' if self.formulation else '')
 
     def one_step_per_period(self, rate: float) -> bool:
         """An error-controlled run that took about one step per publication period (``rate`` Hz; at most
@@ -85,7 +88,8 @@ class Run:
         the tolerance, so a looser or tighter rtol, down to where that stops, takes the same steps and
         gives the same run: the period, not rtol, sets the step."""
         periods = int(round(self.horizon * rate))
-        return self.kind == 'adaptive' and self.status == 'ok' and 0 < self.steps <= ONE_STEP_SLACK * periods
+        return self.kind in ('adaptive', 'controlled') and self.status == 'ok' and \
+            0 < self.steps <= ONE_STEP_SLACK * periods
 
     def error_text(self, floor: float) -> str:
         """The error as printed: ``3.2e-07``, or ``≤ 2e-15 (the reference's floor)`` when it is at or below

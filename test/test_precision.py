@@ -95,6 +95,28 @@ def test_errors_against_closed_form_fall_as_tolerance_tightens(integrator):
     assert errs[2] < 1e-8 and errs[0] / errs[2] > 100, errs
 
 
+def test_rosenbrock2_under_error_control_is_on_the_ladder_and_follows_its_tolerance():
+    """The ladder offers rosenbrock2 under error control (one publication period its largest step, atol = rtol) as
+    a method of its own; on the platform's closed form (τ = 0.79 s, one 1 s period) its error falls as rtol
+    tightens (measured 9.2e-5, 1.1e-7, 1.1e-10 for rtol 1e-3, 1e-6, 1e-9, in 24, 717 and 22 615 steps), and
+    advise would give the command line that runs it."""
+    sc = _fast_platform()
+    exact = P.closed_form(sc)(1.0)
+    assert [s for s in P.ladder(sc, 'quick', ['rosenbrock2']) if s[2] is not None] == \
+        [('rosenbrock2', 1.0, r, r) for r in P.ADAPTIVE_LADDERS['quick']]
+    assert P.method_of(('rosenbrock2', 1.0, 1e-6, 1e-6)) != P.method_of(('rosenbrock2', 1e-3, None, None))
+    errs = []
+    for tol in (1e-3, 1e-6, 1e-9):
+        r = P.simulate(sc, 'rosenbrock2', dt=1.0, rtol=tol, atol=tol, horizon=1.0, sample=False)
+        assert r.status == 'ok', r.note
+        assert (r.kind, r.setting, r.label) == ('controlled', f'rtol={tol:g} dt<=1', 'rosenbrock2+rtol')
+        assert r.steps > 1 and r.rejected_steps is not None
+        errs.append(P.state_error(r.y, exact))
+    assert errs[0] > errs[1] > errs[2] and errs[0] / errs[2] > 1e3, errs
+    assert errs[2] < 1e-7, errs
+    assert adv.run_command('x', r) == 'robodyn run x --integrator rosenbrock2 --dt 1 --rtol 1e-09 --atol 1e-09'
+
+
 def test_symplectic_step_keeps_energy_bounded_over_1e4_s_while_euler_grows():
     """A 1-link pendulum (1 kg point mass on 1 m, small-angle ω = 0.05 rad/s, 80 periods in 1e4 s) at
     dt = 0.1 s: semi-implicit Euler's energy error stays bounded (no larger in the second half of the run

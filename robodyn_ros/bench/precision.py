@@ -1,8 +1,8 @@
 """``robodyn bench precision``: what every integrator costs and achieves, per scene.
 
 For each scene, every integrator runs over a ladder of fixed steps (euler,
-semi_implicit_euler, rk4, rosenbrock2) or tolerances (rk45, dop853, radau, bdf, lsoda; ``atol = rtol``),
-and, where the scene has more than one formulation (a free base: minimal / augmented; a
+semi_implicit_euler, rk4, rosenbrock2) or tolerances (rk45, dop853, radau, bdf, lsoda; ``atol = rtol``; and
+rosenbrock2 under error control, ``rosenbrock2+rtol``, one publication period its largest step), and, where the scene has more than one formulation (a free base: minimal / augmented; a
 prescribed end point: complement / kkt), once per formulation. A run is the product's own loop:
 a :class:`~robodyn_ros.simulation.Simulator` advanced in publication periods of the scene
 (``publish_rate``) with the scene's scripted commands held over each period, exactly as
@@ -240,22 +240,21 @@ def simulate(scene, integrator: str, dt=None, rtol=None, atol=None, horizon=1.0,
              formulation: str = '', sample: bool = True, max_step: float | None = None) -> Run:
     """Run ``scene`` for ``horizon`` s with one integrator setting and measure it (a :class:`Run`).
 
-    scene: a loaded Scene; integrator: registry name; dt (fixed) or rtol/atol (adaptive);
+    scene: a loaded Scene; integrator: registry name; dt (fixed) or rtol/atol (adaptive), or both (rosenbrock2
+    under error control, dt its largest step);
     horizon: simulated seconds (rounded to whole publication periods); budget: wall seconds
     before the run is stopped with status 'budget'; formulation: label recorded; sample: also
     sample outputs for momentum and constraint drift; max_step: the longest step (s) an
     error-controlled integrator may take (the reference's bound; None: unbounded, as ``robodyn run``).
     Never raises for a refused or failed run.
     """
-    from ..integrators import INTEGRATORS
     from ..simulation import SimulationError, Simulator
-    spec = INTEGRATORS[integrator]
-    kind = spec.kind
+    kind = run_kind(integrator, dt, rtol)
     rate = float(scene.settings.get('publish_rate', 100.0))
     n = max(1, int(round(horizon * rate)))
     run = Run(scene=scene.name, formulation=formulation, integrator=integrator, kind=kind,
-              dt=dt if kind == 'fixed' else None, rtol=rtol if kind == 'adaptive' else None,
-              atol=atol if kind == 'adaptive' else None, horizon=n / rate)
+              dt=dt if kind != 'adaptive' else None, rtol=rtol if kind != 'fixed' else None,
+              atol=atol if kind != 'fixed' else None, horizon=n / rate)
     system = scene.system
     if hasattr(system, 'reset_episode'):
         system.reset_episode()
@@ -368,9 +367,19 @@ def reference(scene, horizon: float, variants=None) -> Reference:
                      f'by {diff:.2g}; error estimate (floor) {est:.2g}', form, steps=ref.steps)
 
 
-def ladder(scene, mode: str = 'full', integrators=None) -> list:
-    """``[(integrator, dt, rtol, atol)]`` of a scene: fixed steps up to one publication period."""
+def run_kind(integrator: str, dt, rtol) -> str:
+    """``'fixed'``, ``'adaptive'`` or ``'controlled'`` (a fixed-step method given a tolerance: rosenbrock2 under
+    error control, dt its largest step)."""
     from ..integrators import INTEGRATORS
+    kind = INTEGRATORS[integrator].kind
+    return 'controlled' if kind == 'fixed' and dt is not None and rtol is not None else kind
+
+
+def ladder(scene, mode: str = 'full', integrators=None) -> list:
+    """``[(integrator, dt, rtol, atol)]`` of a scene: fixed steps up to one publication period, tolerances, and
+    for rosenbrock2 also the tolerances under error control with one publication period its largest step
+    (atol = rtol, its default)."""
+    from ..integrators import CONTROLLABLE, INTEGRATORS
     period = 1.0 / float(scene.settings.get('publish_rate', 100.0))
     names = list(integrators) if integrators else [n for n in (FIXED + ADAPTIVE) if n in INTEGRATORS]
     out = []
@@ -379,9 +388,18 @@ def ladder(scene, mode: str = 'full', integrators=None) -> list:
         if spec.kind == 'fixed':
             steps = FIXED_LADDERS[mode].get(name, FIXED_LADDERS[mode]['rk4'])
             out += [(name, h, None, None) for h in steps if h <= period * (1 + 1e-12)]
+            if name in CONTROLLABLE:
+                out += [(name, period, r, r) for r in ADAPTIVE_LADDERS[mode]]
         else:
             out += [(name, None, r, ATOL_FACTOR * r) for r in ADAPTIVE_LADDERS[mode]]
     return out
+
+
+def method_of(setting) -> tuple:
+    """The method of a ladder entry ``(integrator, dt, rtol, atol)``: its integrator and kind (the unit of a
+    :func:`_method_task`: a run out of budget skips the rest of its own method's ladder only)."""
+    integ, dt, rtol, _ = setting
+    return integ, run_kind(integ, dt, rtol)
 
 
 class Progress(_Progress):
@@ -439,7 +457,7 @@ def _method_task(args):
     for integ, dt, rtol, atol in settings:
         if over_budget:
             r = Run(scene=sc.name, formulation=form, integrator=integ,
-                    kind='fixed' if dt is not None else 'adaptive', dt=dt, rtol=rtol, atol=atol,
+                    kind=run_kind(integ, dt, rtol), dt=dt, rtol=rtol, atol=atol,
                     horizon=horizon, status='skipped', note='a cheaper setting of this method ran out of budget')
         else:
             r = simulate(sc, integ, dt=dt, rtol=rtol, atol=atol, horizon=horizon, budget=budget, formulation=form)
@@ -468,8 +486,8 @@ def measure_scenes(names, mode='full', horizon=None, budget=None, integrators=No
             if keep is not None and form not in keep:
                 continue
             steps = ladder(sc, mode, integrators)
-            for integ in dict.fromkeys(s[0] for s in steps):
-                groups.append([s for s in steps if s[0] == integ])
+            for method in dict.fromkeys(method_of(s) for s in steps):
+                groups.append([s for s in steps if method_of(s) == method])
                 items.append(((k, len(groups)), (where, form, groups[-1], horizon, budget)))
         items.insert(len(items) - len(groups), ((k, 0), (where, horizon)))
         plans.append((scene, len(groups)))
