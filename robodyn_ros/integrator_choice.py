@@ -219,10 +219,13 @@ def plan_integrator(system, y, integrator=AUTO, dt=DEFAULT_DT, rtol=None, atol=N
     preflight(system, y, t)  # a singular mass matrix or non-finite dy/dt: refused, cause named
     if auto:
         name, dt, rtol, atol, reason, analysis = _auto(system, y, dt, rtol, atol, t, u)
+    elif name in CONTROLLABLE and rtol is not None:
+        # rosenbrock2 under error control: not analysed, as the error-controlled methods are not (its steps
+        # adapt to what its largest, dt, cannot resolve; its step budget bounds it); atol defaults to rtol
+        reason, analysis = '', None
+        atol = rtol if atol is None else atol
     else:
         reason, analysis = '', _check_named(system, name, dt, y, t, u)
-        if name in CONTROLLABLE and rtol is not None and atol is None:
-            atol = rtol   # rosenbrock2 under error control: atol defaults to rtol (make_integrator)
     warns = (analysis.message,) if analysis is not None and analysis.verdict == 'warn' else ()
     return IntegratorPlan(name, dt, rtol, atol, step_budget=budget, auto=auto, reason=reason, analysis=analysis,
                           warnings=warns)

@@ -458,8 +458,11 @@ class ArmSystem(System):
             return self._km.energies(q, v)
         return dyn.kinetic_energy(self.model, q, v), dyn.potential_energy(self.model, q)
 
-    #: fused_advance takes ``tol`` (rosenbrock2 under error control)
-    fused_tolerance = True
+    @property
+    def fused_tolerance(self) -> bool:
+        """True when :meth:`fused_advance` takes ``tol`` (rosenbrock2 under error control): this class's own
+        (a subclass with its own fused loop, e.g. the prescribed path's, runs such a run on the Python path)."""
+        return type(self).fused_advance is ArmSystem.fused_advance
 
     def fused_advance(self, integrator_name, dt, t0, z0, t1, u, tol=None):
         """Integrate ``z = [y, W]`` from t0 to t1 in one compiled call, or None to decline.
