@@ -637,8 +637,9 @@ def markdown(res: SceneResult, png: str | None = None) -> str:
 
 def plot(res: SceneResult, path: str) -> None:
     """Work-precision diagram: error vs rhs evaluations and vs CPU time, log–log, one line per method
-    and formulation (colour and marker per integrator, dashed for the formulation the reference
-    did not use; horizontal lines at the target accuracies, dotted at the reference's error)."""
+    and formulation (colour and marker per integrator, and for rosenbrock2 under error control; dashed for the
+    formulation the reference did not use; horizontal lines at the target accuracies, dotted at the
+    reference's error)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -651,11 +652,15 @@ def plot(res: SceneResult, path: str) -> None:
     colors = plt.get_cmap('tab10').colors
     markers = 'osD^v<>pXh*'
     floor = max(res.reference.error_estimate, 1e-16)
-    for label, rs in sorted(groups.items(), key=lambda kv: (order.index(kv[1][0].integrator)
-                                                              if kv[1][0].integrator in order else 99, kv[0])):
+    def place(r):   # the integrators in order, rosenbrock2 under error control after its fixed steps, in the 10th colour
+        if r.kind == 'controlled':
+            return order.index(r.integrator) + 0.5, len(order)
+        k = order.index(r.integrator) if r.integrator in order else len(order) + 1
+        return k, k
+    for label, rs in sorted(groups.items(), key=lambda kv: (place(kv[1][0])[0], kv[0])):
         rs = sorted(rs, key=lambda r: r.rhs_per_sim_s)
         err = [max(r.error, 1e-16) for r in rs]
-        k = order.index(rs[0].integrator) if rs[0].integrator in order else len(order)
+        k = place(rs[0])[1]
         other = rs[0].formulation and rs[0].formulation != res.reference.formulation
         # one colour and marker per integrator; dashed for the formulation the reference did not use
         style = dict(color=colors[k % len(colors)], marker=markers[k % len(markers)],
