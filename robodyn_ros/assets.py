@@ -13,6 +13,13 @@ built on :func:`asset_file`, the one place where a mesh reference becomes a file
   The ``robot_description`` published on ROS keeps the references (RViz resolves ``package://``
   itself and cannot read ``data:`` URIs).
 
+  STL and OBJ files are embedded as binary glTF (:func:`glb_of_mesh`: the same triangles, flat
+  normals). URDF meshes are Z-up (REP-103); Foxglove turns an STL or OBJ up only when its 3D panel's
+  *Mesh up axis* is set to Z-up (its default is Y-up, which scatters a robot's links), but turns glTF,
+  Y-up by its specification, to Z-up always. So the triangles are written Y-up, ``(x, y, z) → (x, z, −y)``,
+  and a recording draws right in any Foxglove, with or without our layout. COLLADA (which states its
+  own up axis) and glTF files are embedded as they are.
+
 A mesh that is not found, or meshes beyond :data:`EMBED_LIMIT` bytes in all, keep their reference
 (with a note saying which and why).
 """
@@ -20,10 +27,15 @@ from __future__ import annotations
 
 import base64
 import functools
+import json
 import re
+import struct
 from pathlib import Path
 
-__all__ = ['AssetError', 'asset_file', 'asset_bytes', 'media_type', 'embed_meshes', 'EMBED_LIMIT', 'MEDIA_TYPES']
+import numpy as np
+
+__all__ = ['AssetError', 'asset_file', 'asset_bytes', 'media_type', 'embed_meshes', 'glb_of_mesh', 'EMBED_LIMIT',
+           'MEDIA_TYPES']
 
 #: mesh file extension -> media type (the types Foxglove's model loader recognises)
 MEDIA_TYPES = {'.dae': 'model/vnd.collada+xml', '.stl': 'model/stl', '.obj': 'model/obj',
@@ -64,10 +76,64 @@ def media_type(name: str) -> str:
     return MEDIA_TYPES.get(Path(name.split('?')[0]).suffix.lower(), 'application/octet-stream')
 
 
+#: mesh formats :func:`embed_meshes` embeds as binary glTF (their up axis is the URDF's, Z)
+GLB_FORMATS = ('.stl', '.obj')
+
+
+def glb_of_mesh(data: bytes, ext: str) -> bytes:
+    """A binary glTF 2.0 file (GLB) of an STL or OBJ file's triangles (``meshes.mesh_triangles``), Y-up as glTF
+    wants (``(x, y, z) → (x, z, −y)``: a viewer that turns glTF to Z-up gets the file's own coordinates
+    back): one mesh of unindexed triangles, float32 positions (with their bounds) and flat unit normals (a
+    degenerate triangle's: +y), a white non-metallic double-sided material. Deterministic. Raises
+    ``meshes.MeshError`` for a file without triangles."""
+    from .meshes import mesh_triangles
+    tri = mesh_triangles(data, ext)
+    g = np.stack([tri[..., 0], tri[..., 2], -tri[..., 1]], axis=-1)           # Z-up -> Y-up
+    n = np.cross(g[:, 1] - g[:, 0], g[:, 2] - g[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    n = np.where(length[:, None] > 0.0, n / np.where(length > 0.0, length, 1.0)[:, None], [0.0, 1.0, 0.0])
+    pos = g.reshape(-1, 3).astype('<f4')
+    nor = np.repeat(n, 3, axis=0).astype('<f4')
+    count = pos.shape[0]
+    binary = pos.tobytes() + nor.tobytes()
+    doc = {'asset': {'version': '2.0', 'generator': 'robodyn_ros'}, 'scene': 0, 'scenes': [{'nodes': [0]}],
+           'nodes': [{'mesh': 0}],
+           'meshes': [{'primitives': [{'attributes': {'POSITION': 0, 'NORMAL': 1}, 'material': 0, 'mode': 4}]}],
+           'materials': [{'pbrMetallicRoughness': {'baseColorFactor': [1.0, 1.0, 1.0, 1.0], 'metallicFactor': 0.0,
+                                                   'roughnessFactor': 1.0}, 'doubleSided': True}],
+           'buffers': [{'byteLength': len(binary)}],
+           'bufferViews': [{'buffer': 0, 'byteOffset': 0, 'byteLength': 12 * count, 'target': 34962},
+                           {'buffer': 0, 'byteOffset': 12 * count, 'byteLength': 12 * count, 'target': 34962}],
+           'accessors': [{'bufferView': 0, 'componentType': 5126, 'count': count, 'type': 'VEC3',
+                          'min': [float(x) for x in pos.min(axis=0)], 'max': [float(x) for x in pos.max(axis=0)]},
+                         {'bufferView': 1, 'componentType': 5126, 'count': count, 'type': 'VEC3'}]}
+    text = json.dumps(doc, separators=(',', ':'), sort_keys=True).encode('ascii')
+    text += b' ' * (-len(text) % 4)            # chunks are 4-byte aligned: JSON padded with spaces,
+    binary += b'\0' * (-len(binary) % 4)      # the binary chunk with zeros
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    return (struct.pack('<4sII', b'glTF', 2, total) + struct.pack('<I4s', len(text), b'JSON') + text
+            + struct.pack('<I4s', len(binary), b'BIN\0') + binary)
+
+
+def _data_uri(uri: str, data: bytes) -> tuple:
+    """``(data: URI, note or None)`` of a mesh file's bytes: STL and OBJ as binary glTF (:func:`glb_of_mesh`;
+    one that cannot be read is embedded as it is, with a note), others as they are."""
+    from .meshes import MeshError
+    ext = Path(uri.split('?')[0]).suffix.lower()
+    note = None
+    if ext in GLB_FORMATS:
+        try:
+            return f'data:model/gltf-binary;base64,{base64.b64encode(glb_of_mesh(data, ext)).decode("ascii")}', None
+        except MeshError as e:
+            note = f'mesh {uri} embedded as it is, not as glTF: {e}'
+    return f'data:{media_type(uri)};base64,{base64.b64encode(data).decode("ascii")}', note
+
+
 @functools.lru_cache(maxsize=8)
 def embed_meshes(urdf: str, limit: int = EMBED_LIMIT) -> tuple:
     """``(text, notes)``: the URDF with every mesh ``filename`` replaced by a ``data:`` URI of the file
-    it names (``data:<media type>;base64,...``), and the notes of the references left as they were.
+    it names (``data:<media type>;base64,...``; STL and OBJ as binary glTF, ``model/gltf-binary``, see the
+    module docstring), and the notes of the references left as they were (or embedded as they are).
 
     urdf: URDF text as :meth:`System.urdf` exports it (mesh references absolute: ``package://``,
     ``file://`` or absolute paths; a ``data:`` URI stays); limit: bytes of mesh files embedded at most
@@ -90,7 +156,9 @@ def embed_meshes(urdf: str, limit: int = EMBED_LIMIT) -> tuple:
                          f'{limit / 2 ** 20:.0f} MiB')
             continue
         total += len(data)
-        files[uri] = f'data:{media_type(uri)};base64,{base64.b64encode(data).decode("ascii")}'
+        files[uri], note = _data_uri(uri, data)
+        if note:
+            notes.append(note)
     if not files:
         return urdf, tuple(notes)
     pieces, at = [], 0   # what _MESH_FILENAME.sub would build, joined once (the meshes are MBs of text)

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'bounding_sphere', 'mesh_sphere', 'example_robot_data_dir',
-           'bundled_robot_data_dir']
+__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'mesh_triangles', 'bounding_sphere', 'mesh_sphere',
+           'example_robot_data_dir', 'bundled_robot_data_dir']
 
 
 def example_robot_data_dir() -> Path | None:
@@ -144,6 +144,47 @@ def _stl(data: bytes) -> np.ndarray:
     text = data.decode('ascii', 'replace')
     return np.array([[float(x) for x in m.split()] for m in re.findall(r'vertex\s+(\S+\s+\S+\s+\S+)', text)],
                     dtype=float).reshape(-1, 3)
+
+
+def mesh_triangles(data: bytes, ext: str) -> np.ndarray:
+    """The triangles (n, 3, 3) of an STL (binary or ASCII) or Wavefront OBJ file's bytes (``ext``: ``.stl`` or
+    ``.obj``; an OBJ face of k corners becomes a fan of k − 2 triangles; its ``v/vt/vn`` and negative indices
+    are read), in the file's own coordinates; raises MeshError (no triangles, an index out of range)."""
+    try:
+        if ext == '.stl':
+            tri = _stl(data).reshape(-1, 3, 3)
+        elif ext == '.obj':
+            tri = _obj_triangles(data.decode('utf-8', 'replace'))
+        else:
+            raise MeshError(f'triangles are read from STL and OBJ, not {ext!r}')
+    except (ValueError, IndexError, struct.error) as e:
+        if isinstance(e, MeshError):
+            raise
+        raise MeshError(f'cannot read the {ext} mesh: {e}') from None
+    if not len(tri) or not np.isfinite(tri).all():
+        raise MeshError(f'the {ext} mesh has no triangles, or non-finite vertices')
+    return tri
+
+
+def _obj_triangles(text: str) -> np.ndarray:
+    """Triangles of an OBJ's ``f`` lines over its ``v`` lines (1-based, or negative: from the last vertex)."""
+    verts, faces = [], []
+    for line in text.splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == 'v':
+            verts.append([float(x) for x in parts[1:4]])
+        elif parts[0] == 'f':
+            idx = []
+            for c in parts[1:]:
+                i = int(c.split('/')[0])
+                idx.append(i - 1 if i > 0 else len(verts) + i)
+            if min(idx) < 0 or max(idx) >= len(verts):
+                raise MeshError(f'face {line.strip()!r} names a vertex that is not there ({len(verts)} so far)')
+            faces += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
+    v = np.array(verts, dtype=float).reshape(-1, 3)
+    return v[np.array(faces, dtype=np.int64).reshape(-1, 3)]
 
 
 def _dae(data: bytes) -> np.ndarray:

@@ -150,11 +150,13 @@ def test_the_layout_of_a_scene_fits_its_recording(runs, name):
     assert set(cfg['scene']) <= SCENE_KEYS and set(cfg['scene']['transforms']) <= SCENE_TRANSFORM_KEYS
     # URDF meshes are Z-up (REP-103, as RViz reads them); Foxglove reads STL and OBJ meshes Y-up unless the
     # 3D panel says otherwise (Studio 1.48's DEFAULT_MESH_UP_AXIS = "y_up", which turned xarm7's links 90°
-    # about x: seen in the headless Studio): every layout says Z-up, and these robots do record STL meshes (ur5's
-    # are COLLADA, whose <up_axis> Foxglove reads)
+    # about x: seen in the headless Studio): every layout says Z-up (for meshes a live run serves as files), and
+    # these robots' STL meshes are recorded as glTF (ur5's are COLLADA, whose <up_axis> Foxglove reads)
     assert cfg['scene'].get('meshUpAxis') == 'z_up'
     description = msgs['/robot_description'][0].data
-    assert ('data:model/stl;base64,' in description) == (name in ('xarm7_trajectory', 'solo12_drop', 'solo12')), name
+    assert ('data:model/gltf-binary;base64,' in description) == (name in ('xarm7_trajectory', 'solo12_drop', 'solo12')), \
+        name   # their STL meshes, as glTF (assets.embed_meshes), which Foxglove turns up whatever the setting
+    assert 'data:model/stl;' not in description
     assert set(cfg['publish']) == PUBLISH_KEYS
     for layer in cfg['layers'].values():
         assert layer['layerId'] == 'foxglove.Grid' and set(layer) <= GRID_KEYS

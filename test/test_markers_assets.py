@@ -4,8 +4,9 @@ Markers (``markers``, visualization_msgs/MarkerArray) of an A1 landing are read 
 recording by rosbags (its own CDR decoder and the recorded schema): a DELETEALL, the touching points
 on the ground plane, one arrow per point whose vectors add up to the ground's total force of the
 ``contact_wrenches`` topics (computed per link by the contact kernel's link sums). Meshes: the
-recorded ``robot_description`` holds each mesh as a ``data:`` URI whose bytes are the file's; the rest
-of the URDF is unchanged; a mesh that cannot be found, or beyond the size limit, keeps its reference.
+recorded ``robot_description`` holds each mesh as a ``data:`` URI whose bytes are the file's (STL and
+OBJ: as binary glTF, read back by trimesh); the rest of the URDF is unchanged; a mesh that cannot be
+found, or beyond the size limit, keeps its reference.
 """
 from __future__ import annotations
 
@@ -119,11 +120,74 @@ def test_meshes_not_found_or_beyond_the_limit_keep_their_reference(tmp_path):
             f'<visual><geometry><mesh filename="package://no_such_pkg/m.dae" scale="1 1 1"/></geometry></visual>'
             f'</link></robot>')
     text, notes = embed_meshes(urdf)
+    # an STL without triangles cannot become glTF: embedded as it is, with a note saying so
     assert f'data:model/stl;base64,{base64.b64encode(stl.read_bytes()).decode()}' in text
-    assert 'package://no_such_pkg/m.dae' in text and len(notes) == 1 and 'no_such_pkg' in notes[0]
+    assert len(notes) == 2 and 'embedded as it is, not as glTF' in notes[0] and 'no triangles' in notes[0]
+    assert 'package://no_such_pkg/m.dae' in text and 'no_such_pkg' in notes[1]
     text, notes = embed_meshes(urdf, limit=5)
     assert text.count('data:') == 0 and f'file://{stl}' in text and len(notes) == 2 and 'MiB' in notes[0]
     assert embed_meshes('<robot name="r"/>') == ('<robot name="r"/>', ())
+
+
+def _foxglove_turn(v):
+    """What Foxglove does to a glTF model (Studio 1.48 ``ModelCache.loadGltf``: ``rotateX(π/2)``, glTF's Y-up to
+    ROS's Z-up): (x, y, z) -> (x, −z, y)."""
+    return np.stack([v[..., 0], -v[..., 2], v[..., 1]], axis=-1)
+
+
+def _erd_meshes(pattern):
+    from robodyn_ros.urdf import example_robot_data_dir
+    return sorted(example_robot_data_dir().glob(pattern))
+
+
+def test_stl_and_obj_meshes_are_embedded_as_gltf_that_foxglove_turns_back_into_the_file():
+    """STL and OBJ meshes are embedded as binary glTF written Y-up, so that Foxglove, which turns glTF to Z-up
+    (and STL or OBJ only when told to), draws the file's own triangles. Read back by trimesh (its own GLB, STL
+    and OBJ readers): every STL of solo12 and xarm7 and every OBJ of laikago (example-robot-data), turned as
+    Foxglove turns glTF, is the file's triangles (float32, exactly, for STL; OBJ: the same area and bounds, its
+    polygons fanned), with unit normals on the triangles' own side."""
+    import io
+
+    import trimesh
+    from robodyn_ros.assets import glb_of_mesh
+    stls = _erd_meshes('solo_description/meshes/stl/solo12/*.stl') + _erd_meshes('xarm_description/meshes/**/*.stl')
+    objs = _erd_meshes('laikago_description/meshes/*.obj')
+    assert len(stls) >= 10 and len(objs) >= 5, (len(stls), len(objs))
+    for path in stls + objs:
+        data = path.read_bytes()
+        scene = trimesh.load(io.BytesIO(glb_of_mesh(data, path.suffix)), file_type='glb', process=False)
+        (g,) = scene.geometry.values()
+        tri = _foxglove_turn(g.vertices[g.faces])
+        ref = trimesh.load(io.BytesIO(data), file_type=path.suffix[1:], process=False, force='mesh')
+        if path.suffix == '.stl':
+            np.testing.assert_array_equal(tri, ref.vertices[ref.faces].astype(np.float32), err_msg=str(path))
+        else:
+            assert abs(trimesh.triangles.area(tri).sum() - ref.area) < 1e-5 * ref.area, path
+            np.testing.assert_allclose(tri.reshape(-1, 3).min(0), ref.bounds[0], atol=1e-6, err_msg=str(path))
+            np.testing.assert_allclose(tri.reshape(-1, 3).max(0), ref.bounds[1], atol=1e-6, err_msg=str(path))
+        normals = _foxglove_turn(np.asarray(scene.geometry[next(iter(scene.geometry))].vertex_normals))
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        ok = np.linalg.norm(cross, axis=1) > 1e-12
+        per_corner = normals[g.faces[:, 0]]
+        assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+        assert (np.einsum('ij,ij->i', per_corner[ok], cross[ok]) > 0).all(), path
+
+
+def test_an_obj_with_polygons_texture_and_negative_indices_becomes_its_triangles():
+    """OBJ faces as files write them (``v/vt/vn``, ``v//vn``, negative indices, a quad): the glTF holds the fan of
+    each polygon (a unit square and a triangle: area 1.5), as trimesh reads the same file."""
+    import io
+
+    import trimesh
+    from robodyn_ros.assets import glb_of_mesh
+    text = ('v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n'
+            'f 1/1/1 2/1/1 3/1/1 4/1/1\nv 0 0 1\nf -1//1 -5//1 -4//1\n')
+    glb = glb_of_mesh(text.encode(), '.obj')
+    (g,) = trimesh.load(io.BytesIO(glb), file_type='glb', process=False).geometry.values()
+    tri = _foxglove_turn(g.vertices[g.faces])
+    ref = trimesh.load(io.BytesIO(text.encode()), file_type='obj', process=False, force='mesh')
+    assert len(tri) == 3 and abs(trimesh.triangles.area(tri).sum() - 1.5) < 1e-12 and abs(ref.area - 1.5) < 1e-12
+    assert glb == glb_of_mesh(text.encode(), '.obj')     # deterministic
 
 
 def test_the_block_paths_markers_of_many_periods_are_the_bytes_of_each_periods_message():
