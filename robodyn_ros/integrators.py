@@ -565,6 +565,9 @@ class Rosenbrock2(FixedStepIntegrator):
             compiled loops take in steps with a joint stop in J or a ground contact touching
             (``kernels.rosenbrock.GAMMA_STOP``; ``kernels.arm.arm_implicit_matrix``).
         dfdt: optional ``dfdt(t, y) -> f_t (n,)``, evaluated once per step at its start; None: 0.
+        rtol, atol: None (fixed steps of dt), or the tolerances of error control, dt then the largest step
+            (:meth:`_advance_controlled`; ``make_integrator`` sets atol = rtol when not given).
+        controlled: how many leading components of y the error control measures (None: all).
     """
 
     def __init__(self, spec: IntegratorSpec, dt: float, jac=None, gamma=None, dfdt=None, rtol=None, atol=None,
