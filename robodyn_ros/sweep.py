@@ -121,11 +121,13 @@ def run_settings(scene, overrides: dict, duration: float):
 
 
 def _settings_columns(st) -> dict:
-    """The row's integrator columns from settings ``st`` (dt for a fixed-step method, else rtol/atol)."""
-    from .integrators import INTEGRATORS
+    """The row's integrator columns from settings ``st`` (dt for a fixed-step method, else rtol/atol; both for
+    rosenbrock2 under error control)."""
+    from .integrators import CONTROLLABLE, INTEGRATORS
     fixed = INTEGRATORS[st['integrator']].kind == 'fixed'
-    return dict(integrator=st['integrator'], dt=st['dt'] if fixed else None, rtol=None if fixed else st['rtol'],
-                atol=None if fixed else st['atol'], duration=st['duration'])
+    tol = not fixed or (st['integrator'] in CONTROLLABLE and st.get('rtol') is not None)
+    return dict(integrator=st['integrator'], dt=st['dt'] if fixed else None, rtol=st['rtol'] if tol else None,
+                atol=st['atol'] if tol else None, duration=st['duration'])
 
 
 class _Figures:

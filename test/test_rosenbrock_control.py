@@ -155,3 +155,16 @@ def test_the_other_fixed_step_methods_refuse_a_tolerance_and_name_the_ones_that_
     with pytest.raises(ValueError, match='rk4 is a fixed-step integrator: give dt, not rtol/atol') as e:
         make_integrator('rk4', dt=1e-3, rtol=1e-6)
     assert 'rosenbrock2' in str(e.value)
+
+
+def test_a_sweep_row_of_rosenbrock2_under_error_control_keeps_its_step_and_its_tolerances():
+    """A sweep's integrator columns: dt for a fixed step, rtol/atol for an error-controlled method, both for
+    rosenbrock2 under error control (its largest step and its tolerances: what reruns it)."""
+    from robodyn_ros.sweep import _settings_columns
+    st = {'dt': 1e-2, 'rtol': 1e-6, 'atol': 1e-7, 'duration': 1.0}
+    cols = {name: _settings_columns({**st, 'integrator': name}) for name in ('rosenbrock2', 'rk4', 'dop853')}
+    assert (cols['rosenbrock2']['dt'], cols['rosenbrock2']['rtol'], cols['rosenbrock2']['atol']) == (1e-2, 1e-6, 1e-7)
+    assert (cols['rk4']['dt'], cols['rk4']['rtol'], cols['rk4']['atol']) == (1e-2, None, None)
+    assert (cols['dop853']['dt'], cols['dop853']['rtol']) == (None, 1e-6)
+    fixed = _settings_columns({**st, 'rtol': None, 'atol': None, 'integrator': 'rosenbrock2'})
+    assert (fixed['dt'], fixed['rtol']) == (1e-2, None)
