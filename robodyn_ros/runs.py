@@ -62,7 +62,8 @@ def plan_run(st: dict, system, y0, t0: float = 0.0):
     :func:`~robodyn_ros.integrator_choice.plan_integrator` (hand it to the Simulator: ``Simulator(...,
     plan=plan)``), and the settings with the plan written in: an ``'auto'`` integrator replaced by the
     method it chose (its dt, or rtol/atol for radau) and the reason under ``'auto'``, a new dict; ``st``
-    itself when it names its integrator (with the atol rosenbrock2 under error control defaults to: rtol). Raises ValueError naming the cause (plan_integrator)."""
+    itself when it names its integrator (with the atol rosenbrock2 under error control defaults to: rtol).
+    Raises ValueError naming the cause (plan_integrator)."""
     from .integrator_choice import plan_integrator
     dt = st.get('dt')
     plan = plan_integrator(system, y0, st.get('integrator'), DEFAULT_DT if dt is None else dt, st.get('rtol'),

@@ -165,7 +165,7 @@ def test_stl_and_obj_meshes_are_embedded_as_gltf_that_foxglove_turns_back_into_t
             assert abs(trimesh.triangles.area(tri).sum() - ref.area) < 1e-5 * ref.area, path
             np.testing.assert_allclose(tri.reshape(-1, 3).min(0), ref.bounds[0], atol=1e-6, err_msg=str(path))
             np.testing.assert_allclose(tri.reshape(-1, 3).max(0), ref.bounds[1], atol=1e-6, err_msg=str(path))
-        normals = _foxglove_turn(np.asarray(scene.geometry[next(iter(scene.geometry))].vertex_normals))
+        normals = _foxglove_turn(np.asarray(g.vertex_normals))
         cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         ok = np.linalg.norm(cross, axis=1) > 1e-12
         per_corner = normals[g.faces[:, 0]]
