@@ -278,3 +278,28 @@ def test_an_interpreted_kernel_types_its_arguments_once(monkeypatch):
     assert all(np.array_equal(o, ref) for o in outs)
     fresh(mi, mf, q, v, tau, np.empty((model.nv, 2))[:, 0])   # a strided out: another signature
     assert len(typed) >= 12   # its six typed anew (numba's own dispatch types a strided array once more)
+
+
+def test_a_kernel_asked_for_again_is_typed_once_and_looked_up_once_per_compiler_generation(monkeypatch):
+    """The interpreted loop asks for its compiled kernel at every period (``jit.request_compiled``, about 1000
+    times in xarm7_trajectory's first 10 s): the arguments are typed by numba at the first call only, and a
+    signature the cache lacks is looked up again only once the compiler child has finished something."""
+    from robodyn_ros.kernels import tree
+    from robodyn_ros.scene import load_scene
+    model = load_scene('betancur_pendulum').system.model
+    mi, mf = kernels.pack_model(model, merge=True)
+    args = (mi, mf, np.zeros(model.nq), np.zeros(model.nv), np.zeros(model.nv), np.empty(model.nv))
+    fresh = jit.njit(cache=False)(tree.aba_into.py_func)   # nothing in memory, nothing in a cache
+    typed, looked, asked = [], [], []
+    real = type(fresh).typeof_pyval
+    monkeypatch.setattr(type(fresh), 'typeof_pyval', lambda self, a: typed.append(a) or real(self, a))
+    monkeypatch.setattr(type(fresh._cache), 'load_overload', lambda self, sig, ctx: looked.append(sig))
+    monkeypatch.setattr(jit.COMPILER, 'request', lambda what: asked.append(what))
+    monkeypatch.setattr(jit, 'MODE', 'interpret')
+    for _ in range(5):
+        jit.request_compiled(fresh, args)
+    assert len(typed) == len(args) and len(looked) == 1 and len(asked) == 5
+    assert asked[0][:3] == ('kernel', tree.aba_into.py_func.__module__, 'aba_into')
+    monkeypatch.setattr(jit.COMPILER, 'generation', jit.COMPILER.generation + 1)   # the child finished a request
+    jit.request_compiled(fresh, args)
+    assert len(looked) == 2 and len(typed) == len(args)

@@ -248,17 +248,10 @@ def _kernel_dispatcher_class(base):
             from numba.core.dispatcher import OmittedArg
             if any(isinstance(a, OmittedArg) for a in args):
                 return super()._compile_for_args(*args, **kws)
-            key = _types_key(args)
-            known = _SIGS.get((id(self), key)) if key is not None else None
-            if known is not None:
-                sig = known[1]
-            else:
-                sig = tuple(self.typeof_pyval(a) for a in args)
-                if key is not None:   # (self kept with it: its id is not reused while it is here)
-                    _SIGS[(id(self), key)] = (self, sig)
+            sig, key = signature_of(self, args)
             if MODE == 'python':
                 return lambda *a: run_interpreted(self, sig, a)
-            entry = load_cached(self, sig)
+            entry = load_cached(self, sig, key)
             if entry is not None:
                 return entry
             COMPILER.request(('kernel', self.py_func.__module__, self.py_func.__name__, sig))
@@ -311,21 +304,37 @@ def _types_key(args):
     return tuple(key)
 
 
-#: ``{(id(dispatcher), signature): generation}`` of cache lookups that found nothing (retried when the
-#: compiler child has finished something since)
+def signature_of(d, args):
+    """``(signature, key)``: numba's argument types of a call of kernel d with args, and a key that stands for
+    them (:func:`_types_key`, else the signature itself), the signature computed once per key (:data:`_SIGS`)."""
+    key = _types_key(args)
+    known = _SIGS.get((id(d), key)) if key is not None else None
+    if known is not None:
+        return known[1], (id(d), key)
+    sig = tuple(d.typeof_pyval(a) for a in args)
+    if key is None:
+        return sig, (id(d), sig)
+    _SIGS[(id(d), key)] = (d, sig)   # (d kept with it: its id is not reused while it is here)
+    return sig, (id(d), key)
+
+
+#: ``{key: generation}`` of cache lookups that found nothing (retried when the compiler child has finished
+#: something since); key: ``(id(dispatcher), signature)`` or the cheaper one of :func:`signature_of`
 _MISSES: dict = {}
 
 
-def load_cached(d, sig):
+def load_cached(d, sig, key=None):
     """The entry point of kernel d for the argument types sig: in memory, or loaded from the kernels' cache
-    (numba's ``Dispatcher.compile`` without its compiling part); None if neither."""
+    (numba's ``Dispatcher.compile`` without its compiling part); None if neither. key: what stands for sig
+    (:func:`signature_of`; hashing numba's types costs more than the lookup)."""
+    if key is None:
+        key = (id(d), sig)
+    COMPILER.poll()
+    if _MISSES.get(key) == COMPILER.generation:   # (a compile in this process clears _MISSES)
+        return None
     existing = d.overloads.get(sig)
     if existing is not None:
         return existing.entry_point
-    COMPILER.poll()
-    key = (id(d), sig)
-    if _MISSES.get(key) == COMPILER.generation:
-        return None
     from numba.core.compiler_lock import global_compiler_lock
     with global_compiler_lock:
         cres = d._cache.load_overload(sig, d.targetctx)
@@ -344,8 +353,8 @@ def request_compiled(d, args) -> None:
     (nothing while numba is not loaded: :data:`DEFERRED`)."""
     if MODE != 'interpret' or isinstance(d, Deferred):
         return
-    sig = tuple(d.typeof_pyval(a) for a in args)
-    if load_cached(d, sig) is None:
+    sig, key = signature_of(d, args)
+    if load_cached(d, sig, key) is None:
         COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig))
 
 
@@ -381,6 +390,7 @@ def run_interpreted(d, sig, args, fallback=None):
     except (ArithmeticError, ValueError):
         for a, s in zip(arrays, saved):
             a[...] = s
+        _MISSES.clear()   # (what is compiled here is in memory from now on)
         if fallback is not None:
             return fallback()
         d.compile(sig)
