@@ -26,7 +26,7 @@ DEFAULT_DURATION = 10.0
 
 
 def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate=None, duration=None,
-                     step_budget=None) -> dict:
+                     step_budget=None, strict=True) -> dict:
     """Integrator settings of a run: the given values over the scene's ``simulation`` defaults.
 
     scene: a loaded :class:`robodyn_ros.scene.Scene` (its ``settings``); integrator, dt (s),
@@ -36,7 +36,9 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
     ``AUTO_RTOL`` and ``AUTO_ATOL`` for an adaptive integrator; ``integrator_choice.STEP_BUDGET``).
     Returns a dict with the first six keys (integrator may be ``'auto'``: see :func:`plan_run`), and
     ``step_budget`` when the run or the scene gives one (recordings of other runs keep their
-    settings' bytes).
+    settings' bytes). A fixed-step integrator other than rosenbrock2 takes no tolerances: the scene's are
+    dropped, and given ones are refused (ValueError naming the methods that take them), or with ``strict``
+    False dropped too (a sweep's grid of integrators and tolerances).
     """
     s = dict(scene.settings)
     out = {'integrator': (integrator or s.get('integrator', AUTO)).lower(),
@@ -48,8 +50,14 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
     budget = step_budget if step_budget is not None else s.get('step_budget')
     if budget is not None:
         out['step_budget'] = budget
-    from .integrators import INTEGRATORS
+    from .integrators import CONTROLLABLE, INTEGRATORS, _names
     spec = INTEGRATORS.get(out['integrator'])
+    if spec is not None and spec.kind == 'fixed' and spec.name not in CONTROLLABLE:
+        given = [k for k, x in (('rtol', rtol), ('atol', atol)) if x is not None]
+        if given and strict:   # a tolerance the run would not use: refused, not ignored
+            raise ValueError(f'{spec.name} is a fixed-step integrator: give dt, not {"/".join(given)} (error '
+                             f'control: {", ".join(list(CONTROLLABLE) + _names("adaptive"))}, or auto)')
+        out['rtol'] = out['atol'] = None   # the scene's tolerances are for its own method
     if spec is not None and spec.kind == 'adaptive':
         out['rtol'] = out['rtol'] if out['rtol'] is not None else AUTO_RTOL
         out['atol'] = out['atol'] if out['atol'] is not None else AUTO_ATOL

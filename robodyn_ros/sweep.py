@@ -107,9 +107,11 @@ PAUSE_ENV = 'ROBODYN_SWEEP_PAUSE'
 # ---------------------------------------------------------------------------------------------
 def requested_settings(scene, overrides: dict, duration: float) -> dict:
     """The settings one run asks for: ``overrides`` over the scene's (:func:`robodyn_ros.runs.resolve_settings`;
-    the integrator may be ``auto``)."""
+    the integrator may be ``auto``; tolerances on a row of a fixed-step method other than rosenbrock2 are
+    dropped, as its settings' columns then say)."""
     from .runs import resolve_settings
-    return resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration)
+    return resolve_settings(scene, **{k: overrides[k] for k in SETTINGS if k in overrides}, duration=duration,
+                            strict=False)
 
 
 def run_settings(scene, overrides: dict, duration: float):

@@ -157,6 +157,30 @@ def test_the_other_fixed_step_methods_refuse_a_tolerance_and_name_the_ones_that_
     assert 'rosenbrock2' in str(e.value)
 
 
+def test_a_run_refuses_a_tolerance_its_fixed_step_method_would_ignore_and_drops_the_scenes(capsys):
+    """``robodyn run`` and the node refuse rtol/atol given for rk4 (or euler) instead of running without them,
+    naming the methods that take them; a scene's tolerances (solo12_drop: rosenbrock2 at rtol 1e-5) are not
+    carried to another fixed-step method the run asks for (its recorded settings then hold none), and a sweep's
+    grid drops them on its rk4 rows."""
+    from robodyn_ros.cli import main
+    from robodyn_ros.nodes.config import PARAMETERS, ConfigError, resolve_config
+    from robodyn_ros.runs import resolve_settings
+    from robodyn_ros.sweep import requested_settings
+    for flag in ('--rtol', '--atol'):
+        assert main(['run', 'stanford_arm', '--duration', '0.01', '--integrator', 'rk4', flag, '1e-6']) == 2
+        err = capsys.readouterr().err
+        assert f'rk4 is a fixed-step integrator: give dt, not {flag[2:]}' in err and 'rosenbrock2' in err, err
+    scene = load_scene('solo12_drop')
+    assert resolve_settings(scene)['rtol'] == 1e-5                                   # the scene's own method
+    assert resolve_settings(scene, 'rosenbrock2')['rtol'] == 1e-5
+    assert (resolve_settings(scene, 'rk4')['rtol'], resolve_settings(scene, 'rk4')['atol']) == (None, None)
+    assert requested_settings(scene, {'integrator': 'rk4', 'rtol': 1e-6}, 0.1)['rtol'] is None
+    assert requested_settings(scene, {'integrator': 'dop853', 'rtol': 1e-6}, 0.1)['rtol'] == 1e-6
+    raw = {k: v for k, (v, _) in PARAMETERS.items()}
+    with pytest.raises(ConfigError, match='rk4 is a fixed-step integrator: give dt, not rtol'):
+        resolve_config(dict(raw, integrator='rk4', rtol=1e-6), load_scene('stanford_arm'))
+
+
 def test_a_sweep_row_of_rosenbrock2_under_error_control_keeps_its_step_and_its_tolerances():
     """A sweep's integrator columns: dt for a fixed step, rtol/atol for an error-controlled method, both for
     rosenbrock2 under error control (its largest step and its tolerances: what reruns it)."""

@@ -178,8 +178,12 @@ def _run(args, sock, rate_factor) -> int:
     except SceneError as e:
         print(f'robodyn run: {e}', file=sys.stderr)
         return 2
-    st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration,
-                          args.step_budget)
+    try:
+        st = resolve_settings(scene, args.integrator, args.dt, args.rtol, args.atol, args.rate, args.duration,
+                              args.step_budget)
+    except ValueError as e:
+        print(f'robodyn run: {e}', file=sys.stderr)
+        return 2
     st['backend'] = recorded_backend(backend)  # recorded: robodyn resim rebuilds the system on the same kernels
     try:
         expect_work(scene, st, args.live)

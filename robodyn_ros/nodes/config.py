@@ -232,8 +232,11 @@ def resolve_config(p: dict, scene) -> Config:
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or math.isnan(budget) or budget < 0:
         raise ConfigError(f"parameter 'step_budget' must be a number of steps per simulated second > 0 "
                           f"(.inf: none; 0: the scene's or the default), got {budget!r}")
-    st = resolve_settings(scene, p['integrator'].lower() or None, opt['dt'], opt['rtol'], opt['atol'],
-                          opt['publish_rate'], step_budget=float(budget) or None)
+    try:
+        st = resolve_settings(scene, p['integrator'].lower() or None, opt['dt'], opt['rtol'], opt['atol'],
+                              opt['publish_rate'], step_budget=float(budget) or None)
+    except ValueError as e:
+        raise ConfigError(f'parameters integrator, rtol, atol: {e}') from None
     mode = p['mode']
     if mode not in MODES:
         raise ConfigError(f"parameter 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
