@@ -58,7 +58,7 @@ ARM_SCENES = [n for n, _ in list_scenes() if _specialised(_load(n))]
 def test_the_specialised_scenes_are_the_fixed_base_arms():
     """The list the recordings below run over is not empty, and the free, spherical and ground scenes are
     not in it (their trees branch on the state, or their loop takes the contact path)."""
-    assert {'stanford_arm', 'betancur_pendulum', 'huston_p19_2_3', 'huston_p19_4_1'} <= set(ARM_SCENES)
+    assert {'stanford_arm', 'betancur_pendulum', 'huston_p19_2_3', 'huston_p19_4_1', 'xarm7_trajectory'} <= set(ARM_SCENES)
     assert not {'huston_human17', 'a1_stand', 'unfried_free_flyer'} & set(ARM_SCENES)
     for p in ROBOTS:
         assert _specialised(_load(_robot(p))), p
@@ -86,15 +86,16 @@ MODELS = ['stanford_arm', 'betancur_pendulum', 'huston_p19_2_3', 'huston_p19_4_1
 
 @pytest.mark.parametrize('name', MODELS)
 def test_traced_code_is_the_generic_arithmetic(name):
-    """Run as Python, the generated fd and bm return the values of the generic Python source they are
+    """Run as Python, the generated fd, bm and rnea return the values of the generic Python source they are
     traced from (the kernels' own code, run by the interpreter with the same double arithmetic), bit for
     bit but for the sign of zeros; the DH residue cos(π/2) = 6.1e-17 is multiplied as the generic kernels do."""
     model = _load(name if name in ARM_SCENES else _robot(name)).system.model
-    fd_src, bm_src = codegen.trace(model)
+    fd_src, bm_src, id_src = codegen.trace(model)
     ns = {'math': math}
-    exec(fd_src + '\n' + bm_src, ns)
+    exec(fd_src + '\n' + bm_src + '\n' + id_src, ns)
     mi, mf = kernels.pack_model(model, merge=True)
     gfd, gbm = codegen.python_kernel(treefn.generic_fd), codegen.python_kernel(treefn.generic_bm)
+    gid = codegen.python_kernel(treefn.generic_id)
     nv = model.nv
     states = _states(model, np.random.default_rng(zlib.crc32(name.encode())), 12)
     assert len(states) == 13
@@ -110,6 +111,9 @@ def test_traced_code_is_the_generic_arithmetic(name):
         ns['bm'](None, None, q, v, np.zeros(nv), *out, None)
         for x, y in zip(ref, out):
             assert _same_up_to_zero_signs(x, y)
+        gid(mi, mf, q, v, tau, a, W)             # tau as the acceleration: RNEA(q, v, qdd)
+        ns['rnea'](None, None, q, v, tau, b, None)
+        assert _same_up_to_zero_signs(a, b)
     if name == 'stanford_arm':   # the residue kept, not snapped; at most one cos per revolute joint (the first
         # joint's turns only gravity, along its axis: its cos meets zeros)
         assert 'e-17' in fd_src and fd_src.count('math.cos(') == 4
@@ -227,7 +231,7 @@ def test_a_negative_zero_in_the_state_keeps_the_generic_kernels():
     km = kernels.CompiledModel(model, specialize=True)
     generic = tuple(f.address for f in treefn.generic_pointers())
     z = np.concatenate([np.linspace(0.1, 0.6, model.nq), np.zeros(model.nv), [0.0]])
-    assert km.dynamics(z) == ((km.gen[0].address, km.gen[1].address), False)
+    assert km.dynamics(z) == (tuple(f.address for f in km.gen), False) and len(km.gen) == 3
     z[model.nq + 2] = -0.0
     assert km.dynamics(z) == (generic, False)
 

@@ -280,7 +280,7 @@ def split_timings(sim) -> dict:
     fd_loop, bm_loop, contact_loop = _loops()
     q = np.ascontiguousarray(sim.y[:s.nq])
     v = np.ascontiguousarray(sim.y[s.nq:s.nq + nv])
-    (fd, bm), _ = km.dynamics(sim.y)
+    (fd, bm, _), _ = km.dynamics(sim.y)
     W = tree.workspace(km.mi_r.shape[0])
     tau, zero, out = np.zeros(nv), np.zeros(nv), np.empty(nv)
     H, G = np.empty((nv, nv)), np.empty((nv, nv))

@@ -213,7 +213,7 @@ class CompiledModel:
             self.cpl = (self.mimic, self.col, self.mul)
         self.con = None   # the packed ground contacts (kernels.contact), set by systems.contact
         self.cpo = None   # their points' (body, link) rows (kernels.arm.run_arm_periods), set with con
-        self.gen = None   # the generated (fd, bm) cfuncs in use (kernels.codegen), or None
+        self.gen = None   # the generated (fd, bm, rnea) cfuncs in use (kernels.codegen), or None
         self._auto = specialize == 'auto' and self.coupled is None
         self._requested = None    # the generated module the compiler child was asked for (backend 'auto')
         self._spent = 0.0         # wall time integrated on the generic kernels (backend 'auto')
@@ -266,25 +266,30 @@ class CompiledModel:
         self.gen = codegen.load(self._requested)
 
     def dynamics(self, z):
-        """``(dyn, tokens)``: the addresses of the forward dynamics and bias/mass pass the loop takes for state
-        z (:mod:`.treefn`): the generated code's, or the generic kernels' while there is none or while z holds
+        """``(dyn, tokens)``: the addresses of the forward dynamics, bias/mass pass and inverse dynamics the loop
+        takes for state z (:mod:`.treefn`): the generated code's, or the generic kernels' while there is none or while z holds
         an entry −0.0 (the one state whose bits a folded zero could change: :mod:`.codegen`). Interpreting
         (:mod:`.jit`) while the generic cfuncs are not compiled: Python-only tokens (``tokens`` True: the
         model's generated code as Python, else the generic kernels' Python), for interpreted calls only."""
         from . import jit
         signed_zero = np.any((z == 0.0) & np.signbit(z))
         if self.gen is not None and not signed_zero:
-            return (self.gen[0].address, self.gen[1].address), False
+            return tuple(f.address for f in self.gen), False
         if jit.MODE == 'compile':
-            fd, bm = treefn.generic_pointers()
-            return (fd.address, bm.address), False
+            return tuple(f.address for f in treefn.generic_pointers()), False
         generic = treefn.generic_pointers(block=False)
         if generic is not None:
-            return (generic[0].address, generic[1].address), False
+            return tuple(f.address for f in generic), False
+        pygen = self._python_tokens()
+        return (pygen if pygen is not None and not signed_zero else treefn.GENERIC_TOKENS), True
+
+    def _python_tokens(self):
+        """The model's generated code as Python tokens (:func:`.codegen.python_dynamics`), or None (no generated
+        code: a tree with mimic joints or on a ground, or one that branches on the state)."""
         if self._pygen is False:
             from . import codegen
             self._pygen = codegen.python_dynamics(self.model) if self.coupled is None and self.con is None else None
-        return (self._pygen if self._pygen is not None and not signed_zero else treefn.GENERIC_TOKENS), True
+        return self._pygen
 
     def aba(self, q, v, tau, f_ext=None):
         """Forward dynamics ``qdd`` (nv,) by the articulated-body algorithm (a tree with mimic joints:
@@ -473,11 +478,14 @@ class CompiledModel:
     def servo_state(self, srv, t, q, v):
         """``(out (ns, 6), power)``: the joint servo (:mod:`.servo`) at time t and (q, v): per servo joint
         q*, q̇*, q̈*, the feed-forward torque, the applied torque and its saturation flag
-        (``servo.servo_state``), and its power (W)."""
+        (``servo.servo_state``), and its power (W). The feed-forward's inverse dynamics is the one the loops take
+        (:meth:`dynamics`; generic and generated give the same bits there)."""
         out = np.empty((srv[0].shape[0], 6))
         W = tree.workspace(self.nb)
-        P = servo.servo_state(self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, srv, float(t),
-                              np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float), W, out)
+        dyn, tokens = self.dynamics(np.zeros(0))
+        P = treefn.call(servo.servo_state, [self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, srv,
+                                            float(t), np.ascontiguousarray(q, dtype=float),
+                                            np.ascontiguousarray(v, dtype=float), W, out, dyn], 11, tokens)
         return out, P
 
     def sensor_readings(self, q, v, qdd, imu, ft, f_ext=None):

@@ -4,8 +4,9 @@ periods with their scripted commands and outputs (:func:`run_arm_periods`, the o
 one period for the per-period path, many for the block path), on the tree algorithms of
 :mod:`robodyn_ros.kernels.tree`.
 
-The forward dynamics and the bias/mass pass of a tree without mimic joints or ground contacts are
-reached through the function addresses ``dyn = (fd, bm)`` of :mod:`robodyn_ros.kernels.treefn`: the
+The forward dynamics and the bias/mass pass of a tree without mimic joints or ground contacts, and a joint
+servo's feed-forward inverse dynamics, are reached through the function addresses ``dyn = (fd, bm, id)`` of
+:mod:`robodyn_ros.kernels.treefn`: the
 generic kernels or a model's generated code (:mod:`robodyn_ros.kernels.codegen`), the same operations,
 behind one compiled loop.
 """
@@ -94,7 +95,7 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
     else:
         P = arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:z.shape[0] - 1], dz, tauv)
     if srv is not None:   # before W holds q's transforms: the feed-forward's RNEA uses W
-        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
+        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W, dyn)
     if cpl is not None:   # a None argument prunes this branch at compile time: no coupled code for other trees
         transforms(mi, mf, q, W)
         coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
@@ -669,7 +670,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     sat, Ft, rr = vec[10], vec[11], vec[12]
     if srv is not None:   # the servo at (t, zₙ): its torques, its saturation flags and time rate for J and the stages
         servo_side(srv, 1.0)
-        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
+        P += servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W, dyn)
         ns = srv[0].shape[0]
         for a in range(ns):
             sat[a] = srv[5][SW_SAT, a]
@@ -824,7 +825,7 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
         for r in range(nv):
             TAUs[k, r] = tau_app[r]
         if srv is not None and SVs.shape[1] > 0:   # the servo's torques at the period's end: its joints' effort
-            servo_state(mi_r, mf_r, damping, friction, v_s, srv, t_end[k], z[:nq], z[nq:nq + nv], Wr, SVs[k])
+            servo_state(mi_r, mf_r, damping, friction, v_s, srv, t_end[k], z[:nq], z[nq:nq + nv], Wr, SVs[k], dyn)
             for j in range(srv[0].shape[0]):
                 TAUs[k, srv[0][j, 0]] += SVs[k, j, 4]
         if con is not None and Cs.shape[1] > 0:   # the contacts at the period's end: per link, and per body

@@ -65,7 +65,8 @@ import numpy as np
 
 from .jit import njit
 from .passive import add_coulomb_friction
-from .tree import _JIT, rnea_ws, transforms
+from .tree import _JIT
+from .treefn import id_at
 
 #: columns of si
 SI_V, SI_Q, SI_MODE, SI_COL = 0, 1, 2, 3
@@ -146,11 +147,14 @@ def servo_desired(srv, t, q):
 
 
 @njit(**_JIT)
-def servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W):
+def servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W, dyn):
     """The feed-forward torques of (S1) into ``sw[SW_FF]`` (nv,): RNEA at the desired motion (the servo
-    joints at ``sw[SW_QS:SW_QDDS + 1]``, the others at their own q, v and zero acceleration) plus the
-    damping ``d q̇*`` and Coulomb friction ``f tanh(q̇*/v_s)`` the desired velocity meets. Uses W (the
-    caller transforms it again for its own state afterwards)."""
+    joints at ``sw[SW_QS:SW_QDDS + 1]``, the others at their own q, v and zero acceleration: the ``id`` at
+    the address ``dyn[2]``, :mod:`.treefn`, the generic one or the model's generated code) plus the damping
+    ``d q̇*`` and Coulomb friction ``f tanh(q̇*/v_s)`` the desired velocity meets, each torque then added to
+    +0.0 (the two implementations agree but for the sign of a zero, :mod:`.codegen`: a −0 becomes +0, so a
+    recording holds the same bits whichever ran). Uses W (the caller transforms it again for its own state
+    afterwards)."""
     si, sw = srv[0], srv[5]
     nq = q.shape[0]
     nv = v.shape[0]
@@ -167,24 +171,24 @@ def servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W):
             qd[si[j, SI_Q]] = sw[SW_QS, j]
         vd[vi] = sw[SW_QDS, j]
         ad[vi] = sw[SW_QDDS, j]
-    transforms(mi, mf, qd, W)
-    rnea_ws(mi, mf, qd, vd, ad, W, False, ff, W)
+    id_at(dyn[2])(mi, mf, qd, vd, ad, ff, W)
     add_coulomb_friction(friction, v_s, vd, pp)     # pp = −f tanh(ṽ / v_s)
     for a in range(nv):
-        ff[a] += damping[a] * vd[a] - pp[a]
+        ff[a] = (ff[a] + (damping[a] * vd[a] - pp[a])) + 0.0
 
 
 @njit(**_JIT)
-def servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W):
+def servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W, dyn):
     """``tauv += τ`` of (S1) at time t (s) and state (q (nq,), v (nv,)); returns the servo's power
     ``Σ q̇_j τ_j`` (W). Leaves in sw the desired values, the applied torques ``SW_U``, the saturation
     flags ``SW_SAT`` and the feed-forward ``SW_FFJ`` of each servo joint. W: a work array
-    (:func:`~robodyn_ros.kernels.tree.workspace`) it may overwrite (the feed-forward's RNEA)."""
+    (:func:`~robodyn_ros.kernels.tree.workspace`) it may overwrite (the feed-forward's RNEA); dyn: the
+    dynamics' addresses (:mod:`.treefn`; the feed-forward takes ``dyn[2]``)."""
     si, sf, sw, opt = srv[0], srv[1], srv[5], srv[6]
     k = servo_desired(srv, t, q)
     ff_on = opt[OPT_FF] != 0.0
     if ff_on and not (opt[OPT_FIXED] != 0.0 and opt[OPT_CT] == t and opt[OPT_CK] == k):
-        servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W)
+        servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W, dyn)
         opt[OPT_CT] = t
         opt[OPT_CK] = k
     P = 0.0
@@ -236,11 +240,12 @@ def servo_time_rate(srv, Ft):
 
 
 @njit(**_JIT)
-def servo_state(mi, mf, damping, friction, v_s, srv, t, q, v, W, out):
+def servo_state(mi, mf, damping, friction, v_s, srv, t, q, v, W, out, dyn):
     """One evaluation of (S1) at (t, q, v) for the outputs: ``out (ns, 6)`` = per servo joint q*, q̇*,
-    q̈*, the feed-forward torque, the applied torque and the saturation flag; returns the servo power."""
+    q̈*, the feed-forward torque, the applied torque and the saturation flag; returns the servo power.
+    dyn: the dynamics' addresses (:func:`servo_forces_add`)."""
     tauv = np.zeros(v.shape[0])
-    P = servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W)
+    P = servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W, dyn)
     sw = srv[5]
     for j in range(out.shape[0]):
         out[j, 0] = sw[SW_QS, j]

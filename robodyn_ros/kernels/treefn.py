@@ -2,29 +2,30 @@
 implementation of them.
 
 :mod:`robodyn_ros.kernels.arm`'s loops reach the forward dynamics and the bias/mass pass of the linearly
-implicit step through two function addresses, ``dyn = (fd, bm)`` (int64), instead of calling
-:func:`~robodyn_ros.kernels.tree.aba_ws` and its kin directly. Two implementations stand behind them, with
-the same floating-point operations in the same order:
+implicit step, and a joint servo's feed-forward its inverse dynamics, through three function addresses,
+``dyn = (fd, bm, id)`` (int64), instead of calling :func:`~robodyn_ros.kernels.tree.aba_ws` and its kin
+directly. Two implementations stand behind them, with the same floating-point operations in the same order:
 
-* the generic ones, :func:`generic_fd` and :func:`generic_bm` on the packed model (``mi, mf``), compiled
-  once per install (:func:`generic_pointers`);
-* a model's generated ones (:mod:`robodyn_ros.kernels.codegen`): these two functions traced on that
+* the generic ones, :func:`generic_fd`, :func:`generic_bm` and :func:`generic_id` on the packed model
+  (``mi, mf``), compiled once per install (:func:`generic_pointers`);
+* a model's generated ones (:mod:`robodyn_ros.kernels.codegen`): these three functions traced on that
   model, straight-line code with its constants in place.
 
-So the loop is compiled once whichever runs (a model's own code costs only its two functions), a run can
+So the loop is compiled once whichever runs (a model's own code costs only its three functions), a run can
 change from one to the other between two calls of the loop, and its results do not change by a bit.
 
 Signatures (every array C-contiguous float64, mi int64)::
 
     fd(mi (nb, 5), mf (nb + 1, NF), q (nq,), v (nv,), tau (nv,), qdd (nv,) out, W (nb + 1, NW) work)
     bm(mi, mf, q (nq,), v (nv,), zero (nv,) zeros, bias (nv,) out, H (nv, nv) out, G (nv, nv) out, W work)
+    id(mi, mf, q (nq,), v (nv,), qdd (nv,), tau (nv,) out, W work)
 
 ``fd``: ``qdd = ABA(q, v, tau)`` (book Table 7.1) with every body's ``Xup`` formed first (:func:`generic_fd`);
-``bm``: ``bias = C(q, v) + g(q)``, ``H = M(q)``, ``G = ∂g/∂q`` (:func:`generic_bm`). W holds nothing the
-caller reads afterwards. Inside compiled code :func:`fd_at` and :func:`bm_at` turn an address into a
-callable; Python passes ``cfunc.address`` (a plain int: no per-call unboxing of function objects).
+``bm``: ``bias = C(q, v) + g(q)``, ``H = M(q)``, ``G = ∂g/∂q`` (:func:`generic_bm`); ``id``: ``tau = RNEA(q, v, qdd)`` with every ``Xup`` formed first
+(:func:`generic_id`). W holds nothing the caller reads afterwards. Inside compiled code :func:`fd_at`,
+:func:`bm_at` and :func:`id_at` turn an address into a callable; Python passes ``cfunc.address`` (a plain int: no per-call unboxing of function objects).
 
-Interpreted (:mod:`.jit`, a cold cache), ``fd_at`` and ``bm_at`` look the address up in :data:`PYTHON`:
+Interpreted (:mod:`.jit`, a cold cache), ``fd_at``, ``bm_at`` and ``id_at`` look the address up in :data:`PYTHON`:
 each cfunc's Python source under its address, and Python-only implementations under negative "addresses"
 (:data:`GENERIC_TOKENS`, a model's traced code before it is compiled), which only interpreted code is given
 (:func:`call`).
@@ -37,19 +38,19 @@ from .tree import _JIT, aba_ws, crba_ws, gravity_stiffness_ws, rnea_ws, transfor
 
 #: options of every cfunc behind an address (generic and generated): numba's numpy error model, as the kernels
 CFUNC_OPTIONS = dict(cache=True, error_model='numpy')
-#: ``fd(mi, mf, q, v, tau, qdd, W)`` and ``bm(mi, mf, q, v, zero, bias, H, G, W)`` as numba signatures, and their
-#: first-class function types (made by :func:`_numba_types` when numba is loaded)
-FD_SIG = BM_SIG = FD_TYPE = BM_TYPE = None
+#: ``fd(mi, mf, q, v, tau, qdd, W)``, ``bm(mi, mf, q, v, zero, bias, H, G, W)`` and ``id(mi, mf, q, v, qdd, tau, W)``
+#: as numba signatures, and their first-class function types (made by :func:`_numba_types` when numba is loaded)
+FD_SIG = BM_SIG = ID_SIG = FD_TYPE = BM_TYPE = ID_TYPE = None
 
 
 def _numba_types():
     """Set the numba signatures and function types above (numba is loaded)."""
-    global FD_SIG, BM_SIG, FD_TYPE, BM_TYPE
+    global FD_SIG, BM_SIG, ID_SIG, FD_TYPE, BM_TYPE, ID_TYPE
     from numba import types
     f1, f2, i2 = types.float64[::1], types.float64[:, ::1], types.int64[:, ::1]
-    FD_SIG = types.void(i2, f2, f1, f1, f1, f1, f2)
+    FD_SIG = ID_SIG = types.void(i2, f2, f1, f1, f1, f1, f2)
     BM_SIG = types.void(i2, f2, f1, f1, f1, f1, f2, f2, f2)
-    FD_TYPE, BM_TYPE = types.FunctionType(FD_SIG), types.FunctionType(BM_SIG)
+    FD_TYPE, BM_TYPE, ID_TYPE = types.FunctionType(FD_SIG), types.FunctionType(BM_SIG), types.FunctionType(ID_SIG)
 
 
 def generic_fd(mi, mf, q, v, tau, qdd, W):
@@ -72,6 +73,14 @@ def generic_bm(mi, mf, q, v, zero, bias, H, G, W):
             H[a, b] = 0.0
     crba_ws(mi, mf, H, W)
     gravity_stiffness_ws(mi, mf, W, G)
+
+
+def generic_id(mi, mf, q, v, qdd, tau, W):
+    """``tau (nv,) = RNEA(q, v, qdd)`` on the packed model: every ``Xup`` (:func:`~robodyn_ros.kernels.tree.transforms`),
+    then :func:`~robodyn_ros.kernels.tree.rnea_ws` without external forces (a joint servo's feed-forward,
+    :mod:`.servo`). What a generated ``id`` computes."""
+    transforms(mi, mf, q, W)
+    rnea_ws(mi, mf, q, v, qdd, W, False, tau, W)
 
 
 def _function_at(ftype, context, builder, addr):
@@ -105,6 +114,13 @@ def bm_at(typingctx, addr):
     return None
 
 
+def id_at(typingctx, addr):
+    """``id_at(addr)``: the ``id`` at that address (int64), callable in compiled code."""
+    if isinstance(addr, jit_types().Integer):
+        return ID_TYPE(addr), lambda context, builder, sig, args: _function_at(ID_TYPE, context, builder, args[0])
+    return None
+
+
 def _intrinsic(typer):
     """numba's ``@intrinsic`` of typer (made when numba is loaded: :class:`.jit.Deferred`)."""
     def make():
@@ -115,9 +131,10 @@ def _intrinsic(typer):
     return make() if jit.LOADED else jit.Deferred(typer, make)
 
 
-#: ``fd_at(addr)`` / ``bm_at(addr)`` (intrinsics): the function at that address, in compiled code
+#: ``fd_at(addr)`` / ``bm_at(addr)`` / ``id_at(addr)`` (intrinsics): the function at that address, in compiled code
 fd_at = _intrinsic(fd_at)
 bm_at = _intrinsic(bm_at)
+id_at = _intrinsic(id_at)
 
 
 @njit(**_JIT)
@@ -131,7 +148,7 @@ _GENERIC_MISS = [None]   # the compiler generation at which the cache last lacke
 
 
 def generic_pointers(block: bool = True):
-    """``(fd, bm)``: the generic implementations as numba cfuncs, their ``.address`` what the loops take;
+    """``(fd, bm, id)``: the generic implementations as numba cfuncs, their ``.address`` what the loops take;
     compiled, or loaded from the kernels' cache, on first use. ``block=False`` (interpreting, :mod:`.jit`):
     None when the cache lacks them, and the compiler child is asked for them."""
     if not _GENERIC:
@@ -143,15 +160,17 @@ def generic_pointers(block: bool = True):
                 jit.COMPILER.poll()
                 if _GENERIC_MISS[0] == jit.COMPILER.generation:
                     return None
-            if not cached((generic_fd, FD_SIG), (generic_bm, BM_SIG)):
+            if not cached((generic_fd, FD_SIG), (generic_bm, BM_SIG), (generic_id, ID_SIG)):
                 _GENERIC_MISS[0] = jit.COMPILER.generation
                 jit.COMPILER.request(('call', __name__, 'generic_pointers'))
                 return None
         from numba import cfunc
         fd, bm = cfunc(FD_SIG, **CFUNC_OPTIONS)(generic_fd), cfunc(BM_SIG, **CFUNC_OPTIONS)(generic_bm)
+        id_ = cfunc(ID_SIG, **CFUNC_OPTIONS)(generic_id)
         register(fd.address, generic_fd)
         register(bm.address, generic_bm)
-        _GENERIC.extend((fd, bm))
+        register(id_.address, generic_id)
+        _GENERIC.extend((fd, bm, id_))
     return tuple(_GENERIC)
 
 
@@ -165,13 +184,13 @@ def cached(*funcs) -> bool:
 
 #: ``{address: Python function}`` behind the addresses an interpreted loop may be given (:func:`register`)
 PYTHON: dict = {}
-#: the generic fd and bm as Python, for interpreted code before their cfuncs exist
-GENERIC_TOKENS = (-1, -2)
-_NEXT_TOKEN = [-3]
+#: the generic fd, bm and id as Python, for interpreted code before their cfuncs exist
+GENERIC_TOKENS = (-1, -2, -3)
+_NEXT_TOKEN = [-4]
 
 
 def register(address: int, func) -> int:
-    """Put ``func`` (a plain function of the fd or bm signature) behind ``address`` (its cfunc's, or None for a
+    """Put ``func`` (a plain function of the fd, bm or id signature) behind ``address`` (its cfunc's, or None for a
     new negative token) for interpreted code; returns the address."""
     if address is None:
         address = _NEXT_TOKEN[0]
@@ -181,18 +200,19 @@ def register(address: int, func) -> int:
 
 
 def python_function(address):
-    """The Python function behind an address (``fd_at`` / ``bm_at`` in interpreted code)."""
+    """The Python function behind an address (``fd_at`` / ``bm_at`` / ``id_at`` in interpreted code)."""
     f = PYTHON.get(address)
     if f is None and address in GENERIC_TOKENS:
-        f = PYTHON[address] = jit.python_kernel(generic_fd if address == GENERIC_TOKENS[0] else generic_bm)
+        generic = (generic_fd, generic_bm, generic_id)[GENERIC_TOKENS.index(address)]
+        f = PYTHON[address] = jit.python_kernel(generic)
     return f
 
 
-jit.PY_OVERRIDES.update(fd_at=python_function, bm_at=python_function)
+jit.PY_OVERRIDES.update(fd_at=python_function, bm_at=python_function, id_at=python_function)
 
 
 def call(d, args: list, dyn_index: int, tokens: bool):
-    """Kernel d on args whose entry ``dyn_index`` is a dynamics address (or ``(fd, bm)`` addresses): as any
+    """Kernel d on args whose entry ``dyn_index`` is a dynamics address (or ``(fd, bm, id)`` addresses): as any
     kernel (compiled, or interpreted on a miss) when they are cfuncs' addresses; with ``tokens`` (Python-only
     implementations, :func:`register`) always interpreted, for compiled code cannot call them. Where the
     interpreter raises (a failing state: :func:`.jit.run_interpreted`) it is run compiled on the generic
@@ -202,8 +222,8 @@ def call(d, args: list, dyn_index: int, tokens: bool):
     jit.request_compiled(d, args)   # (tokens type as addresses: the child compiles what the next call takes)
 
     def compiled():
-        fd, bm = generic_pointers()
+        fd, bm, id_ = generic_pointers()
         real = list(args)
-        real[dyn_index] = fd.address if isinstance(args[dyn_index], int) else (fd.address, bm.address)
+        real[dyn_index] = fd.address if isinstance(args[dyn_index], int) else (fd.address, bm.address, id_.address)
         return d(*real)
     return jit.run_interpreted(d, None, args, fallback=compiled)
