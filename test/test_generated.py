@@ -58,7 +58,8 @@ ARM_SCENES = [n for n, _ in list_scenes() if _specialised(_load(n))]
 def test_the_specialised_scenes_are_the_fixed_base_arms():
     """The list the recordings below run over is not empty, and the free, spherical and ground scenes are
     not in it (their trees branch on the state, or their loop takes the contact path)."""
-    assert {'stanford_arm', 'betancur_pendulum', 'huston_p19_2_3', 'huston_p19_4_1', 'xarm7_trajectory'} <= set(ARM_SCENES)
+    assert {'stanford_arm', 'betancur_pendulum', 'huston_p19_2_3', 'huston_p19_4_1',
+            'xarm7_trajectory'} <= set(ARM_SCENES)   # (xarm7_trajectory: a joint servo's feed-forward)
     assert not {'huston_human17', 'a1_stand', 'unfried_free_flyer'} & set(ARM_SCENES)
     for p in ROBOTS:
         assert _specialised(_load(_robot(p))), p

@@ -267,9 +267,9 @@ class CompiledModel:
 
     def dynamics(self, z):
         """``(dyn, tokens)``: the addresses of the forward dynamics, bias/mass pass and inverse dynamics the loop
-        takes for state z (:mod:`.treefn`): the generated code's, or the generic kernels' while there is none or while z holds
-        an entry −0.0 (the one state whose bits a folded zero could change: :mod:`.codegen`). Interpreting
-        (:mod:`.jit`) while the generic cfuncs are not compiled: Python-only tokens (``tokens`` True: the
+        takes for state z (:mod:`.treefn`): the generated code's, or the generic kernels' while there is none or
+        while z holds an entry −0.0 (the one state whose bits a folded zero could change: :mod:`.codegen`).
+        Interpreting (:mod:`.jit`) while the generic cfuncs are not compiled: Python-only tokens (``tokens`` True: the
         model's generated code as Python, else the generic kernels' Python), for interpreted calls only."""
         from . import jit
         signed_zero = np.any((z == 0.0) & np.signbit(z))

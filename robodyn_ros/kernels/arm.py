@@ -6,9 +6,8 @@ one period for the per-period path, many for the block path), on the tree algori
 
 The forward dynamics and the bias/mass pass of a tree without mimic joints or ground contacts, and a joint
 servo's feed-forward inverse dynamics, are reached through the function addresses ``dyn = (fd, bm, id)`` of
-:mod:`robodyn_ros.kernels.treefn`: the
-generic kernels or a model's generated code (:mod:`robodyn_ros.kernels.codegen`), the same operations,
-behind one compiled loop.
+:mod:`robodyn_ros.kernels.treefn`: the generic kernels or a model's generated code
+(:mod:`robodyn_ros.kernels.codegen`), the same operations, behind one compiled loop.
 """
 from __future__ import annotations
 

@@ -3,14 +3,14 @@
 The arm's compiled loop reaches the forward dynamics, the bias/mass pass and (a joint servo's feed-forward)
 the inverse dynamics through three function addresses (:mod:`robodyn_ros.kernels.treefn`). For one model,
 :func:`trace` runs the generic implementations (:func:`~robodyn_ros.kernels.treefn.generic_fd`,
-:func:`~robodyn_ros.kernels.treefn.generic_bm`, :func:`~robodyn_ros.kernels.treefn.generic_id`: their Python source, the kernels of :mod:`robodyn_ros.kernels.tree`) on *symbols*: the model's packed
-numbers are floats, every state-dependent value (q, v, tau and what is computed from them) a named
-intermediate. Each operation the generic code performs on a symbol is written down once, in its
-order, as ``z<k> = a op b``; operations on two numbers are done at generation time, with the same
-IEEE-754 double arithmetic the compiled code does. The result is straight-line code without the
-generic kernels' loops, index arithmetic, loads from the packed model and branches on joint types:
-on stanford_arm the forward dynamics is 2.7x faster per call (`robodyn bench speed`), with the
-same results bit for bit.
+:func:`~robodyn_ros.kernels.treefn.generic_bm`, :func:`~robodyn_ros.kernels.treefn.generic_id`: their Python
+source, the kernels of :mod:`robodyn_ros.kernels.tree`) on *symbols*: the model's packed numbers are floats,
+every state-dependent value (q, v, tau and what is computed from them) a named intermediate. Each operation
+the generic code performs on a symbol is written down once, in its order, as ``z<k> = a op b``; operations
+on two numbers are done at generation time, with the same IEEE-754 double arithmetic the compiled code does.
+The result is straight-line code without the generic kernels' loops, index arithmetic, loads from the packed
+model and branches on joint types: on stanford_arm the forward dynamics is 2.7x faster per call (`robodyn
+bench speed`), with the same results bit for bit.
 
 Only exact identities are folded (Rules). Write ``≈`` for "equal, or both zeros (of either sign)".
 For finite operands: ``x · 1 = x``, ``x · (−1) = −x``, ``(−x) · y = −(x · y)``, ``a + (−b) = a − b``,
@@ -27,7 +27,9 @@ keeps the generic kernels: free and spherical joints branch on the state).
 Why ≈ is enough for the same bytes: the loop adds each result (times the step) to a state entry, and
 ``x + (±0) = x`` for every x except ``x = −0``; a state entry is −0 only when it starts at −0 and
 never changes, so :meth:`robodyn_ros.kernels.CompiledModel.use_generated` keeps the generic kernels
-for a state holding a −0 entry. Recordings are compared byte for byte in ``test/test_generated.py``.
+for a state holding a −0 entry. The inverse dynamics (a joint servo's feed-forward) goes into torques
+and recorded messages: its caller adds +0.0 to each result (:func:`.servo.servo_feedforward`: a −0 becomes
++0), so both give the same bits. Recordings are compared byte for byte in ``test/test_generated.py``.
 
 The module (``fd``, ``bm``, ``rnea`` as plain functions, made cfuncs of the signatures of
 :mod:`~robodyn_ros.kernels.treefn` when loaded) is written once per model to :data:`GENERATED_DIR`
@@ -52,7 +54,7 @@ import numpy as np
 from .jit import python_kernel
 
 #: generated lines (the three functions) above which a model keeps the generic kernels: stanford_arm has
-#: 3 400, xarm7 9 800; numba compiles about 900 lines per CPU second here
+#: 4 100, xarm7 6 700; numba compiles about 900 lines per CPU second here
 MAX_LINES = 40000
 VERSION = '4'
 
@@ -336,8 +338,8 @@ def _render(tr, name, args, outputs, doc) -> list:
 
 def trace(model):
     """``(source of fd, source of bm, source of rnea)`` of ``model`` (plain functions with the arguments of
-    :data:`~robodyn_ros.kernels.treefn.FD_SIG`, ``BM_SIG`` and ``ID_SIG``), or None when the generic code branches
-    on the state (free and spherical joints) or divides by a constant zero (a joint with no inertia about
+    :data:`~robodyn_ros.kernels.treefn.FD_SIG`, ``BM_SIG`` and ``ID_SIG``), or None when the generic code
+    branches on the state (free and spherical joints) or divides by a constant zero (a joint with no inertia about
     its axis in any configuration: the generic kernels' caller reports it)."""
     from . import pack_model, tree, treefn
     mi, mf = pack_model(model, merge=True)
@@ -349,14 +351,18 @@ def trace(model):
 
     def work():
         return np.full((nb + 1, tree.NW), UNSET, dtype=object)
+    def vector_function(generic, fname, given, out, doc):
+        """The traced function of (q, v, given (nv,)) with one output (nv,): fd (tau -> qdd), rnea (qdd -> tau)."""
+        tr = Tracer()
+        res = np.full(nv, UNSET, dtype=object)
+        python_kernel(generic, _SymMath(tr))(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv),
+                                             inputs(tr, given, nv), res, work())
+        return _render(tr, fname, f'mi, mf, q, v, {given}, {out}, W', [(f'{out}[{k}]', res[k]) for k in range(nv)],
+                       doc)
     name = model.name
     try:
-        tr = Tracer()
-        qdd = np.full(nv, UNSET, dtype=object)
-        python_kernel(treefn.generic_fd, _SymMath(tr))(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv),
-                                                       inputs(tr, 'tau', nv), qdd, work())
-        fd = _render(tr, 'fd', 'mi, mf, q, v, tau, qdd, W', [(f'qdd[{k}]', qdd[k]) for k in range(nv)],
-                     f'Forward dynamics of {name!r} (treefn.generic_fd, traced).')
+        fd = vector_function(treefn.generic_fd, 'fd', 'tau', 'qdd',
+                             f'Forward dynamics of {name!r} (treefn.generic_fd, traced).')
         tr = Tracer()
         bias = np.full(nv, UNSET, dtype=object)
         H = np.full((nv, nv), UNSET, dtype=object)
@@ -367,12 +373,8 @@ def trace(model):
         outs += [(f'{m}[{a}, {b}]', X[a, b]) for m, X in (('H', H), ('G', G)) for a in range(nv) for b in range(nv)]
         bm = _render(tr, 'bm', 'mi, mf, q, v, zero, bias, H, G, W', outs,
                      f'Bias, mass matrix and gravity stiffness of {name!r} (treefn.generic_bm, traced).')
-        tr = Tracer()
-        tau = np.full(nv, UNSET, dtype=object)
-        python_kernel(treefn.generic_id, _SymMath(tr))(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv),
-                                                       inputs(tr, 'qdd', nv), tau, work())
-        rnea = _render(tr, 'rnea', 'mi, mf, q, v, qdd, tau, W', [(f'tau[{k}]', tau[k]) for k in range(nv)],
-                       f'Inverse dynamics of {name!r} (treefn.generic_id, traced).')
+        rnea = vector_function(treefn.generic_id, 'rnea', 'qdd', 'tau',
+                               f'Inverse dynamics of {name!r} (treefn.generic_id, traced).')
     except (StateBranch, ZeroDivisionError):
         return None
     return '\n'.join(fd) + '\n', '\n'.join(bm) + '\n', '\n'.join(rnea) + '\n'

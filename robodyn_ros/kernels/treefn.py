@@ -21,12 +21,13 @@ Signatures (every array C-contiguous float64, mi int64)::
     id(mi, mf, q (nq,), v (nv,), qdd (nv,), tau (nv,) out, W work)
 
 ``fd``: ``qdd = ABA(q, v, tau)`` (book Table 7.1) with every body's ``Xup`` formed first (:func:`generic_fd`);
-``bm``: ``bias = C(q, v) + g(q)``, ``H = M(q)``, ``G = ∂g/∂q`` (:func:`generic_bm`); ``id``: ``tau = RNEA(q, v, qdd)`` with every ``Xup`` formed first
-(:func:`generic_id`). W holds nothing the caller reads afterwards. Inside compiled code :func:`fd_at`,
-:func:`bm_at` and :func:`id_at` turn an address into a callable; Python passes ``cfunc.address`` (a plain int: no per-call unboxing of function objects).
+``bm``: ``bias = C(q, v) + g(q)``, ``H = M(q)``, ``G = ∂g/∂q`` (:func:`generic_bm`); ``id``: ``tau = RNEA(q, v,
+qdd)`` with every ``Xup`` formed first (:func:`generic_id`). W holds nothing the caller reads afterwards.
+Inside compiled code :func:`fd_at`, :func:`bm_at` and :func:`id_at` turn an address into a callable; Python
+passes ``cfunc.address`` (a plain int: no per-call unboxing of function objects).
 
-Interpreted (:mod:`.jit`, a cold cache), ``fd_at``, ``bm_at`` and ``id_at`` look the address up in :data:`PYTHON`:
-each cfunc's Python source under its address, and Python-only implementations under negative "addresses"
+Interpreted (:mod:`.jit`, a cold cache), ``fd_at``, ``bm_at`` and ``id_at`` look the address up in
+:data:`PYTHON`: each cfunc's Python source under its address, and Python-only implementations under negative "addresses"
 (:data:`GENERIC_TOKENS`, a model's traced code before it is compiled), which only interpreted code is given
 (:func:`call`).
 """
@@ -76,9 +77,9 @@ def generic_bm(mi, mf, q, v, zero, bias, H, G, W):
 
 
 def generic_id(mi, mf, q, v, qdd, tau, W):
-    """``tau (nv,) = RNEA(q, v, qdd)`` on the packed model: every ``Xup`` (:func:`~robodyn_ros.kernels.tree.transforms`),
-    then :func:`~robodyn_ros.kernels.tree.rnea_ws` without external forces (a joint servo's feed-forward,
-    :mod:`.servo`). What a generated ``id`` computes."""
+    """``tau (nv,) = RNEA(q, v, qdd)`` on the packed model: every ``Xup``
+    (:func:`~robodyn_ros.kernels.tree.transforms`), then :func:`~robodyn_ros.kernels.tree.rnea_ws` without
+    external forces (a joint servo's feed-forward, :mod:`.servo`). What a generated ``id`` computes."""
     transforms(mi, mf, q, W)
     rnea_ws(mi, mf, q, v, qdd, W, False, tau, W)
 
