@@ -237,6 +237,20 @@ def test_a_negative_zero_in_the_state_keeps_the_generic_kernels():
     assert km.dynamics(z) == (generic, False)
 
 
+def test_the_negative_zero_check_is_the_sign_bit_of_a_zero():
+    """kernels.has_negative_zero (the loops' per-call check) against ``(z == 0) & signbit(z)`` on seeded arrays
+    holding −0.0, +0.0, ±inf and NaNs of both signs, strided views and the empty state."""
+    rng = np.random.default_rng(11)
+    pool = np.array([-0.0, 0.0, np.inf, -np.inf, np.nan, -np.nan, 5e-324, -5e-324, 1.0, -1.0])
+    for _ in range(400):
+        z = rng.normal(size=int(rng.integers(0, 40)))
+        z[rng.random(z.shape[0]) < 0.2] = rng.choice(pool)
+        for x in (z, z[::2]):
+            assert kernels.has_negative_zero(x) == bool(np.any((x == 0.0) & np.signbit(x))), x
+    assert kernels.has_negative_zero(np.array([1.0, -0.0])) and not kernels.has_negative_zero(np.array([0.0, -1.0]))
+    assert not kernels.has_negative_zero(np.zeros(0))
+
+
 def test_trees_that_branch_on_the_state_keep_the_generic_kernels():
     """Free and spherical joints (their kernels compare state values), mimic joints and ground contacts:
     no generated code, the generic kernels run."""

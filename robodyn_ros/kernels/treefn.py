@@ -175,6 +175,16 @@ def generic_pointers(block: bool = True):
     return tuple(_GENERIC)
 
 
+_ADDRESSES: list = []
+
+
+def generic_addresses() -> tuple:
+    """``(fd, bm, id)`` addresses of :func:`generic_pointers` (compiled or loaded on first use), read once."""
+    if not _ADDRESSES:
+        _ADDRESSES.append(tuple(f.address for f in generic_pointers()))
+    return _ADDRESSES[0]
+
+
 def cached(*funcs) -> bool:
     """True when the kernels' cache holds machine code of every ``(python function, cfunc signature)``."""
     jit.load_numba()
