@@ -53,6 +53,58 @@ def test_direct_builders_equal_the_dict_encoding():
     assert cdr._fast_string_message({'data': b'x'}) is None and cdr._fast_string_message({'data': 'x', 'y': 1}) is None
 
 
+def test_the_imu_layout_is_the_cdr_rosbags_writes():
+    """cdr.imu_layout (the recorder's batched Imu: a template, its 37 numbers from an offset, the stamp at
+    STAMP_AT) against rosbags' own CDR serializer on seeded messages and frames."""
+    import struct
+
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    rng = np.random.default_rng(9)
+    for k in range(30):
+        frame = ('', 'hand', 'lïnk_7', 'abc')[k % 4]
+        x = rng.normal(size=37) * 10.0 ** rng.integers(-6, 6)
+        sec, nsec = int(rng.integers(0, 2 ** 31)), int(rng.integers(0, 10 ** 9))
+        vec = [T['geometry_msgs/msg/Vector3'](x=x[i], y=x[i + 1], z=x[i + 2]) for i in (13, 25)]
+        msg = T['sensor_msgs/msg/Imu'](
+            header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=sec, nanosec=nsec),
+                                            frame_id=frame),
+            orientation=T['geometry_msgs/msg/Quaternion'](x=x[0], y=x[1], z=x[2], w=x[3]),
+            orientation_covariance=x[4:13], angular_velocity=vec[0], angular_velocity_covariance=x[16:25],
+            linear_acceleration=vec[1], linear_acceleration_covariance=x[28:37])
+        tpl, at = cdr.imu_layout(frame)
+        ours = bytearray(tpl)
+        ours[at:at + 8 * 37] = x.astype('<f8').tobytes()
+        ours[cdr.STAMP_AT:cdr.STAMP_AT + 8] = struct.pack('<iI', sec, nsec)
+        assert bytes(ours) == bytes(ts.serialize_cdr(msg, 'sensor_msgs/msg/Imu')), (k, frame)
+
+
+def test_a_servo_and_sensor_scene_is_recorded_in_batches(tmp_path, monkeypatch):
+    """xarm7_trajectory's periods carry a servo's desired and error states, a force-torque sensor and an IMU:
+    every period after the first (which registers the channels) goes to the batched layout, not message by
+    message (test_recording_oracle compares the bytes with the oracle's at batch sizes 0, 7 and 1024)."""
+    from robodyn_ros.recording import run_sink
+    from robodyn_ros.runs import plan_run, resolve_settings
+    held = []
+    real = run_sink.McapRunSink._hold
+    monkeypatch.setattr(run_sink.McapRunSink, '_hold', lambda self, *a: held.append(real(self, *a)) or held[-1])
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        sc = load_scene('xarm7_trajectory')
+    plan, st = plan_run(resolve_settings(sc, duration=0.3), sc.system, sc.y0)
+    sim = Simulator(sc.system, sc.y0, plan=plan)
+    sink = McapRunSink(str(tmp_path / 'x.mcap'), sc, st, batch=run_sink.HEADLESS_BATCH)
+    try:
+        run_headless(sim, 0.3, st['rate'], sc.script, [sink])
+    finally:
+        sink.close()
+    out = sim.outputs()
+    assert {t for t, _, _ in out.messages} >= {'joint_trajectory_desired', 'joint_trajectory_error', 'imu/hand',
+                                               'ft/wrist'}
+    assert len(held) == 31 and held[0] is False and all(held[1:])
+
+
 def test_tf_bytes_equal_the_tf_message_encoding():
     from robodyn_ros.tf import TfTree
     for name in ('stanford_arm', 'mobile_manipulator', 'unfried_free_flyer'):

@@ -499,6 +499,25 @@ def odometry_layout(frame: str = 'odom', child: str = 'base_link'):
     return t
 
 
+def imu_layout(frame: str):
+    """``(template, offset)`` of a ``sensor_msgs/Imu`` with this frame_id: its CDR with zero stamp and numbers,
+    and where its 37 float64 start (orientation x y z w, its covariance (9), angular velocity x y z, its
+    covariance, linear acceleration x y z, its covariance: contiguous after the header); the stamp is at
+    :data:`STAMP_AT`. Cached."""
+    key = ('Imu', frame)
+    t = _TEMPLATES.get(key)
+    if t is None:
+        if len(_TEMPLATES) >= 4 * _NAMES_CACHE_MAX:
+            _TEMPLATES.clear()
+        zero, z9 = {'x': 0.0, 'y': 0.0, 'z': 0.0}, [0.0] * 9
+        t = _TEMPLATES[key] = _template('sensor_msgs/msg/Imu',
+                                        {'header': {'stamp': {'sec': 0, 'nanosec': 0}, 'frame_id': frame},
+                                         'orientation': {**zero, 'w': 0.0}, 'orientation_covariance': z9,
+                                         'angular_velocity': zero, 'angular_velocity_covariance': z9,
+                                         'linear_acceleration': zero, 'linear_acceleration_covariance': z9}, 37)
+    return t
+
+
 def joint_state_layout(middle: bytes, counts) -> tuple:
     """``(template, offsets)`` of a JointState with the names of ``middle``
     (:func:`joint_state_names`) and position, velocity, effort of ``counts`` elements: the CDR

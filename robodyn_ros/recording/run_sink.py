@@ -95,7 +95,8 @@ def output_records(t_ns: int, out, wrenches: bool, tf=None, want=None, tf_layout
 
 class _PeriodLayout:
     """The records of one publication period laid out once: commands applied at its start, then
-    joint_states, odom, constraint wrenches, contact wrenches, /tf and /clock, each a 31-byte record-header gap
+    joint_states, odom, constraint wrenches, contact wrenches, the further messages (sensors, a servo's
+    states: JointState, WrenchStamped, Imu), /tf and /clock, each a 31-byte record-header gap
     and its CDR, back to back in a row of fixed length whose numbers sit at fixed offsets.
 
     K periods are K copies of the row (a ``(K, R)`` uint8 array); their numbers are written with
@@ -159,6 +160,22 @@ class _PeriodLayout:
                          [(at + 8 * i, col + (3 + i) % 6) for i in range(6)], [cdr.STAMP_AT]))
             self.contact_cols.append(slice(col, col + 6))
             col += 6
+        self.msg_cols = []
+        for topic, type_name, msg in out.messages:   # sensors, a servo's states: after the contacts (output_records)
+            frame = msg['header']['frame_id']
+            if type_name == _JS_TYPE:
+                counts = (len(msg['position']), len(msg['velocity']), len(msg['effort']))
+                tpl, ats = cdr.joint_state_layout(cdr.joint_state_names(frame, tuple(msg['name'])), counts)
+                starts = np.cumsum((0,) + counts)
+                vals = [(at + 8 * i, col + int(c0) + i) for at, c0, n in zip(ats, starts, counts) for i in range(n)]
+                n_vals = int(starts[-1])
+            else:   # a WrenchStamped (force, torque) or an Imu: their numbers back to back after the header
+                tpl, at = cdr.wrench_stamped_layout(frame) if type_name == M.WRENCH_TYPE else cdr.imu_layout(frame)
+                n_vals = 6 if type_name == M.WRENCH_TYPE else 37
+                vals = [(at + 8 * i, col + i) for i in range(n_vals)]
+            msgs.append((topic, type_name, tpl, False, vals, [cdr.STAMP_AT]))
+            self.msg_cols.append((slice(col, col + n_vals), type_name))
+            col += n_vals
         self.n_values = col
         self.tf = None
         if tf is not None:
@@ -220,10 +237,15 @@ class _PeriodLayout:
                 row[sl] = w
         for sl, (_, w) in zip(self.contact_cols, out.contacts.values()):
             row[sl] = w
+        for (sl, type_name), (_, _, msg) in zip(self.msg_cols, out.messages):
+            row[sl] = _message_values(type_name, msg)
 
     def fill_block(self, rows, blk, i, m):
         """Write periods ``i..i+m`` of a :class:`robodyn_ros.blocks.PeriodBlock` into ``rows`` (m, n_values),
-        as :meth:`fill` does one period (wrenches included: the block computed them)."""
+        as :meth:`fill` does one period (wrenches included: the block computed them; a system whose outputs
+        have further messages declines the block path, so this layout has none)."""
+        if self.msg_cols:
+            raise RuntimeError('a period layout with sensor or servo messages cannot take a block')
         for sl, values in zip(self.cmd_cols, blk.commands.values()):
             rows[:, sl] = values[i:i + m]
         js = self.js_cols
@@ -257,6 +279,43 @@ class _PeriodLayout:
         fill_rows(self.template, np.ascontiguousarray(values).view(np.int64), self.value_col, self.value_at,
                   np.ascontiguousarray(times, dtype=np.int64), self.stamp_at, self.stamp_of, out)
         return out
+
+
+_JS_TYPE = M.TOPIC_TYPES['joint_states']
+_IMU_TYPE = 'sensor_msgs/msg/Imu'
+
+
+def _message_kind(msgs):
+    """What periods encoded together share about their further messages (``SystemOutputs.messages``: sensors, a
+    servo's desired and error states): topic, type, frame_id and, for a JointState, its names and array sizes;
+    None when one is of a type the batched layout does not lay out, or a JointState's arrays are not float
+    arrays (then the periods are written message by message)."""
+    kind = []
+    for topic, type_name, msg in msgs:
+        frame = msg['header']['frame_id']
+        if type_name == _JS_TYPE:
+            arrays = (msg['position'], msg['velocity'], msg['effort'])
+            if not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
+                return None
+            kind.append((topic, type_name, frame, tuple(msg['name'])) + tuple(a.shape[0] for a in arrays))
+        elif type_name == M.WRENCH_TYPE or type_name == _IMU_TYPE:
+            kind.append((topic, type_name, frame))
+        else:
+            return None
+    return tuple(kind)
+
+
+def _message_values(type_name, msg):
+    """The numbers of a message :func:`_message_kind` lays out, in the order of its CDR."""
+    if type_name == _JS_TYPE:
+        return np.concatenate((msg['position'], msg['velocity'], msg['effort']))
+    if type_name == M.WRENCH_TYPE:
+        f, n = msg['wrench']['force'], msg['wrench']['torque']
+        return (f['x'], f['y'], f['z'], n['x'], n['y'], n['z'])
+    o, w, a = msg['orientation'], msg['angular_velocity'], msg['linear_acceleration']
+    return np.concatenate(((o['x'], o['y'], o['z'], o['w']), msg['orientation_covariance'], (w['x'], w['y'], w['z']),
+                           msg['angular_velocity_covariance'], (a['x'], a['y'], a['z']),
+                           msg['linear_acceleration_covariance']))
 
 
 def _wrench_kind(w):
@@ -464,7 +523,7 @@ class McapRunSink:
         sizes, odom or not, the wrenches' names, frames and how they are computed."""
         return (cmd_kind, tuple(out.joint_names), len(out.position), len(out.velocity), len(out.effort),
                 out.odom is None, _wrench_kind(out.wrenches) if self.wants_wrenches else (),
-                tuple((k, f) for k, (f, _) in out.contacts.items()))
+                tuple((k, f) for k, (f, _) in out.contacts.items()), _message_kind(out.messages))
 
     @property
     def takes_blocks(self) -> bool:
@@ -608,9 +667,11 @@ class McapRunSink:
     def _layout_ready(self, kind, out) -> bool:
         """True when every topic of this kind of period has its channel and the arrays are floats."""
         arrays = (out.position, out.velocity, out.effort)
-        if out.messages or not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f' for a in arrays):
-            return False   # (further messages: written one by one)
+        if kind[-1] is None or not all(isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype.kind == 'f'
+                                       for a in arrays):
+            return False   # (further messages of other types: written one by one)
         topics = [M.PORT_TOPICS[p] for p, _ in kind[0]] + ['joint_states', '/clock']
+        topics += [topic for topic, _, _ in out.messages]
         topics += [] if out.odom is None else ['odom']
         topics += [M.wrench_topic(k) for k in out.wrenches] if self.wants_wrenches else []
         topics += [M.contact_topic(k) for k in out.contacts]
