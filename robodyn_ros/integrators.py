@@ -977,8 +977,7 @@ def make_integrator(name: str, dt: float | None = None, rtol: float | None = Non
                          f'accepted options: {accepted}')
     if spec.kind == 'fixed':
         if (rtol is not None or atol is not None) and spec.name not in CONTROLLABLE:
-            raise ValueError(f'{spec.name} is a fixed-step integrator: give dt, not rtol/atol '
-                             f'(error-controlled ones: {", ".join(_names("adaptive") + list(CONTROLLABLE))})')
+            raise tolerance_refused(spec.name, 'rtol/atol')
         if dt is None:
             raise ValueError(f'{spec.name} is a fixed-step integrator: dt (s) is required')
         dt = _positive_finite('dt', spec.name, dt)
@@ -1041,6 +1040,14 @@ SAFETY, GROW_MAX, SHRINK_MAX, H_MIN = 0.9, 5.0, 0.2, 1e-9
 
 #: fixed-step methods that also run under error control when given rtol (dt then their largest step)
 CONTROLLABLE = ('rosenbrock2',)
+
+
+def tolerance_refused(name: str, given: str, auto: bool = False) -> ValueError:
+    """The error for tolerances (``given``: 'rtol', 'atol' or 'rtol/atol') asked of the fixed-step method ``name``
+    (not rosenbrock2), naming the methods that take them (and auto, where a run may choose it)."""
+    takes = list(CONTROLLABLE) + _names('adaptive') + (['or auto'] if auto else [])
+    return ValueError(f'{name} is a fixed-step integrator: give dt, not {given} (error-controlled ones: '
+                      f'{", ".join(takes)})')
 
 
 def _names(kind: str) -> list[str]:

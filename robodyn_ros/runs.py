@@ -50,13 +50,12 @@ def resolve_settings(scene, integrator=None, dt=None, rtol=None, atol=None, rate
     budget = step_budget if step_budget is not None else s.get('step_budget')
     if budget is not None:
         out['step_budget'] = budget
-    from .integrators import CONTROLLABLE, INTEGRATORS, _names
+    from .integrators import CONTROLLABLE, INTEGRATORS, tolerance_refused
     spec = INTEGRATORS.get(out['integrator'])
     if spec is not None and spec.kind == 'fixed' and spec.name not in CONTROLLABLE:
         given = [k for k, x in (('rtol', rtol), ('atol', atol)) if x is not None]
         if given and strict:   # a tolerance the run would not use: refused, not ignored
-            raise ValueError(f'{spec.name} is a fixed-step integrator: give dt, not {"/".join(given)} (error '
-                             f'control: {", ".join(list(CONTROLLABLE) + _names("adaptive"))}, or auto)')
+            raise tolerance_refused(spec.name, '/'.join(given), auto=True)
         out['rtol'] = out['atol'] = None   # the scene's tolerances are for its own method
     if spec is not None and spec.kind == 'adaptive':
         out['rtol'] = out['rtol'] if out['rtol'] is not None else AUTO_RTOL
