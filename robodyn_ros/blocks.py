@@ -8,9 +8,18 @@ numbers are those of the per-period path (the same compiled functions, the same 
 recording and the final Simulator equal it byte for byte (``test/test_block_path.py``). The
 Simulator is put at the end of each piece handed to the sinks (:meth:`Simulator.arrive
 <robodyn_ros.simulation.Simulator.arrive>`), as per-period calls leave it.
+
+Computing ahead (:data:`PIPELINE`): while the sinks take a block, a second thread computes the
+blocks after it (:class:`_Ahead`; the compiled loop releases the GIL), each from the state, command
+and time the one before ends with. A block so computed is used only when the Simulator is then
+found exactly there (the same bits of state, work, command and time) and the sinks take it; else it
+and those after it are dropped and the block is computed again as without. The numbers are thus the
+same, and a recording the same bytes (``test/test_block_path.py``); a recorded run's wall time comes
+near the larger of integrating and recording instead of their sum.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -24,6 +33,23 @@ __all__ = ['BLOCK_PERIODS', 'PeriodBlock', 'BlockRunner']
 #: publication periods per compiled call of the block path (fewer where a sink needs the
 #: Simulator's state, e.g. at a diagnostics message)
 BLOCK_PERIODS = 64
+#: compute the next blocks while the sinks take one (module docstring), where there are sinks, the kernels
+#: are machine code and this process has more than one CPU; ``$ROBODYN_PIPELINE=0`` turns it off
+PIPELINE = os.environ.get('ROBODYN_PIPELINE', '1') != '0'
+#: blocks computed ahead at most before the sinks take them (two recorder batches of 1024 periods: a recorder
+#: encodes and compresses a batch at once, while the loop goes on)
+AHEAD = 32
+
+
+def _pipelines() -> bool:
+    """True when the block path computes ahead (:data:`PIPELINE`): the loop is machine code then (numba
+    loaded; interpreted kernels hold the GIL) and a second CPU can run it."""
+    from .kernels import jit
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:   # (not on Linux)
+        cpus = os.cpu_count() or 1
+    return PIPELINE and jit.LOADED and cpus > 1
 
 
 @dataclass
@@ -71,13 +97,17 @@ class BlockRunner:
     command (None: the command held as it is); sinks: the run's sinks; wrenches: compute joint wrenches.
     """
 
-    def __init__(self, sim, port, program, sinks, wrenches):
+    def __init__(self, sim, port, program, sinks, wrenches, pipeline=True):
         self.sim, self.port, self.program, self.sinks, self.wrenches = sim, port, program, sinks, wrenches
+        self.pipeline = pipeline   # may compute ahead (:data:`PIPELINE`)
         self.template = None
+        self.used = [0]      # blocks computed ahead (:class:`_Ahead`) and taken (tests, benchmarks)
+        self.dropped = [0]   # blocks computed ahead and dropped
 
     @classmethod
-    def plan(cls, sim, script, sinks, stop, wrenches):
-        """A BlockRunner for this run, or None when the block path does not apply (class docstring)."""
+    def plan(cls, sim, script, sinks, stop, wrenches, pipeline=True):
+        """A BlockRunner for this run, or None when the block path does not apply (class docstring);
+        pipeline: it may compute blocks ahead (:data:`PIPELINE`; a sweep's runs fill the cores already)."""
         sys_ = sim.system
         if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
                 or sim.integrator.spec.kind != 'fixed' or getattr(sim.integrator, 'tolerance', None) is not None \
@@ -98,7 +128,7 @@ class BlockRunner:
         if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim.work_state(), none, none,
                               np.array(sim.ports[port].applied, dtype=float), program, wrenches) is None:
             return None
-        return cls(sim, port, program, sinks, wrenches)
+        return cls(sim, port, program, sinks, wrenches, pipeline)
 
     def run(self, k: int, n: int, t_start: float, rate: float) -> int:
         """Run periods k.. in blocks; returns the first period not run (n when all are).
@@ -114,36 +144,64 @@ class BlockRunner:
             self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
         cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
         whole = (True,) if len(self.sinks) == 1 and getattr(self.sinks[0], 'arrives_in_blocks', False) else ()
-        while k < n:
-            K = min(BLOCK_PERIODS, n - k)
-            t_out = t_start + (np.arange(k, k + K) + 1) / rate    # the per-period path's t_start + (k + 1) / rate
-            if any(s.block_periods(t_out, self.template, cmd_kind, *whole) <= 0 for s in self.sinks):
-                return k   # a sink wants this period on the per-period path
-            t_cmd = np.empty(K)
-            t_cmd[0] = sim.t
-            t_cmd[1:] = t_out[:-1]
-            u = np.array(sim.ports[self.port].applied, dtype=float)
-            z = sim.work_state()
-            w0 = time.perf_counter()
-            res = sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, t_cmd, t_out, u,
-                                     self.program, self.wrenches)
-            sim.diag.wall += time.perf_counter() - w0
-            if res is None:
-                return k
-            done, code = res[0], res[1]
-            a = 0
-            while a < done:
-                b = done
-                for s in self.sinks:
-                    b = min(b, a + s.block_periods(t_out[a:done], self.template, cmd_kind, *whole))
-                if b <= a:   # the rest of the block is dropped: the Simulator is at the end of period k + a - 1
-                    return k + a
-                self._commit(a, b, t_cmd, t_out, res, bool(whole))
-                a = b
-            k += done
-            if code:
-                return k
-        return n
+        ahead = None   # the thread computing the next blocks (_Ahead)
+        try:
+            while k < n:
+                K = min(BLOCK_PERIODS, n - k)
+                t_out = t_start + (np.arange(k, k + K) + 1) / rate   # the per-period path's t_start + (k + 1) / rate
+                if any(s.block_periods(t_out, self.template, cmd_kind, *whole) <= 0 for s in self.sinks):
+                    return k   # a sink wants this period on the per-period path
+                t_cmd = np.empty(K)
+                t_cmd[0] = sim.t
+                t_cmd[1:] = t_out[:-1]
+                u = np.array(sim.ports[self.port].applied, dtype=float)
+                z = sim.work_state()
+                res = None
+                if ahead is not None:
+                    res = ahead.take((z, t_cmd, t_out, u))
+                    if res is None:   # not from here: dropped with what it computed after it
+                        ahead.stop(self.dropped)
+                        ahead = None
+                if res is None:
+                    w0 = time.perf_counter()
+                    res = self._periods(z, t_cmd, t_out, u)
+                    sim.diag.wall += time.perf_counter() - w0
+                if res is None:
+                    return k
+                done, code = res[0], res[1]
+                if ahead is None and self.pipeline and self.sinks and done == K and code == 0 and k + K < n \
+                        and _pipelines():   # (without sinks there is nothing to do meanwhile)
+                    ahead = _Ahead(self, res, k + K, n, t_start, rate, t_out[-1], u)
+                a = 0
+                while a < done:
+                    b = done
+                    for s in self.sinks:
+                        b = min(b, a + s.block_periods(t_out[a:done], self.template, cmd_kind, *whole))
+                    if b <= a:   # the rest of the block is dropped: the Simulator is at the end of period k + a - 1
+                        return k + a
+                    self._commit(a, b, t_cmd, t_out, res, bool(whole))
+                    a = b
+                k += done
+                if code:
+                    return k
+            return n
+        finally:
+            if ahead is not None:   # (its thread uses the loop's work arrays: stopped before anything else runs)
+                ahead.stop(self.dropped)
+
+    def _periods(self, z, t_cmd, t_out, u):
+        """``system.fused_periods`` of these periods from state z and command u (both changed in place)."""
+        sim = self.sim
+        return sim.system.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, t_cmd, t_out, u,
+                                        self.program, self.wrenches)
+
+    def _next_command(self, res, u):
+        """The command the port holds after block res, as :meth:`_arrive` leaves it (u: the one before it)."""
+        if self.program is None:
+            return u.copy()
+        limit = self.sim.ports[self.port].limit
+        last = res[3][res[0] - 1]
+        return (last if limit is None else np.clip(last, -limit, limit)).astype(float)
 
     def _commit(self, a, b, t_cmd, t_out, res, whole=False):
         """The Simulator at the end of period b - 1 of the block, as advance() calls leave it;
@@ -200,3 +258,88 @@ class BlockRunner:
         extra = getattr(sys_, 'state_extra', None)
         if extra is not None:   # what outputs() would have put in diag.extra at the last state
             sim.diag.extra.update(extra(sim.y))
+
+
+class _Ahead:
+    """A thread computing the blocks that follow a block (:meth:`BlockRunner.run`), one after the other from
+    where the last one ended, up to :data:`AHEAD` blocks before the sinks take them; it stops after a block the
+    loop ended short (a refused period), at the run's end, or when told (:meth:`stop`)."""
+
+    def __init__(self, runner, res, k, n, t_start, rate, t_end, u):
+        import queue
+        import threading
+        self.runner, self.n, self.t_start, self.rate = runner, n, t_start, rate
+        self.done = queue.Queue(AHEAD)   # (inputs, res, wall, error) per block, in order
+        self.computed = 0   # blocks computed (taken or not)
+        self.taken = 0
+        self.halt = threading.Event()
+        z = res[2][res[0] - 1].copy()
+        self.thread = threading.Thread(target=self._work, args=(k, z, float(t_end), runner._next_command(res, u)),
+                                       name='robodyn-blocks', daemon=True)
+        self.thread.start()
+
+    def _work(self, k, z, t_end, u):
+        try:
+            self._blocks(k, z, t_end, u)
+        finally:
+            self._put(None)   # the end: take() says None from here on
+
+    def _put(self, item):
+        import queue
+        while not self.halt.is_set():
+            try:
+                self.done.put(item, timeout=0.05)
+                return
+            except queue.Full:
+                pass
+
+    def _blocks(self, k, z, t_end, u):
+        runner = self.runner
+        while k < self.n and not self.halt.is_set():
+            K = min(BLOCK_PERIODS, self.n - k)
+            t_out = self.t_start + (np.arange(k, k + K) + 1) / self.rate
+            t_cmd = np.empty(K)
+            t_cmd[0] = t_end
+            t_cmd[1:] = t_out[:-1]
+            inputs = (z.copy(), t_cmd, t_out, u.copy())
+            res, error = None, None
+            w0 = time.perf_counter()
+            try:
+                res = runner._periods(z, t_cmd, t_out, u)
+            except BaseException as e:   # raised where the sinks take this block
+                error = e
+            self.computed += 1
+            self._put((inputs, res, time.perf_counter() - w0, error))
+            if res is None or res[0] < K or res[1] != 0:
+                return
+            k += K
+            z, t_end, u = res[2][K - 1].copy(), float(t_out[-1]), runner._next_command(res, inputs[3])
+
+    def take(self, now):
+        """The next block's result when it was computed from ``now`` (state and work, command times and ends,
+        command; bit for bit), else None. Raises what computing it raised."""
+        item = self.done.get()
+        if item is None:
+            self.done.put(None)
+            return None
+        inputs, res, wall, error = item
+        if not all(a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+                   for a, b in zip(inputs, now)):
+            return None
+        self.runner.sim.diag.wall += wall
+        self.runner.used[0] += 1
+        self.taken += 1
+        if error is not None:
+            raise error
+        return res
+
+    def stop(self, dropped):
+        """Stop computing, wait for the thread, count the blocks it computed that were not taken."""
+        import queue
+        self.halt.set()
+        while self.thread.is_alive():
+            try:
+                self.done.get(timeout=0.01)   # (a full queue lets the thread see the halt)
+            except queue.Empty:
+                pass
+        dropped[0] += self.computed - self.taken

@@ -307,7 +307,8 @@ class Simulator:
                                 wall_clock, bool(self.velocity_limits))
 
 
-def run_headless(sim: Simulator, duration: float, rate: float, script=None, sinks=(), wrenches=None, stop=None):
+def run_headless(sim: Simulator, duration: float, rate: float, script=None, sinks=(), wrenches=None, stop=None,
+                 pipeline=True):
     """Run ``duration`` s at ``rate`` Hz publications, feeding scripted commands, calling sinks.
 
     sim: the simulator; duration: seconds of simulation time; rate: publication (and scripted
@@ -318,7 +319,9 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     may get many periods at once instead (``block_periods``, ``on_block``: :class:`~robodyn_ros.blocks.BlockRunner`);
     wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``);
     stop: optional ``stop(t, y) -> bool`` checked after every period's outputs (a scene's
-    ``stop_when``): the run ends at the first period where it holds.
+    ``stop_when``): the run ends at the first period where it holds; pipeline: the block path may compute
+    its next block on a second thread while the sinks take one (:data:`~robodyn_ros.blocks.PIPELINE`; the
+    same numbers either way).
     Returns the number of periods run. The final state stays in ``sim``.
 
     Which command an output carries: the output at the end of a period carries the command held
@@ -347,7 +350,7 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     for s in sinks:
         s.on_output(sim.t, out, sim)
     t_start = sim.t
-    blocks = BlockRunner.plan(sim, script, sinks, stop, wrenches)
+    blocks = BlockRunner.plan(sim, script, sinks, stop, wrenches, pipeline)
     k = 0
     while k < n:
         if blocks is not None and k > 0:   # periods 1.. in compiled blocks; period k on this path

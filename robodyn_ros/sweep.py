@@ -210,7 +210,8 @@ def _simulate(scene, st, plan, sinks=()):
         except ValueError as e:
             return None, 'refused', str(e)
         try:
-            run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop)  # as robodyn run
+            # as robodyn run, on one thread: the pool's runs fill the cores already
+            run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop, pipeline=False)
         except SimulationError as e:
             status, msg = 'failed', str(e)
         for w in caught:

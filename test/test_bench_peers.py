@@ -87,5 +87,6 @@ def test_the_ratio_of_each_repeat_cancels_the_machines_drift():
     runs['mujoco'][1]['cpu'] = 4.0        # the second repeat: MuJoCo's run 2x slower
     f = peers.row_figures(runs)
     assert f['ratio_pairs'] == [2.0, 4.0, 2.0] and f['ratio_cpu'] == 4.0 / 1.5
+    assert f['ratio_pairs_wall'] == [2.0, 2.0, 2.0]   # (its wall time did not change)
     text = peers.report({'x': f}, 3)
-    assert '×2.00 (×2.00–4.00)' in text
+    assert '| ×2.00 (×2.00–4.00) | ×2.00 (×2.00–2.00) |' in text

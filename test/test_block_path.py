@@ -450,3 +450,102 @@ def test_a_failure_at_period_1_is_that_of_the_per_period_path(tmp_path, monkeypa
         assert calls[-1] == (49, 0, 1 if kind == 'nan' else 2), calls
     assert fast == slow
     _same_simulator(sim_f, sim_s)
+
+
+class _Ahead:
+    """The BlockRunners of a test's runs and their blocks computed ahead (``BlockRunner.ahead``: used, dropped),
+    pipelining forced on whatever CPUs this machine has (``blocks._pipelines``)."""
+
+    def __init__(self, monkeypatch, on=True):
+        self.runners = []
+        monkeypatch.setattr(B, '_pipelines', lambda: on)
+        init = B.BlockRunner.__init__
+
+        def spy(runner, *a, **k):
+            init(runner, *a, **k)
+            self.runners.append(runner)
+        monkeypatch.setattr(B.BlockRunner, '__init__', spy)
+
+    def counts(self):
+        return [sum(r.used[0] for r in self.runners), sum(r.dropped[0] for r in self.runners)]
+
+
+@pytest.mark.parametrize('case,backend,kw', [
+    ('limits', 'generated', {}), ('sine', 'numba', {}), ('piecewise_constant', 'generated', {}),
+    ('stanford_arm', 'numba', dict(diagnostics_periods=(0.05, 0.13))),   # two recorders: pieces
+    ('stanford_arm', 'numba', dict(record=False)),
+    ('a1_stand', 'numba', dict(integrator='rosenbrock2', rate=200.0)),    # a free root on a ground
+])
+def test_the_block_computed_ahead_gives_the_bytes_of_the_block_computed_in_turn(tmp_path, monkeypatch, case,
+                                                                                  backend, kw):
+    """While the sinks take a block, the next is computed on a second thread from where the block ends: the
+    same recording and Simulator as without it and as the per-period path, and it is used (not dropped and
+    computed again)."""
+    scene = _scene(case, backend)
+    duration = 2.0
+    ahead = _Ahead(monkeypatch)
+    piped = _run(tmp_path, scene, 'piped', duration, **kw)
+    used, dropped = ahead.counts()
+    monkeypatch.setattr(B, '_pipelines', lambda: False)
+    plain = _run(tmp_path, scene, 'plain', duration, **kw)
+    assert ahead.counts() == [used, dropped]   # (nothing computed ahead without pipelining)
+    monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    slow = _run(tmp_path, scene, 'period', duration, **kw)
+    n = int(round(duration * kw.get('rate', 100.0)))
+    blocks = -(-(n - 2) // B.BLOCK_PERIODS)   # periods 0 and 1 on the per-period path, then blocks of 64
+    # every block after the first computed ahead and taken; without a sink nothing is (nothing to overlap)
+    assert (used, dropped) == ((blocks - 1) if kw.get('record', True) else 0, 0)
+    assert piped[1] == plain[1] == slow[1] == n and piped[3] is None and slow[3] is None
+    assert piped[0] == plain[0] == slow[0]
+    _same_simulator(piped[2], plain[2])
+    _same_simulator(piped[2], slow[2])
+
+
+def test_a_block_computed_ahead_is_dropped_where_the_sinks_stop_taking_blocks(tmp_path, monkeypatch):
+    scene = _scene('stanford_arm', 'numba')
+    ahead = _Ahead(monkeypatch)
+    piped = _run(tmp_path, scene, 'piped', 1.5, refuse=(0.3, 0.55))
+    used, dropped = ahead.counts()
+    assert dropped >= 1   # the block ahead of the one refused from 0.3 on
+    monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    slow = _run(tmp_path, scene, 'period', 1.5, refuse=(0.3, 0.55))
+    assert piped[1] == slow[1] == 150 and piped[0] == slow[0]
+    _same_simulator(piped[2], slow[2])
+
+
+def test_a_block_computed_ahead_is_taken_only_from_the_same_bits():
+    """``_Ahead.take`` compares the inputs bit for bit: a command of -0.0 where +0.0 was assumed is another block;
+    after the thread's last block it says None."""
+    class _Sim:
+        diag = type('D', (), {'wall': 0.0})()
+    runner = B.BlockRunner(_Sim(), 'effort', None, [], False)
+    ahead = B._Ahead.__new__(B._Ahead)
+    import queue
+    ahead.runner, ahead.done, ahead.taken = runner, queue.Queue(), 0
+    z, t_cmd, t_out = np.arange(4.0), np.array([0.1, 0.2]), np.array([0.2, 0.3])
+    cases = [(np.array([0.0, 1.0]), True), (np.array([-0.0, 1.0]), False),
+             (np.array([0.0, 1.0 + 2 ** -52]), False), (np.array([0.0]), False)]
+    for _ in cases:
+        ahead.done.put(((z.copy(), t_cmd, t_out, np.array([0.0, 1.0])), 'res', 0.5, None))
+    ahead.done.put(None)
+    for u_now, taken in cases:
+        got = ahead.take((z, t_cmd, t_out, u_now))
+        assert got == ('res' if taken else None), (u_now, got)
+    assert ahead.take((z, t_cmd, t_out, cases[0][0])) is None and ahead.take((z, t_cmd, t_out, cases[0][0])) is None
+    assert (runner.used, ahead.taken) == ([1], 1) and _Sim.diag.wall == 0.5
+
+
+def test_a_sweeps_runs_take_blocks_on_one_thread(tmp_path, monkeypatch):
+    """A sweep's runs fill the pool's cores already: its block path computes nothing ahead, while
+    robodyn run's recorded runs of the same scene do (``_Ahead`` counted both ways)."""
+    from robodyn_ros import sweep as S
+    ahead = _Ahead(monkeypatch)
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text('scene: stanford_arm\nduration: 2.0\ngrid: {integrator: [rk4]}\nfigures: [energy_drift]\n')
+    (task,) = S.expand(S.load_spec(str(spec)))
+    row = S.execute_run(task)['row']
+    assert row['status'] == 'ok', row
+    assert ahead.runners and sum(r.sim.diag.block_periods for r in ahead.runners) >= 190
+    assert ahead.counts() == [0, 0]
+    _run(tmp_path, _scene('stanford_arm', 'numba'), 'run', 2.0)
+    assert ahead.counts()[0] == 3
