@@ -404,12 +404,25 @@ class _Compiler:
     given and exits."""
 
     def __init__(self):
+        import threading
         self.proc = None
         self.sent = set()
         self.generation = 0
         self.done: set = set()
+        # requests and polls come from the run's thread and from the block path's thread computing ahead
+        self._lock = threading.RLock()
 
     def request(self, what) -> None:
+        """Have the child compile ``what`` (:meth:`_request`), one thread at a time."""
+        with self._lock:
+            self._request(what)
+
+    def poll(self) -> None:
+        """Read what the child has finished since the last look (no wait), one thread at a time."""
+        with self._lock:
+            self._poll()
+
+    def _request(self, what) -> None:
         """Have the child compile ``what``: ``('kernel', module, function, signature)``, ``('call', module,
         function, *args)`` (a function that compiles, e.g. the cfuncs of :mod:`.treefn`, or a model's generated
         module: ``codegen.load(path)``). The child names no module itself, so this room imports none of them."""
@@ -433,8 +446,7 @@ class _Compiler:
         except OSError:   # the child is gone: these calls stay interpreted
             pass
 
-    def poll(self) -> None:
-        """Read what the child has finished since the last look (no wait)."""
+    def _poll(self) -> None:
         if self.proc is None:
             return
         try:
@@ -451,6 +463,10 @@ class _Compiler:
 
     def wait(self) -> None:
         """Close the child's input and wait until it has compiled everything asked (tests, ``robodyn warm``)."""
+        with self._lock:
+            self._wait()
+
+    def _wait(self) -> None:
         if self.proc is not None:
             self.proc.stdin.close()
             self.proc.wait()
