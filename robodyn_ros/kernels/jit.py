@@ -36,6 +36,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import threading
 import time
 import types
 
@@ -397,6 +398,11 @@ def run_interpreted(d, sig, args, fallback=None):
         return d(*args)
 
 
+#: one thread at a time in :class:`_Compiler`: requests and polls come from the run's thread and from the block
+#: path's thread computing ahead (a module global, not an attribute: numba's cache pickles what kernels reach)
+_COMPILER_LOCK = threading.RLock()
+
+
 class _Compiler:
     """The child process that compiles what interpreted calls asked for (``python -m robodyn_ros.kernels.jit``):
     requests go in on its stdin (one per line), a line per finished request comes back; :attr:`generation`
@@ -404,22 +410,19 @@ class _Compiler:
     given and exits."""
 
     def __init__(self):
-        import threading
         self.proc = None
         self.sent = set()
         self.generation = 0
         self.done: set = set()
-        # requests and polls come from the run's thread and from the block path's thread computing ahead
-        self._lock = threading.RLock()
 
     def request(self, what) -> None:
         """Have the child compile ``what`` (:meth:`_request`), one thread at a time."""
-        with self._lock:
+        with _COMPILER_LOCK:
             self._request(what)
 
     def poll(self) -> None:
         """Read what the child has finished since the last look (no wait), one thread at a time."""
-        with self._lock:
+        with _COMPILER_LOCK:
             self._poll()
 
     def _request(self, what) -> None:
@@ -463,7 +466,7 @@ class _Compiler:
 
     def wait(self) -> None:
         """Close the child's input and wait until it has compiled everything asked (tests, ``robodyn warm``)."""
-        with self._lock:
+        with _COMPILER_LOCK:
             self._wait()
 
     def _wait(self) -> None:
