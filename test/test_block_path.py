@@ -549,3 +549,25 @@ def test_a_sweeps_runs_take_blocks_on_one_thread(tmp_path, monkeypatch):
     assert ahead.counts() == [0, 0]
     _run(tmp_path, _scene('stanford_arm', 'numba'), 'run', 2.0)
     assert ahead.counts()[0] == 3
+
+
+def test_a_sink_failing_mid_run_leaves_no_thread_computing_ahead(tmp_path, monkeypatch):
+    """A recorder raising in the middle of a run (a full disk): run_headless raises its error, and the thread
+    computing ahead has stopped by then (it shares the loop's work arrays with whatever runs next)."""
+    import threading
+    scene = _scene('stanford_arm', 'numba')
+    ahead = _Ahead(monkeypatch)
+    calls = []
+    orig = McapRunSink.on_block
+
+    def on_block(sink, blk, sim, *a, **k):
+        calls.append(len(blk.t_out))
+        if len(calls) == 3:
+            raise OSError(28, 'No space left on device')
+        return orig(sink, blk, sim, *a, **k)
+    monkeypatch.setattr(McapRunSink, 'on_block', on_block)
+    with pytest.raises(OSError, match='No space left'):
+        _run(tmp_path, scene, 'full', 5.0)
+    assert len(calls) == 3 and ahead.counts()[0] == 2   # blocks 2 and 3 came from the thread
+    assert not [t for t in threading.enumerate() if t.name == 'robodyn-blocks']
+    assert ahead.counts()[1] >= 1   # what it had computed beyond block 3 was dropped

@@ -122,3 +122,40 @@ def test_a_bad_number_is_refused_in_one_line_naming_the_option(option, value):
 def test_unknown_integrator_refused():
     p = _run('run', 'betancur_pendulum', '--duration', '0.1', '--integrator', 'leapfrogg', check=False)
     assert p.returncode == 2 and 'leapfrogg' in p.stderr and 'rk4' in p.stderr
+
+
+@pytest.mark.processes
+def test_ctrl_c_finishes_the_recording_up_to_the_period_it_stopped_at(tmp_path):
+    """Ctrl-C during a long recorded run on the block path (its next blocks computed ahead): exit 130, a line
+    saying where it stopped, and a finished recording whose last period is that time, every period before it
+    there once. The signal is sent once the file has grown past its first chunks (the run is recording),
+    not after a sleep."""
+    import signal
+    import time
+    from robodyn_ros.recording.reader import read_messages, summarize
+    out = tmp_path / 'int.mcap'
+    p = subprocess.Popen(ROBODYN + ['run', 'stanford_arm', '--duration', '36000', '--record', str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 200
+        while not (out.exists() and out.stat().st_size > 3_000_000):
+            assert p.poll() is None and time.monotonic() < deadline, p.communicate()
+            time.sleep(0.02)
+        p.send_signal(signal.SIGINT)
+        stdout, stderr = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, (stdout, stderr)
+    assert 'Traceback' not in stderr, stderr
+    line = next(x for x in stdout.splitlines() if x.startswith('stopped'))
+    t_stop = float(line.split('t=')[1].split(' s')[0])
+    assert 1.0 < t_stop < 36000.0, line
+    s = summarize(out)
+    assert s['finished']
+    n = int(round(t_stop * 100))   # 100 Hz: periods 0..n published
+    assert s['topics']['/joint_states']['count'] == s['topics']['/clock']['count'] == n + 1
+    last = None
+    for _, _, _, m in read_messages(out, topics=['/clock']):
+        last = m.clock
+    assert abs(last.sec + last.nanosec * 1e-9 - t_stop) < 1e-6

@@ -208,11 +208,16 @@ def _run(args, sock, rate_factor) -> int:
     except SimulationError as e:
         print(f'robodyn run: simulation stopped: {e}', file=sys.stderr)
         status = 1
+    except KeyboardInterrupt:   # Ctrl-C: the recording is finished with every period handed to it
+        status = 130
     finally:
         for s in sinks:
             s.close()
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
+    if status == 130:
+        print(f'stopped      by Ctrl-C at t={sim.t:.6g} s of {st["duration"]:g} s'
+              + (' (the recording holds every period up to it)' if args.record else ''))
     from ..kernels import jit
     if jit.DEFERRED and not jit.LOADED and st['backend'] != 'numpy':
         print('kernels      run as Python, numba not loaded (a run this short ends before numba would have '
