@@ -155,6 +155,7 @@ class BlockRunner:
                 t_cmd[0] = sim.t
                 t_cmd[1:] = t_out[:-1]
                 u = np.array(sim.ports[self.port].applied, dtype=float)
+                u0 = u.copy()   # (the loop changes u in place)
                 z = sim.work_state()
                 res = None
                 if ahead is not None:
@@ -171,7 +172,7 @@ class BlockRunner:
                 done, code = res[0], res[1]
                 if ahead is None and self.pipeline and self.sinks and done == K and code == 0 and k + K < n \
                         and _pipelines():   # (without sinks there is nothing to do meanwhile)
-                    ahead = _Ahead(self, res, k + K, n, t_start, rate, t_out[-1], u)
+                    ahead = _Ahead(self, res, k + K, n, t_start, rate, t_out[-1], u0)
                 a = 0
                 while a < done:
                     b = done
@@ -196,7 +197,7 @@ class BlockRunner:
                                         self.program, self.wrenches)
 
     def _next_command(self, res, u):
-        """The command the port holds after block res, as :meth:`_arrive` leaves it (u: the one before it)."""
+        """The command the port holds after block res, as :meth:`_arrive` leaves it (u: the one it started with)."""
         if self.program is None:
             return u.copy()
         limit = self.sim.ports[self.port].limit

@@ -93,7 +93,7 @@ def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None,
         sinks[0].block_periods = refusing
     err = None
     try:
-        n = run_headless(sim, duration, rate, scene.script if script is None else script, sinks)
+        n = run_headless(sim, duration, rate, {None: scene.script, 'none': None}.get(script, script), sinks)
     except (CommandError, SimulationError) as e:
         n, err = None, e
     finally:
@@ -474,6 +474,7 @@ class _Ahead:
     ('limits', 'generated', {}), ('sine', 'numba', {}), ('piecewise_constant', 'generated', {}),
     ('stanford_arm', 'numba', dict(diagnostics_periods=(0.05, 0.13))),   # two recorders: pieces
     ('stanford_arm', 'numba', dict(record=False)),
+    ('stanford_arm', 'generated', dict(script='none')),                    # no script: the command held
     ('a1_stand', 'numba', dict(integrator='rosenbrock2', rate=200.0)),    # a free root on a ground
 ])
 def test_the_block_computed_ahead_gives_the_bytes_of_the_block_computed_in_turn(tmp_path, monkeypatch, case,
