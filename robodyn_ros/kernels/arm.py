@@ -416,38 +416,60 @@ def limit_event(lim, q, v, h, qs, H):
     at q left out of J: h (no such stop, or every one explicit over h: :data:`LIMIT_EXPLICIT`), 0 (at
     contact: the stops join J, ``use_qs`` of :func:`~robodyn_ros.kernels.tree.limit_jacobian_add`), or a shorter step that lands the
     joint on the stop, or short of it with its stage point outside (:func:`_entry_step`; the smallest
-    over the stops met). H (nv, nv): the mass matrix, whose diagonal is the inertia each stop acts on."""
+    over the stops met; a spherical row's three components: :func:`_spherical_limit_event`). H (nv, nv):
+    the mass matrix, whose diagonal is the inertia each stop acts on. (Called at every step: it allocates
+    nothing for 1-DOF rows.)"""
+    step = h
+    for r in range(lim.shape[0]):
+        if int(lim[r, 0]) == SPHERICAL:
+            s = _spherical_limit_event(lim, r, q, v, h, qs, H)
+            if s < step:
+                step = s
+            continue
+        qi = int(lim[r, 1])
+        vi = int(lim[r, 2])
+        lo, hi = lim[r, 4], lim[r, 5]
+        th, thd, ths = q[qi], v[vi], qs[qi]
+        if th > hi or th < lo:
+            continue        # already beyond: its branch is in J
+        if ths > hi:
+            s = _entry_step(th - hi, thd, ths - hi, h, lim[r, 10], H[vi, vi])
+        elif ths < lo:
+            s = _entry_step(lo - th, -thd, lo - ths, h, lim[r, 10], H[vi, vi])
+        else:
+            continue
+        if s < step:
+            step = s
+    return step
+
+
+@njit(**_JIT)
+def _spherical_limit_event(lim, r, q, v, h, qs, H):
+    """:func:`limit_event` of the spherical row r: the smallest entry step over its rotation vector's three
+    components (:func:`~robodyn_ros.kernels.tree._limit_frame` at q and at qs), inf when none enters."""
     phi = np.empty(3)
     phs = np.empty(3)
     Jm = np.empty((3, 3))
     d = np.empty(3)
     ds = np.empty(3)
-    step = h
-    for r in range(lim.shape[0]):
-        jt = int(lim[r, 0])
-        qi = int(lim[r, 1])
-        vi = int(lim[r, 2])
-        k = lim[r, 10]
-        n = 1 if jt != SPHERICAL else 3
-        if jt == SPHERICAL:
-            _limit_frame(lim, r, q, v, phi, Jm, d)
-            _limit_frame(lim, r, qs, v, phs, Jm, ds)
-        for e in range(n):
-            lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
-            if jt != SPHERICAL:
-                th, thd, ths = q[qi], v[vi], qs[qi]
-            else:
-                th, thd, ths = phi[e], d[e], phs[e]
-            if th > hi or th < lo:
-                continue        # already beyond: its branch is in J
-            if ths > hi:
-                s = _entry_step(th - hi, thd, ths - hi, h, k, H[vi + e, vi + e])
-            elif ths < lo:
-                s = _entry_step(lo - th, -thd, lo - ths, h, k, H[vi + e, vi + e])
-            else:
-                continue
-            if s < step:
-                step = s
+    vi = int(lim[r, 2])
+    k = lim[r, 10]
+    step = math.inf
+    _limit_frame(lim, r, q, v, phi, Jm, d)
+    _limit_frame(lim, r, qs, v, phs, Jm, ds)
+    for e in range(3):
+        lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
+        th, thd, ths = phi[e], d[e], phs[e]
+        if th > hi or th < lo:
+            continue        # already beyond: its branch is in J
+        if ths > hi:
+            s = _entry_step(th - hi, thd, ths - hi, h, k, H[vi + e, vi + e])
+        elif ths < lo:
+            s = _entry_step(lo - th, -thd, lo - ths, h, k, H[vi + e, vi + e])
+        else:
+            continue
+        if s < step:
+            step = s
     return step
 
 

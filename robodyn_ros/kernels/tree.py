@@ -988,38 +988,46 @@ def rotation_vector(x, y, z, w, out):
 def limit_forces_add(lim, q, v, tau):
     """``tau += `` the joint-limit moments of every row of ``lim`` (:func:`robodyn_ros.model.limit_table`).
 
-    A 1-DOF joint: :func:`limit_moment` of ``(q, v)``. A spherical joint: per component of its
-    rotation vector φ (joint frame) with ``φ̇ = J_r⁻¹(φ) ω``; the moments M (conjugate to φ) act
-    on ω as ``J_r⁻ᵀ M`` (same power ``M·φ̇``).
+    A 1-DOF joint: :func:`limit_moment` of ``(q, v)``. A spherical joint: :func:`_spherical_limit_forces_add`.
+    (Called at every stage of every step: it allocates nothing for 1-DOF rows.)
     """
-    phi = np.empty(3)
     for r in range(lim.shape[0]):
-        jt = int(lim[r, 0])
-        qi = int(lim[r, 1])
-        vi = int(lim[r, 2])
-        mode = int(lim[r, 3])
-        k = lim[r, 10]
-        c = lim[r, 11]
-        if jt != SPHERICAL:
-            tau[vi] += limit_moment(q[qi], v[vi], lim[r, 4], lim[r, 5], k, c, mode)
-            continue
-        b = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
-        p0, p1, p2 = phi[0], phi[1], phi[2]
-        w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
-        pp = p0 * p0 + p1 * p1 + p2 * p2
-        # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
-        J00, J01, J02 = 1.0 + b * (p0 * p0 - pp), -0.5 * p2 + b * p0 * p1, 0.5 * p1 + b * p0 * p2
-        J10, J11, J12 = 0.5 * p2 + b * p1 * p0, 1.0 + b * (p1 * p1 - pp), -0.5 * p0 + b * p1 * p2
-        J20, J21, J22 = -0.5 * p1 + b * p2 * p0, 0.5 * p0 + b * p2 * p1, 1.0 + b * (p2 * p2 - pp)
-        d0 = J00 * w0 + J01 * w1 + J02 * w2
-        d1 = J10 * w0 + J11 * w1 + J12 * w2
-        d2 = J20 * w0 + J21 * w1 + J22 * w2
-        m0 = limit_moment(p0, d0, lim[r, 4], lim[r, 5], k, c, mode)
-        m1 = limit_moment(p1, d1, lim[r, 6], lim[r, 7], k, c, mode)
-        m2 = limit_moment(p2, d2, lim[r, 8], lim[r, 9], k, c, mode)
-        tau[vi] += J00 * m0 + J10 * m1 + J20 * m2
-        tau[vi + 1] += J01 * m0 + J11 * m1 + J21 * m2
-        tau[vi + 2] += J02 * m0 + J12 * m1 + J22 * m2
+        if int(lim[r, 0]) != SPHERICAL:
+            qi = int(lim[r, 1])
+            vi = int(lim[r, 2])
+            tau[vi] += limit_moment(q[qi], v[vi], lim[r, 4], lim[r, 5], lim[r, 10], lim[r, 11], int(lim[r, 3]))
+        else:
+            _spherical_limit_forces_add(lim, r, q, v, tau)
+
+
+@njit(**_JIT)
+def _spherical_limit_forces_add(lim, r, q, v, tau):
+    """:func:`limit_forces_add` of the spherical row r: per component of its rotation vector φ (joint
+    frame) with ``φ̇ = J_r⁻¹(φ) ω``; the moments M (conjugate to φ) act on ω as ``J_r⁻ᵀ M`` (same power
+    ``M·φ̇``)."""
+    phi = np.empty(3)
+    qi = int(lim[r, 1])
+    vi = int(lim[r, 2])
+    mode = int(lim[r, 3])
+    k = lim[r, 10]
+    c = lim[r, 11]
+    b = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
+    p0, p1, p2 = phi[0], phi[1], phi[2]
+    w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
+    pp = p0 * p0 + p1 * p1 + p2 * p2
+    # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
+    J00, J01, J02 = 1.0 + b * (p0 * p0 - pp), -0.5 * p2 + b * p0 * p1, 0.5 * p1 + b * p0 * p2
+    J10, J11, J12 = 0.5 * p2 + b * p1 * p0, 1.0 + b * (p1 * p1 - pp), -0.5 * p0 + b * p1 * p2
+    J20, J21, J22 = -0.5 * p1 + b * p2 * p0, 0.5 * p0 + b * p2 * p1, 1.0 + b * (p2 * p2 - pp)
+    d0 = J00 * w0 + J01 * w1 + J02 * w2
+    d1 = J10 * w0 + J11 * w1 + J12 * w2
+    d2 = J20 * w0 + J21 * w1 + J22 * w2
+    m0 = limit_moment(p0, d0, lim[r, 4], lim[r, 5], k, c, mode)
+    m1 = limit_moment(p1, d1, lim[r, 6], lim[r, 7], k, c, mode)
+    m2 = limit_moment(p2, d2, lim[r, 8], lim[r, 9], k, c, mode)
+    tau[vi] += J00 * m0 + J10 * m1 + J20 * m2
+    tau[vi + 1] += J01 * m0 + J11 * m1 + J21 * m2
+    tau[vi + 2] += J02 * m0 + J12 * m1 + J22 * m2
 
 
 @njit(**_JIT)
@@ -1059,10 +1067,33 @@ def _limit_frame(lim, r, q, v, phi, Jm, d):
 def limit_jacobian_add(lim, q, v, qs, use_qs, Dm, Km):
     """``Km += −∂τ_lim/∂q``, ``Dm += −∂τ_lim/∂v`` (nv, nv) of :func:`limit_forces_add` on the branches at
     (q, v) (:func:`limit_slopes`) -- with use_qs also the outward branch of every stop the configuration
-    qs (nq,) is beyond (the stage point of a step that enters it) -- in tangent coordinates. A spherical
-    joint's moments act through the rotation vector φ with ``φ̇ = J_r⁻¹(φ) ω`` (and ``δφ = J_r⁻¹ δ`` for a
-    tangent increment δ), so it adds ``J_r⁻ᵀ diag(k_a) J_r⁻¹`` and ``J_r⁻ᵀ diag(c_a) J_r⁻¹`` (the change of
-    J_r⁻¹ itself is left out: any J keeps the method's order). Returns the number of stop terms added."""
+    qs (nq,) is beyond (the stage point of a step that enters it) -- in tangent coordinates; a spherical
+    row: :func:`_spherical_limit_jacobian_add`. Returns the number of stop terms added. (Called at every
+    step: it allocates nothing for 1-DOF rows.)"""
+    active = 0
+    for r in range(lim.shape[0]):
+        if int(lim[r, 0]) == SPHERICAL:
+            active += _spherical_limit_jacobian_add(lim, r, q, v, qs, use_qs, Dm, Km)
+            continue
+        qi = int(lim[r, 1])
+        vi = int(lim[r, 2])
+        k = lim[r, 10]
+        c = lim[r, 11]
+        a, b = limit_slopes(q[qi], v[vi], lim[r, 4], lim[r, 5], k, c, int(lim[r, 3]))
+        if use_qs and a == 0.0 and (qs[qi] > lim[r, 5] or qs[qi] < lim[r, 4]):
+            a, b = k, c
+        Km[vi, vi] += a
+        Dm[vi, vi] += b
+        active += a != 0.0 or b != 0.0
+    return active
+
+
+@njit(**_JIT)
+def _spherical_limit_jacobian_add(lim, r, q, v, qs, use_qs, Dm, Km):
+    """:func:`limit_jacobian_add` of the spherical row r: its moments act through the rotation vector φ
+    with ``φ̇ = J_r⁻¹(φ) ω`` (and ``δφ = J_r⁻¹ δ`` for a tangent increment δ), so it adds
+    ``J_r⁻ᵀ diag(k_a) J_r⁻¹`` and ``J_r⁻ᵀ diag(c_a) J_r⁻¹`` (the change of J_r⁻¹ itself is left out: any J
+    keeps the method's order). Returns its number of stop terms."""
     phi = np.empty(3)
     phs = np.empty(3)
     Jm = np.empty((3, 3))
@@ -1071,39 +1102,28 @@ def limit_jacobian_add(lim, q, v, qs, use_qs, Dm, Km):
     ka = np.empty(3)
     ca = np.empty(3)
     active = 0
-    for r in range(lim.shape[0]):
-        jt = int(lim[r, 0])
-        qi = int(lim[r, 1])
-        vi = int(lim[r, 2])
-        mode = int(lim[r, 3])
-        k = lim[r, 10]
-        c = lim[r, 11]
-        if jt != SPHERICAL:
-            a, b = limit_slopes(q[qi], v[vi], lim[r, 4], lim[r, 5], k, c, mode)
-            if use_qs and a == 0.0 and (qs[qi] > lim[r, 5] or qs[qi] < lim[r, 4]):
-                a, b = k, c
-            Km[vi, vi] += a
-            Dm[vi, vi] += b
-            active += a != 0.0 or b != 0.0
-            continue
-        _limit_frame(lim, r, q, v, phi, Jm, d)
-        if use_qs:
-            _limit_frame(lim, r, qs, v, phs, Js, ka)
-        for e in range(3):
-            lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
-            ka[e], ca[e] = limit_slopes(phi[e], d[e], lo, hi, k, c, mode)
-            if use_qs and ka[e] == 0.0 and (phs[e] > hi or phs[e] < lo):
-                ka[e], ca[e] = k, c
-            active += ka[e] != 0.0 or ca[e] != 0.0
-        for a in range(3):
-            for b in range(3):
-                sk = 0.0
-                sc = 0.0
-                for e in range(3):
-                    sk += Jm[e, a] * ka[e] * Jm[e, b]
-                    sc += Jm[e, a] * ca[e] * Jm[e, b]
-                Km[vi + a, vi + b] += sk
-                Dm[vi + a, vi + b] += sc
+    vi = int(lim[r, 2])
+    mode = int(lim[r, 3])
+    k = lim[r, 10]
+    c = lim[r, 11]
+    _limit_frame(lim, r, q, v, phi, Jm, d)
+    if use_qs:
+        _limit_frame(lim, r, qs, v, phs, Js, ka)
+    for e in range(3):
+        lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
+        ka[e], ca[e] = limit_slopes(phi[e], d[e], lo, hi, k, c, mode)
+        if use_qs and ka[e] == 0.0 and (phs[e] > hi or phs[e] < lo):
+            ka[e], ca[e] = k, c
+        active += ka[e] != 0.0 or ca[e] != 0.0
+    for a in range(3):
+        for b in range(3):
+            sk = 0.0
+            sc = 0.0
+            for e in range(3):
+                sk += Jm[e, a] * ka[e] * Jm[e, b]
+                sc += Jm[e, a] * ca[e] * Jm[e, b]
+            Km[vi + a, vi + b] += sk
+            Dm[vi + a, vi + b] += sc
     return active
 
 
