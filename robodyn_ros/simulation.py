@@ -320,7 +320,7 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     wrenches: compute joint wrenches (default: when some sink wants them, ``sink.wants_wrenches``);
     stop: optional ``stop(t, y) -> bool`` checked after every period's outputs (a scene's
     ``stop_when``): the run ends at the first period where it holds; pipeline: the block path may compute
-    its next block on a second thread while the sinks take one (:data:`~robodyn_ros.blocks.PIPELINE`; the
+    its next blocks on a second thread while the sinks take one (:data:`~robodyn_ros.blocks.PIPELINE`; the
     same numbers either way).
     Returns the number of periods run. The final state stays in ``sim``.
 

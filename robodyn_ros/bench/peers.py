@@ -408,6 +408,13 @@ def row_figures(runs: dict, recording=None) -> dict:
             'bm': statistics.median(x['bm'] for x in none), 'recording': recording}
 
 
+def _computes_ahead() -> bool:
+    """Whether the children's recorded runs compute their next blocks ahead (``blocks.PIPELINE``, from the
+    environment they inherit)."""
+    from .. import blocks
+    return blocks.PIPELINE
+
+
 def _pairs(r) -> str:
     """Each repeat's ratios as 'median (range)'."""
     return '—' if not r else f'×{statistics.median(r):.2f} (×{min(r):.2f}–{max(r):.2f})'
@@ -449,8 +456,11 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
         '/ CPU seconds. Ratio: robodyn\'s real-time factor over MuJoCo\'s (> 1: robodyn faster), from the medians '
         'of each side; the last column takes the ratio within each repeat (its robodyn and MuJoCo children run '
         'seconds apart), so that the machine\'s speed drifting between repeats cancels, and gives their median '
-        'and range. The recorded run computes its next blocks of periods on a second thread while the recorder '
-        'writes (the block path computing ahead): its CPU time counts both threads, and its wall time is less.', '',
+        'and range. ' + (
+            'The recorded run computes its next blocks of periods on a second thread while the recorder writes '
+            '(the block path computing ahead): its CPU time counts both threads, and its wall time is less.'
+            if _computes_ahead() else
+            'Computing ahead was off (`ROBODYN_PIPELINE=0`): every run on one thread.'), '',
         table(head, main_rows), '',
         '## Where robodyn\'s recorded run spends its time, per integration step (µs of CPU)', '',
         table(['row', 'whole (recorded run)'] + list(PARTS) + ['sum of parts', 'fd / bm per call',
