@@ -428,19 +428,24 @@ def limit_event(lim, q, v, h, qs, H):
             continue
         qi = int(lim[r, 1])
         vi = int(lim[r, 2])
-        lo, hi = lim[r, 4], lim[r, 5]
-        th, thd, ths = q[qi], v[vi], qs[qi]
-        if th > hi or th < lo:
-            continue        # already beyond: its branch is in J
-        if ths > hi:
-            s = _entry_step(th - hi, thd, ths - hi, h, lim[r, 10], H[vi, vi])
-        elif ths < lo:
-            s = _entry_step(lo - th, -thd, lo - ths, h, lim[r, 10], H[vi, vi])
-        else:
-            continue
+        s = _stop_entry(q[qi], v[vi], qs[qi], lim[r, 4], lim[r, 5], h, lim[r, 10], H[vi, vi])
         if s < step:
             step = s
     return step
+
+
+@njit(**_JIT)
+def _stop_entry(th, thd, ths, lo, hi, h, k, m):
+    """One component's entry step (:func:`limit_event`, :func:`_entry_step`) at angle th, rate thd, stage value
+    ths, limits lo, hi, stiffness k and inertia m; inf when it is beyond a limit already (its branch is in J)
+    or its stage value stays inside."""
+    if th > hi or th < lo:
+        return math.inf
+    if ths > hi:
+        return _entry_step(th - hi, thd, ths - hi, h, k, m)
+    if ths < lo:
+        return _entry_step(lo - th, -thd, lo - ths, h, k, m)
+    return math.inf
 
 
 @njit(**_JIT)
@@ -458,16 +463,7 @@ def _spherical_limit_event(lim, r, q, v, h, qs, H):
     _limit_frame(lim, r, q, v, phi, Jm, d)
     _limit_frame(lim, r, qs, v, phs, Jm, ds)
     for e in range(3):
-        lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
-        th, thd, ths = phi[e], d[e], phs[e]
-        if th > hi or th < lo:
-            continue        # already beyond: its branch is in J
-        if ths > hi:
-            s = _entry_step(th - hi, thd, ths - hi, h, k, H[vi + e, vi + e])
-        elif ths < lo:
-            s = _entry_step(lo - th, -thd, lo - ths, h, k, H[vi + e, vi + e])
-        else:
-            continue
+        s = _stop_entry(phi[e], d[e], phs[e], lim[r, 4 + 2 * e], lim[r, 5 + 2 * e], h, k, H[vi + e, vi + e])
         if s < step:
             step = s
     return step
