@@ -200,9 +200,7 @@ class BlockRunner:
         """The command the port holds after block res, as :meth:`_arrive` leaves it (u: the one it started with)."""
         if self.program is None:
             return u.copy()
-        limit = self.sim.ports[self.port].limit
-        last = res[3][res[0] - 1]
-        return (last if limit is None else np.clip(last, -limit, limit)).astype(float)
+        return np.array(self.sim.ports[self.port].clamped_to_limit(res[3][res[0] - 1]), dtype=float)
 
     def _commit(self, a, b, t_cmd, t_out, res, whole=False):
         """The Simulator at the end of period b - 1 of the block, as advance() calls leave it;
@@ -248,7 +246,7 @@ class BlockRunner:
         if self.program is not None:
             p = sim.ports[self.port]
             p.value = Us[b - 1].copy()
-            p.applied = p.value if p.limit is None else np.clip(p.value, -p.limit, p.limit)
+            p.applied = p.clamped_to_limit(p.value)
             p.stamp = float(t_cmd[b - 1])
             p.timed_out = False
             if p.limit is not None:   # the clamped components of these periods' commands, as set_command counts them

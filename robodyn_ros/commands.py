@@ -49,6 +49,11 @@ class CommandPort:
         if self.applied is None:   # nothing clamped yet: the actuators apply the command as held
             self.applied = self.value
 
+    def clamped_to_limit(self, value: np.ndarray) -> np.ndarray:
+        """What the actuators apply of command value: clamped to the port's effort limits (value itself
+        without limits)."""
+        return value if self.limit is None else np.clip(value, -self.limit, self.limit)
+
 
 class CommandPorts:
     """The input ports of a system, each a :class:`CommandPort` at zero.
