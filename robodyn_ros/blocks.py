@@ -94,20 +94,23 @@ class BlockRunner:
     path, which raises as it always has.
 
     sim: the Simulator; port: its one input port; program: the compiled form of that port's scripted
-    command (None: the command held as it is); sinks: the run's sinks; wrenches: compute joint wrenches.
+    command (None: the command held as it is); sinks: the run's sinks; wrenches: compute joint wrenches;
+    halt: optional ``halt() -> bool`` asked after each piece the sinks took (the run ends there: a Ctrl-C).
     """
 
-    def __init__(self, sim, port, program, sinks, wrenches, pipeline=True):
+    def __init__(self, sim, port, program, sinks, wrenches, pipeline=True, halt=None):
         self.sim, self.port, self.program, self.sinks, self.wrenches = sim, port, program, sinks, wrenches
         self.pipeline = pipeline   # may compute ahead (:data:`PIPELINE`)
+        self.halt = halt
         self.template = None
         self.used = [0]      # blocks computed ahead (:class:`_Ahead`) and taken (tests, benchmarks)
         self.dropped = [0]   # blocks computed ahead and dropped
 
     @classmethod
-    def plan(cls, sim, script, sinks, stop, wrenches, pipeline=True):
+    def plan(cls, sim, script, sinks, stop, wrenches, pipeline=True, halt=None):
         """A BlockRunner for this run, or None when the block path does not apply (class docstring);
-        pipeline: it may compute blocks ahead (:data:`PIPELINE`; a sweep's runs fill the cores already)."""
+        pipeline: it may compute blocks ahead (:data:`PIPELINE`; a sweep's runs fill the cores already);
+        halt: as the class's."""
         sys_ = sim.system
         if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
                 or sim.integrator.spec.kind != 'fixed' or getattr(sim.integrator, 'tolerance', None) is not None \
@@ -128,7 +131,7 @@ class BlockRunner:
         if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim.work_state(), none, none,
                               np.array(sim.ports[port].applied, dtype=float), program, wrenches) is None:
             return None
-        return cls(sim, port, program, sinks, wrenches, pipeline)
+        return cls(sim, port, program, sinks, wrenches, pipeline, halt)
 
     def run(self, k: int, n: int, t_start: float, rate: float) -> int:
         """Run periods k.. in blocks; returns the first period not run (n when all are).
@@ -182,6 +185,8 @@ class BlockRunner:
                         return k + a
                     self._commit(a, b, t_cmd, t_out, res, bool(whole))
                     a = b
+                    if self.halt is not None and self.halt():   # the Simulator is at the end of period k + b - 1
+                        return k + b
                 k += done
                 if code:
                     return k

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 
 from .integrator_choice import AUTO, AUTO_ATOL, AUTO_RTOL, DEFAULT_DT
 
@@ -126,3 +127,38 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
     if sim.failed:
         lines.append(f'FAILED       {sim.failed}')
     return '\n'.join(lines)
+
+
+class StopSignals:
+    """SIGINT (Ctrl-C) and SIGTERM as a request to stop where the run is whole: the first sets
+    :attr:`requested` (its name, ``'Ctrl-C'`` or ``'SIGTERM'``) for the loop to ask at its next period
+    boundary (``run_headless(halt=...)``, the node's loop); a second raises KeyboardInterrupt at once.
+    A context manager: the handlers before it are restored on leaving (main thread only)."""
+
+    NAMES = {signal.SIGINT: 'Ctrl-C', signal.SIGTERM: 'SIGTERM'}
+    #: exit status of a run stopped by each signal (128 + its number, as a shell reports it)
+    STATUS = {'Ctrl-C': 128 + signal.SIGINT, 'SIGTERM': 128 + signal.SIGTERM}
+
+    def __init__(self):
+        self.requested = None
+        self._previous = {}
+
+    def __call__(self, signum, frame=None):
+        if self.requested is not None:
+            raise KeyboardInterrupt
+        self.requested = self.NAMES.get(signum, f'signal {signum}')
+
+    def asked(self) -> bool:
+        """Whether a stop was requested (``run_headless``'s ``halt``)."""
+        return self.requested is not None
+
+    def __enter__(self):
+        for s in self.NAMES:
+            self._previous[s] = signal.signal(s, self)
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self._previous.items():
+            signal.signal(s, h)
+        self._previous.clear()
+        return False

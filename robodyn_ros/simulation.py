@@ -308,7 +308,7 @@ class Simulator:
 
 
 def run_headless(sim: Simulator, duration: float, rate: float, script=None, sinks=(), wrenches=None, stop=None,
-                 pipeline=True):
+                 pipeline=True, halt=None):
     """Run ``duration`` s at ``rate`` Hz publications, feeding scripted commands, calling sinks.
 
     sim: the simulator; duration: seconds of simulation time; rate: publication (and scripted
@@ -321,7 +321,9 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     stop: optional ``stop(t, y) -> bool`` checked after every period's outputs (a scene's
     ``stop_when``): the run ends at the first period where it holds; pipeline: the block path may compute
     its next blocks on a second thread while the sinks take one (:data:`~robodyn_ros.blocks.PIPELINE`; the
-    same numbers either way).
+    same numbers either way); halt: optional ``halt() -> bool``, asked where the sinks have every period
+    up to the Simulator's state (after each period, or each piece of a block): the run ends there when it
+    holds (a Ctrl-C's flag: the recording then ends exactly at ``sim.t``).
     Returns the number of periods run. The final state stays in ``sim``.
 
     Which command an output carries: the output at the end of a period carries the command held
@@ -350,13 +352,15 @@ def run_headless(sim: Simulator, duration: float, rate: float, script=None, sink
     for s in sinks:
         s.on_output(sim.t, out, sim)
     t_start = sim.t
-    blocks = BlockRunner.plan(sim, script, sinks, stop, wrenches, pipeline)
+    blocks = BlockRunner.plan(sim, script, sinks, stop, wrenches, pipeline, halt)
     k = 0
     while k < n:
+        if halt is not None and halt():
+            return k
         if blocks is not None and k > 0:   # periods 1.. in compiled blocks; period k on this path
             k = blocks.run(k, n, t_start, rate)   # when a block stops short (or a sink wants it)
-            if k >= n:
-                break
+            if k >= n or (halt is not None and halt()):
+                return k
         if k > 0:
             feed()
         sim.advance(t_start + (k + 1) / rate)

@@ -74,8 +74,9 @@ class _Count:
 
 
 def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None, record=True, rate=100.0,
-         diagnostics_periods=(0.05,), chunk_size=3000, refuse=None):
-    """refuse: (t_a, t_b), the first recorder refuses blocks whose first period ends in [t_a, t_b)."""
+         diagnostics_periods=(0.05,), chunk_size=3000, refuse=None, halt_at=None):
+    """refuse: (t_a, t_b), the first recorder refuses blocks whose first period ends in [t_a, t_b);
+    halt_at: run_headless's ``halt`` says stop once the Simulator has reached this time."""
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         sim = Simulator(scene.system, scene.y0, integrator=integrator, dt=dt)
@@ -93,7 +94,8 @@ def _run(tmp_path, scene, tag, duration, integrator='rk4', dt=1e-3, script=None,
         sinks[0].block_periods = refusing
     err = None
     try:
-        n = run_headless(sim, duration, rate, {None: scene.script, 'none': None}.get(script, script), sinks)
+        n = run_headless(sim, duration, rate, {None: scene.script, 'none': None}.get(script, script), sinks,
+                         halt=None if halt_at is None else (lambda: sim.t >= halt_at))
     except (CommandError, SimulationError) as e:
         n, err = None, e
     finally:
@@ -572,3 +574,32 @@ def test_a_sink_failing_mid_run_leaves_no_thread_computing_ahead(tmp_path, monke
     assert len(calls) == 3 and ahead.counts()[0] == 2   # blocks 2 and 3 came from the thread
     assert not [t for t in threading.enumerate() if t.name == 'robodyn-blocks']
     assert ahead.counts()[1] >= 1   # what it had computed beyond block 3 was dropped
+
+
+@pytest.mark.parametrize('path,kw,piece', [
+    ('blocks', {}, B.BLOCK_PERIODS),                                  # a lone recorder: whole blocks
+    ('blocks', dict(diagnostics_periods=(0.05, 0.13)), 13),           # two recorders: pieces
+    ('periods', {}, 1),
+    ('blocks', dict(integrator='rosenbrock2', rate=200.0, case='a1_stand'), B.BLOCK_PERIODS),
+])
+def test_a_halted_run_ends_where_its_recording_ends(tmp_path, monkeypatch, path, kw, piece):
+    """``halt`` (a Ctrl-C's flag) asked at each period boundary: the run stops at the first boundary after it
+    holds, with every period up to the Simulator's state in the recording and none after it. The halted files
+    are byte for byte those of a run whose duration ends there, and so is the Simulator; the blocks computed
+    ahead past it are dropped."""
+    kw = dict(kw)
+    scene = _scene(kw.pop('case', 'stanford_arm'), 'numba')
+    rate = kw.get('rate', 100.0)
+    ahead = _Ahead(monkeypatch)
+    if path == 'periods':
+        monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    halted = _run(tmp_path, scene, 'halted', 5.0, halt_at=1.7, **kw)
+    n = halted[1]
+    assert halted[3] is None and 1.7 <= n / rate < 1.7 + piece / rate + 1e-9, n   # the first boundary after
+    assert abs(halted[2].t - n / rate) < 1e-12
+    if path == 'blocks':
+        assert ahead.counts()[0] >= 1 and halted[2].diag.block_periods > n // 2   # (the block path ran)
+    short = _run(tmp_path, scene, 'short', n / rate, **kw)
+    assert short[1] == n
+    assert halted[0] == short[0]
+    _same_simulator(halted[2], short[2])

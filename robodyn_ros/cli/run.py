@@ -6,7 +6,7 @@ import sys
 import time
 
 from ..integrator_choice import DEFAULT_DT, STEP_BUDGET
-from ..runs import DEFAULT_RATE, DIAGNOSTICS_PERIOD, plan_run, resolve_settings, summary
+from ..runs import DEFAULT_RATE, DIAGNOSTICS_PERIOD, StopSignals, plan_run, resolve_settings, summary
 
 #: one line for ``robodyn --help``
 HELP = 'simulate a scene headless with its scripted commands'
@@ -202,22 +202,29 @@ def _run(args, sock, rate_factor) -> int:
                                  diagnostics_period=args.diagnostics_period, batch=HEADLESS_BATCH,
                                  embed_meshes=not args.no_embed_meshes))
     w0, c0 = time.perf_counter(), time.process_time()
-    status = 0
-    try:
-        run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop)
-    except SimulationError as e:
-        print(f'robodyn run: simulation stopped: {e}', file=sys.stderr)
-        status = 1
-    except KeyboardInterrupt:   # Ctrl-C: the recording is finished with every period handed to it
-        status = 130
-    finally:
-        for s in sinks:
-            s.close()
+    status, at_once = 0, False
+    with StopSignals() as stop:   # Ctrl-C, SIGTERM: the run ends at the next period boundary, the file finished
+        try:
+            run_headless(sim, st['duration'], st['rate'], scene.script, sinks, stop=scene.stop, halt=stop.asked)
+        except SimulationError as e:
+            print(f'robodyn run: simulation stopped: {e}', file=sys.stderr)
+            status = 1
+        except KeyboardInterrupt:   # a second signal: at once; the recording is finished with what it was handed
+            at_once = True
+        finally:
+            for s in sinks:
+                s.close()
+    if stop.requested is not None and status == 0:
+        status = StopSignals.STATUS[stop.requested]
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     print(summary(scene, sim, st, wall, args.record, sinks, cpu=cpu))
-    if status == 130:
-        print(f'stopped      by Ctrl-C at t={sim.t:.6g} s of {st["duration"]:g} s'
-              + (' (the recording holds every period up to it)' if args.record else ''))
+    if stop.requested is not None:
+        if at_once:
+            print(f'stopped      at once by a second {stop.requested} near t={sim.t:.6g} s of {st["duration"]:g} s'
+                  + (' (the recording holds the periods it had been handed)' if args.record else ''))
+        else:
+            print(f'stopped      by {stop.requested} at t={sim.t:.6g} s of {st["duration"]:g} s'
+                  + (' (the recording holds every period up to it)' if args.record else ''))
     from ..kernels import jit
     if jit.DEFERRED and not jit.LOADED and st['backend'] != 'numpy':
         print('kernels      run as Python, numba not loaded (a run this short ends before numba would have '

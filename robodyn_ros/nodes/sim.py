@@ -40,6 +40,7 @@ from .. import messages as M
 from ..recording import cdr
 from ..recording.run_sink import output_records
 from ..recording.target import episode_path
+from ..runs import StopSignals
 from ..simulation import CommandError, SimulationError, Simulator
 from .config import PARAMETERS, ConfigError, check_backend, check_live, check_number, resolve_config, urdf_options
 from .ports import command_topics, command_values
@@ -708,21 +709,6 @@ def make_node_class():
     return SimNode
 
 
-class _Stop:
-    """SIGINT/SIGTERM flag: the loop finishes the current period, then shuts down cleanly.
-
-    A second signal raises KeyboardInterrupt at once (the ``finally`` still closes the file).
-    """
-
-    def __init__(self):
-        self.requested = False
-
-    def __call__(self, signum, frame):
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
-
-
 def main(args=None) -> int:
     """Entry point of the ``sim`` console script; returns the exit status (2 = bad parameters)."""
     import rclpy
@@ -737,7 +723,7 @@ def main(args=None) -> int:
     # prints each once
     from rclpy.logging import get_logger
     warnings.showwarning = lambda message, *a, **k: get_logger(NODE_NAME).warning(str(message))
-    stop = _Stop()
+    stop = StopSignals()   # the loop finishes the current period, then shuts down cleanly
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
     node, status = None, 0
@@ -746,7 +732,7 @@ def main(args=None) -> int:
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         wait = 0.0
-        while not stop.requested and not node.finished:
+        while not stop.asked() and not node.finished:
             executor.spin_once(timeout_sec=wait)
             wait = node.work()
         if node.finished:   # the last state was just published: let DDS deliver it before leaving
