@@ -132,21 +132,25 @@ def summary(scene, sim, st, wall, record, sinks, cpu=None) -> str:
 class StopSignals:
     """SIGINT (Ctrl-C) and SIGTERM as a request to stop where the run is whole: the first sets
     :attr:`requested` (its name, ``'Ctrl-C'`` or ``'SIGTERM'``) for the loop to ask at its next period
-    boundary (``run_headless(halt=...)``, the node's loop); a second raises KeyboardInterrupt at once.
+    boundary (``run_headless(halt=...)``, the node's loop) and calls ``on_request()`` (a live run's steering,
+    which also ends a pause); a second raises KeyboardInterrupt at once.
     A context manager: the handlers before it are restored on leaving (main thread only)."""
 
     NAMES = {signal.SIGINT: 'Ctrl-C', signal.SIGTERM: 'SIGTERM'}
     #: exit status of a run stopped by each signal (128 + its number, as a shell reports it)
     STATUS = {'Ctrl-C': 128 + signal.SIGINT, 'SIGTERM': 128 + signal.SIGTERM}
 
-    def __init__(self):
+    def __init__(self, on_request=None):
         self.requested = None
+        self.on_request = on_request
         self._previous = {}
 
     def __call__(self, signum, frame=None):
         if self.requested is not None:
             raise KeyboardInterrupt
         self.requested = self.NAMES.get(signum, f'signal {signum}')
+        if self.on_request is not None:
+            self.on_request()
 
     def asked(self) -> bool:
         """Whether a stop was requested (``run_headless``'s ``halt``)."""

@@ -243,7 +243,10 @@ def test_live_options_need_live(tmp_path):
     assert p.returncode == 2 and p.stderr.strip() == 'robodyn run: --rate-factor only with --live'
 
 
-def test_ctrl_c_closes_the_server_and_keeps_the_recording(runs, tmp_path):
+@pytest.mark.parametrize('signame,said', [('SIGINT', 'Ctrl-C'), ('SIGTERM', 'SIGTERM')])
+def test_ctrl_c_closes_the_server_and_keeps_the_recording(runs, tmp_path, signame, said):
+    """Ctrl-C (or SIGTERM: a container stopped) ends a live run at the next period: exit 0 (a live run's
+    ordinary end), the server closed, the recording finished with every period the client got."""
     rec = tmp_path / 'int.mcap'
     run = runs('stanford_arm', '--duration', '60', '--record', str(rec), '--live', '--port', '0', '--start-paused')
     c = Client(run.url, V1)
@@ -251,10 +254,10 @@ def test_ctrl_c_closes_the_server_and_keeps_the_recording(runs, tmp_path):
     assert response_fields(c.call('/robodyn/pause', set_bool_request(False)))[0]
     js = lambda: [t for topic, t, _ in c.messages if topic == '/joint_states']  # noqa: E731
     assert c.pump_until(lambda: max(js()) >= 50_000_000, 60)
-    os.killpg(run.p.pid, signal.SIGINT)   # the run has streamed 0.05 s of simulation
+    os.killpg(run.p.pid, getattr(signal, signame))   # the run has streamed 0.05 s of simulation
     assert c.until_closed(60), 'the server did not close'
     assert run.wait() == 0, run.output()
-    assert 'stopped by Ctrl-C' in run.output() and 'Traceback' not in run.output()
+    assert f'stopped by {said} at t=' in run.output() and 'Traceback' not in run.output()
     s = summarize(rec)
     assert s['finished'] and s['end_time_ns'] >= max(js())
     assert [m for m in c.messages if m[0] == '/joint_states'] == \

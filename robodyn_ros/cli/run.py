@@ -263,8 +263,6 @@ def expect_work(scene, st, live) -> None:
 
 def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
     """``--live``: serve, pace, steer (:mod:`robodyn_ros.live.run`); episodes after a client's reset."""
-    import signal
-
     from ..live.run import LiveReset, LiveRun, LiveStop
     from ..live.server import LiveServer, LiveTap
     from ..live.steering import RATE_FACTOR, SERVICES, Steering, trigger_response
@@ -298,7 +296,7 @@ def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
         recorders.append(r)
         return r
 
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: _second_interrupt(steering, signum))
+    signals = StopSignals(on_request=steering.request_stop).__enter__()   # Ctrl-C, SIGTERM: at the next period
     w0, c0 = time.perf_counter(), time.process_time()
     status, episode, stopped = 0, 0, False
     try:
@@ -318,31 +316,24 @@ def _run_live(args, sock, rate_factor, scene, st, sim) -> int:
                                             if args.record else '')))
             finally:
                 rec.close()
-    except LiveStop:
+    except (LiveStop, KeyboardInterrupt):   # (KeyboardInterrupt: a second signal, at once)
         stopped = True
     except SimulationError as e:
         print(f'robodyn run: simulation stopped: {e}', file=sys.stderr)
         status = 1
     finally:
         wall, cpu = time.perf_counter() - w0 - live.paused_wall, time.process_time() - c0
-        signal.signal(signal.SIGINT, previous)
+        signals.__exit__()
         for r in recorders:
             r.close()
         server.close()
     record = episode_path(args.record, episode) if args.record else None
     print(summary(scene, sim, st, wall, record, recorders, cpu=cpu))
     print(f'live         {server.clients_seen} client{"s" if server.clients_seen != 1 else ""} served'
-          + (f'; stopped by Ctrl-C at t={sim.t:.3f} s' if stopped else '')
+          + (f'; stopped by {signals.requested} at t={sim.t:.3f} s' if stopped else '')
           + (f'; {live.refused} client commands refused' if live.refused else '')
           + (f'; {server.dropped} messages dropped for slow clients' if server.dropped else ''))
     return status
-
-
-def _second_interrupt(steering, signum):
-    """Ctrl-C: stop at the next period boundary; a second one stops at once (the recording is still finished)."""
-    if steering.stop_requested:
-        raise KeyboardInterrupt
-    steering.request_stop()
 
 
 def _live_layout(scene) -> str | None:
