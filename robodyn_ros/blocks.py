@@ -19,6 +19,7 @@ near the larger of integrating and recording instead of their sum.
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -41,6 +42,23 @@ PIPELINE = os.environ.get('ROBODYN_PIPELINE', '1') != '0'
 AHEAD = 32
 
 
+def _block_port(system) -> tuple:
+    """``(port, others)``: the input port whose command the compiled loop applies (the only one, or the effort port
+    of an arm with a joint servo, whose setpoint ports are held over a block), or ``(None, ())``."""
+    ports = list(system.inputs)
+    if len(ports) == 1:
+        return ports[0], ()
+    if 'effort' in ports and getattr(system, 'servo', None) is not None:
+        return 'effort', tuple(p for p in ports if p != 'effort')
+    return None, ()
+
+
+def _held(sim, others) -> dict:
+    """``fused_periods``' keyword for a system with other ports or sensors (whose readings depend on every input):
+    ``{'held': the inputs held now}``, else none."""
+    return {'held': sim.held_inputs()} if others or getattr(sim.system, 'sensors', None) is not None else {}
+
+
 def _pipelines() -> bool:
     """True when the block path computes ahead (:data:`PIPELINE`): the loop is machine code then (numba
     loaded; interpreted kernels hold the GIL) and a second CPU can run it."""
@@ -61,7 +79,8 @@ class PeriodBlock:
     ``effort`` (K, ·) and, when computed, the joint wrenches ``wrenches`` (K, n, 6) in the order
     of ``template.wrenches``; ``odom`` (K, 13: position, orientation, linear, angular) of a system
     that publishes one, and the ground's ``contacts`` (K, nl, 6) in the order of ``template.contacts``
-    (else None). template: the SystemOutputs of one such period (names, frames, how wrenches are
+    (else None); ``control``: per period the servo's and sensors' ``(messages, imu_poses, ft_wrenches)``
+    (``ArmSystem.control_outputs``; else None). template: the SystemOutputs of one such period (names, frames, how wrenches are
     computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and work quadrature
     ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the last one, or, with
     ``arrive`` (a callable, :meth:`BlockRunner.run`'s lone sink), ``arrive(j)`` puts it at the end of
@@ -79,6 +98,7 @@ class PeriodBlock:
     odom: np.ndarray | None = None
     contacts: np.ndarray | None = None
     arrive: object = None
+    control: list | None = None
 
 
 class BlockRunner:
@@ -103,6 +123,7 @@ class BlockRunner:
         self.pipeline = pipeline   # may compute ahead (:data:`PIPELINE`)
         self.halt = halt
         self.template = None
+        self.others, self.due, self.held_kw = (), {}, {}   # ports besides ``port``, their messages' next times (plan)
         self.used = [0]      # blocks computed ahead (:class:`_Ahead`) and taken (tests, benchmarks)
         self.dropped = [0]   # blocks computed ahead and dropped
 
@@ -114,24 +135,35 @@ class BlockRunner:
         sys_ = sim.system
         if getattr(sys_, 'fused_periods', None) is None or stop is not None or sim.command_timeout is not None \
                 or sim.integrator.spec.kind != 'fixed' or getattr(sim.integrator, 'tolerance', None) is not None \
-                or len(sys_.inputs) != 1 \
                 or not all(getattr(s, 'takes_blocks', False) for s in sinks):
             return None
-        (port, spec), = sys_.inputs.items()
-        if spec.limit is not None and not getattr(sys_, 'clamps_in_blocks', False):
+        port, others = _block_port(sys_)
+        if port is None:
             return None
-        program = None
+        if sys_.inputs[port].limit is not None and not getattr(sys_, 'clamps_in_blocks', False):
+            return None
+        program, due = None, {}
         if script is not None:
             programs = getattr(script, 'programs', None) or {}
-            if set(programs) != {port} or programs[port] is None:
+            sends = getattr(script, 'next_send', None) or {}
+            for p in programs:
+                if p == port and programs[p] is not None:
+                    program = programs[p]
+                elif p in others and p in sends:   # messages at given times: blocks end before each
+                    due[p] = sends[p]
+                else:
+                    return None
+            if not programs:
                 return None
-            program = programs[port]
         # the system may still decline (e.g. joint_states that are not its state as it is): ask with no period
         none = np.zeros(0)
         if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim.work_state(), none, none,
-                              np.array(sim.ports[port].applied, dtype=float), program, wrenches) is None:
+                              np.array(sim.ports[port].applied, dtype=float), program, wrenches,
+                              **_held(sim, others)) is None:
             return None
-        return cls(sim, port, program, sinks, wrenches, pipeline, halt)
+        runner = cls(sim, port, program, sinks, wrenches, pipeline, halt)
+        runner.others, runner.due = others, due
+        return runner
 
     def run(self, k: int, n: int, t_start: float, rate: float) -> int:
         """Run periods k.. in blocks; returns the first period not run (n when all are).
@@ -143,6 +175,10 @@ class BlockRunner:
         Simulator at the end of the periods where it wants its state itself (``PeriodBlock.arrive``:
         the same Simulator there, without a piece per diagnostics message)."""
         sim, sys_ = self.sim, self.sim.system
+        n = self._before_message(k, n, t_start, rate)
+        if n <= k:
+            return k   # a message is due at the start of period k: sent on the per-period path
+        self.held_kw = _held(sim, self.others)   # the other ports' inputs, fixed until that message
         if self.template is None:
             self.template = sim.outputs(wrenches=self.wrenches)   # names and frames of every period's outputs
         cmd_kind = () if self.program is None else ((self.port, sim.ports[self.port].value.shape[0]),)
@@ -199,7 +235,23 @@ class BlockRunner:
         """``system.fused_periods`` of these periods from state z and command u (both changed in place)."""
         sim = self.sim
         return sim.system.fused_periods(sim.settings['integrator'], sim.integrator.dt, z, t_cmd, t_out, u,
-                                        self.program, self.wrenches)
+                                        self.program, self.wrenches, **self.held_kw)
+
+    def _before_message(self, k, n, t_start, rate) -> int:
+        """The first period from k on at whose start a scripted message is due on another port (the per-period
+        path sends it: ``feed`` at that period's start ``t_start + j / rate``, within the scripts' 1e-12 s),
+        or n."""
+        for next_send in self.due.values():
+            t_due = next_send()
+            if not math.isfinite(t_due):
+                continue
+            if t_due <= self.sim.t + 1e-12:
+                return k
+            j = max(k + 1, int(math.floor((t_due - t_start) * rate)) - 2)
+            while j < n and not t_due <= t_start + j / rate + 1e-12:
+                j += 1
+            n = min(n, j)
+        return n
 
     def _next_command(self, res, u):
         """The command the port holds after block res, as :meth:`_arrive` leaves it (u: the one it started with)."""
@@ -227,11 +279,12 @@ class BlockRunner:
             arrive(b - a - 1)
         commands = {} if self.program is None else {self.port: Us[a:b]}
         position, velocity, effort = outs
-        odom, contacts = more.get('odom'), more.get('contacts')
+        odom, contacts, control = more.get('odom'), more.get('contacts'), more.get('control')
         block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
                             velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
                             template=self.template, z=Zs[a:b], odom=None if odom is None else odom[a:b],
-                            contacts=None if contacts is None else contacts[a:b], arrive=arrive if whole else None)
+                            contacts=None if contacts is None else contacts[a:b], arrive=arrive if whole else None,
+                            control=None if control is None else control[a:b])
         for s in self.sinks:
             s.on_block(block, self.sim)
         arrive(b - a - 1)

@@ -9,10 +9,13 @@ registers ``COMMAND_PROFILES[name] = builder``. :func:`build_script` puts the po
 together into the scene's ``script(t, y) -> {port: array}``.
 
 Every profile but ``pfl`` is evaluated by :func:`robodyn_ros.kernels.profiles.command_eval` (its
-one implementation); those the compiled block path can run carry their program ``f.program``.
+one implementation); those the compiled block path can run carry their program ``f.program``; the
+``trajectory`` profile, whose commands are messages at given times, says when its next is due
+(``f.next_send``: the block path runs the periods between them).
 """
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -363,6 +366,11 @@ def _trajectory_profile(params, path, ctx, system, port):
             due = msgs[state['next']]
             state['next'] += 1
         return due
+
+    def next_send():
+        """When the next message is due (s; inf when all are sent): the block path ends its blocks before it."""
+        return times[state['next']] if state['next'] < len(times) else math.inf
+    f.next_send = next_send
     return f
 
 
@@ -397,4 +405,6 @@ def build_script(ctx: SceneContext, commands, system):
         return out
     script.profiles = fns  # port -> f(t, y), e.g. to reach a controller profile's object
     script.programs = {port: getattr(f, 'program', None) for port, f in fns.items()}  # compiled forms (block path)
+    # ports whose commands are messages at given times: when the next is due (the block path)
+    script.next_send = {port: f.next_send for port, f in fns.items() if hasattr(f, 'next_send')}
     return script

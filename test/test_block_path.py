@@ -603,3 +603,74 @@ def test_a_halted_run_ends_where_its_recording_ends(tmp_path, monkeypatch, path,
     assert short[1] == n
     assert halted[0] == short[0]
     _same_simulator(halted[2], short[2])
+
+
+XARM_MIXED = """name: xarm7_mixed
+parts:
+  - kind: urdf
+    name: xarm7
+    file: package://example-robot-data/robots/xarm_description/urdf/xarm7.urdf
+    command_interfaces: {position: [joint1, joint2, joint3, joint4], velocity: [joint5]}
+commands:
+  effort: {profile: sine, amplitude: [0.5, 40.0], frequency_hz: [1.0, 1.5], phase: [0.0, 0.5], offset: [0.0, 0.1]}
+  trajectory:
+    profile: trajectory
+    messages:
+      - {points: [{time_from_start: 0.5, positions: [0.2, -0.1, 0.1, 0.5]}]}
+      - {send_at: 0.355, points: [{time_from_start: 0.3, positions: [0.4, 0.1, -0.1, 0.8], velocities: [0, 0, 0, 0]}]}
+      - {send_at: 0.8, points: [{time_from_start: 0.2, positions: [0.0, 0.0, 0.0, 0.3]},
+                                {time_from_start: 0.6, positions: [0.1, 0.1, 0.1, 0.4]}]}
+sensors:
+  - {kind: force_torque, joint: joint7, frame: link_eef, name: wrist, noise: {force: 0.5}, seed: 3}
+  - {kind: imu, link: link7, name: hand, noise: {linear_acceleration: 0.1}, bias: {angular_velocity: [0.001, 0, 0]},
+     seed: 4}
+simulation: {integrator: rosenbrock2, dt: 1.0e-3}
+"""
+
+
+def _servo_scene(case):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        if case == 'xarm7_trajectory':
+            return load_scene(case)
+        text = XARM_MIXED if case == 'mixed' else XARM_MIXED.replace('    command_interfaces', '    #')
+        if case == 'sensors_only':   # no servo: one effort port, its sine over all seven joints
+            i = text.index('commands:')
+            text = text[:i] + 'commands:\n  effort: {profile: sine, amplitude: [0.5, 0.4, 0.3, 0.3, 0.2, 0.2, 0.1], ' \
+                'frequency_hz: [1.0, 1.5, 2.0, 1.0, 1.5, 2.0, 1.0]}\n' + text[text.index('sensors:'):]
+        return parse_scene(text, file=f'{case}.yaml')
+
+
+@pytest.mark.parametrize('case,pieces', [('xarm7_trajectory', False), ('mixed', False), ('mixed', True),
+                                         ('sensors_only', False)])
+def test_a_servo_and_sensors_take_blocks_with_the_per_period_bytes(tmp_path, monkeypatch, case, pieces):
+    """An arm on position, velocity and effort commands (a joint servo with the model feed-forward, trajectory
+    messages sent at 0, 0.355 and 0.8 s, an effort sine on the rest, one joint's effort clamped) with a
+    force-torque sensor and an IMU, both noisy: its block path computes the servo at every stage and the
+    sensors' messages of each period as outputs() does, so the recording (servo desired and error states,
+    sensor readings, their markers) and the Simulator are those of the per-period path, byte for byte. Blocks
+    end before each period at whose start a message is due (that period runs on the per-period path), and
+    are computed ahead."""
+    scene = _servo_scene(case)
+    duration = 1.5
+    kw = dict(integrator='rosenbrock2', diagnostics_periods=(0.05, 0.13) if pieces else (0.05,))
+    ahead = _Ahead(monkeypatch)
+    count = _Count(monkeypatch)
+    piped = _run(tmp_path, scene, 'piped', duration, **kw)
+    blocked = count.periods
+    monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
+    slow = _run(tmp_path, scene, 'period', duration, **kw)
+    n = int(round(duration * 100))
+    messages = {'xarm7_trajectory': 0, 'mixed': 2, 'sensors_only': 0}[case]   # (periods 36 and 80 send one)
+    # period 0 (and 1, where the recorder first meets the commands' layout) and the messages' on the other path
+    assert n - 2 - messages <= blocked <= n - 1 - messages and piped[2].diag.block_periods == blocked
+    assert ahead.counts()[0] >= 1 and ahead.counts()[1] == 0
+    assert piped[1] == slow[1] == n and piped[3] is None and slow[3] is None
+    assert piped[0] == slow[0]
+    _same_simulator(piped[2], slow[2])
+    from robodyn_ros.recording.reader import summarize
+    topics = summarize(tmp_path / 'piped.mcap')['topics']
+    want = {'/markers'} | ({'/joint_trajectory_desired', '/joint_trajectory_error'} if case != 'sensors_only' else set())
+    assert want <= set(topics) and sum('imu' in t for t in topics) == 1 and sum('wrist' in t for t in topics) == 1
+    if case == 'mixed':   # the clamped joint: its command beyond the URDF's effort limit
+        assert piped[2].ports['effort'].clamped > 0

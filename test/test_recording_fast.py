@@ -83,8 +83,11 @@ def test_the_imu_layout_is_the_cdr_rosbags_writes():
 def test_a_servo_and_sensor_scene_is_recorded_in_batches(tmp_path, monkeypatch):
     """xarm7_trajectory's periods carry a servo's desired and error states, a force-torque sensor and an IMU:
     every period after the first (which registers the channels) goes to the batched layout, not message by
-    message (test_recording_oracle compares the bytes with the oracle's at batch sizes 0, 7 and 1024)."""
+    message (test_recording_oracle compares the bytes with the oracle's at batch sizes 0, 7 and 1024). On the
+    per-period path, as the node and a paced live run record (the block path's periods: test_block_path)."""
+    from robodyn_ros import blocks
     from robodyn_ros.recording import run_sink
+    monkeypatch.setattr(blocks.BlockRunner, 'plan', classmethod(lambda cls, *a, **k: None))
     from robodyn_ros.runs import plan_run, resolve_settings
     held = []
     real = run_sink.McapRunSink._hold

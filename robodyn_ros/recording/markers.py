@@ -70,8 +70,8 @@ class MarkerInputs:
 
     @classmethod
     def of_state(cls, system, y) -> 'MarkerInputs':
-        """From the system's state y (the block path builds no outputs per period; it runs no system with
-        sensors, whose readings need the period's outputs)."""
+        """From the system's state y (the block path builds no outputs per period; a system with sensors gives
+        their frames and readings with the block, ``PeriodBlock.control``)."""
         return cls(contact_points=system.contact_points(y))
 
 

@@ -242,10 +242,15 @@ class _PeriodLayout:
 
     def fill_block(self, rows, blk, i, m):
         """Write periods ``i..i+m`` of a :class:`robodyn_ros.blocks.PeriodBlock` into ``rows`` (m, n_values),
-        as :meth:`fill` does one period (wrenches included: the block computed them; a system whose outputs
-        have further messages declines the block path, so this layout has none)."""
+        as :meth:`fill` does one period (wrenches included: the block computed them; the servo's and sensors'
+        messages from the block's ``control``)."""
         if self.msg_cols:
-            raise RuntimeError('a period layout with sensor or servo messages cannot take a block')
+            if blk.control is None:
+                raise RuntimeError('a period layout with sensor or servo messages needs the block\'s control outputs')
+            for j in range(m):
+                row = rows[j]
+                for (sl, type_name), (_, _, msg) in zip(self.msg_cols, blk.control[i + j][0]):
+                    row[sl] = _message_values(type_name, msg)
         for sl, values in zip(self.cmd_cols, blk.commands.values()):
             rows[:, sl] = values[i:i + m]
         js = self.js_cols
@@ -595,6 +600,10 @@ class McapRunSink:
                 P = many(blk.z[i:i + m, :ny]) if many is not None else None
                 if P is not None:   # the m periods' markers at once: the same bytes
                     data = self.markers.state_messages(t_out[i:i + m], P)
+                elif blk.control is not None:   # the sensors' frames and readings of each period
+                    data = [self.markers.message(int(t_out[i + j]), MarkerInputs(
+                        contact_points=sim.system.contact_points(blk.z[i + j, :ny]), imu_poses=blk.control[i + j][1],
+                        ft_wrenches=blk.control[i + j][2])) for j in range(m)]
                 else:
                     data = [self.markers.message(int(t_out[i + j]), MarkerInputs.of_state(sim.system, blk.z[i + j, :ny]))
                             for j in range(m)]

@@ -520,7 +520,7 @@ class ArmSystem(System):
                 f'step from t={t:.12g} s with h={h:.6g} s; reduce dt or check the model')
         return z, IntegratorStats.of_fused_steps(integrator_name, n_steps)
 
-    def fused_periods(self, integrator_name, dt, z, t_start, t_end, u, program=None, wrenches=False):
+    def fused_periods(self, integrator_name, dt, z, t_start, t_end, u, program=None, wrenches=False, held=None):
         """Run K publication periods in one compiled call (``kernels.arm.run_arm_periods`` through
         ``CompiledModel.run_periods``), or None to decline.
 
@@ -534,15 +534,20 @@ class ArmSystem(System):
         does, for spherical joints (joint_states hold their Bryan angles), for mimic joints (their
         efforts are the coupling's forces, computed per period), for input matrices that are not 0/1
         selections, and where :meth:`outputs` (or what it calls for joint states and wrenches) is
-        not ArmSystem's own, and (for now) with a joint servo or sensors, whose outputs the block recorder
-        does not lay out. Returns ``(k, code, Zs, Us, (position, velocity, effort), Fs, steps,
-        more)``: see ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of each period's
-        end, Fs None without wrenches, steps (K,) per period; more: ``{'odom': (K, 13) position,
-        orientation, linear, angular of a free root (else None), 'contacts': (K, nl, 6) the links'
-        contact wrenches (else None)}``.
+        not ArmSystem's own. A joint servo or sensors need ``held``, the inputs held over the periods
+        (``Simulator.held_inputs``: the servo's setpoint program is fixed; the effort port's entry is each
+        period's command, clamped), and a fixed base without a ground: the compiled loop runs the servo
+        at every stage and gives its state at each period's end, from which :meth:`control_outputs` builds
+        that period's messages as :meth:`outputs` does. Returns ``(k, code, Zs, Us, (position, velocity,
+        effort), Fs, steps, more)``: see ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of
+        each period's end, Fs None without wrenches, steps (K,) per period; more: ``{'odom': (K, 13)
+        position, orientation, linear, angular of a free root (else None), 'contacts': (K, nl, 6) the links'
+        contact wrenches (else None), 'control': (K,) list of each period's ``(messages, imu_poses,
+        ft_wrenches)`` with a servo or sensors (else None)}``.
         """
+        control = self.servo is not None or self.sensors is not None
         if not self._fuses(integrator_name, z) or self.model.has_spherical or not self._B_is_selection \
-                or self.servo is not None or self.sensors is not None \
+                or (control and (held is None or not self._simple or self.contact is not None)) \
                 or self._coupled or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         grid = self._grids.get(dt)
@@ -559,11 +564,21 @@ class ArmSystem(System):
         Cs = np.empty((K, len(c.links) if c is not None else 0, 6))
         lim = self.inputs['effort'].limit
         ulim = np.full(u.shape[0], np.inf) if lim is None else np.asarray(lim, dtype=float)
+        srv = self._srv(held) if self.servo is not None else None
+        SVs = np.empty((K, 0 if srv is None else srv[0].shape[0], 6))
+        t_end = np.ascontiguousarray(t_end, dtype=float)
         k, code, _ = self._km.run_periods(integrator_name, self._B, z, dt, np.ascontiguousarray(t_start, dtype=float),
                                           n_full, h_last, program, u, Zs, Us, TAUs, Fs, wrenches, ulim, Cs,
-                                          np.ascontiguousarray(t_end, dtype=float))
+                                          t_end, srv, SVs)
         steps = n_full + (h_last > 0.0)
-        more = {'odom': None, 'contacts': Cs if c is not None else None}
+        more = {'odom': None, 'contacts': Cs if c is not None else None, 'control': None}
+        if control:   # each period's servo and sensor messages, as outputs() builds them
+            inputs = dict(held)
+            more['control'] = ctl = []
+            for j in range(k):
+                inputs['effort'] = Us[j] if lim is None else np.clip(Us[j], -ulim, ulim)   # as the port applies it
+                ctl.append(self.control_outputs(float(t_end[j]), Zs[j, :self.ny], inputs,
+                                                None if srv is None else SVs[j]))
         if self._simple:
             outs = (Zs[:, :self.nq], Zs[:, self.nq:self.nq + self.nv], TAUs)   # joint_states = (q, v) as they are
         else:   # a free root: its pose and twist go to odom, the 1-DOF joints to joint_states
@@ -607,14 +622,30 @@ class ArmSystem(System):
             q, v = self.split(y)
             st = self._km.servo_state(self._srv(u), t, q, v)[0]
         out = self._state_outputs(t, y, u, wrenches, st)
+        msgs, out.imu_poses, out.ft_wrenches = self.control_outputs(t, y, u, st)
+        out.messages.extend(msgs)
+        return out
+
+    def control_outputs(self, t, y, u, st=None) -> tuple:
+        """``(messages, imu_poses, ft_wrenches)`` of the servo and sensors at time t, state y and inputs u
+        (:func:`.servo.control_messages`; what the markers draw of the sensors, None without them); st: the
+        servo's state there when known. :meth:`outputs` and the block path (:meth:`fused_periods`) both call it."""
         from .servo import control_messages
         msgs = control_messages(self, t, y, u, st)
-        out.messages.extend(msgs)
-        if self.sensors is not None:   # the sensors' messages come last (control_messages)
-            n = len(self.sensors.sensors)
-            out.imu_poses, out.ft_wrenches = self.sensors.world_frames(self._km, self.split(y)[0],
-                                                                        msgs[len(msgs) - n:])
-        return out
+        if self.sensors is None:
+            return msgs, None, None
+        n = len(self.sensors.sensors)   # the sensors' messages come last (control_messages)
+        imu, ft = self.sensors.world_frames(self._km, self.split(y)[0], msgs[len(msgs) - n:])
+        return msgs, imu, ft
+
+    def sensor_accelerations(self, t, y, u, st=None):
+        """The joint accelerations (nv,) the sensors read at time t, state y, inputs u: those of :meth:`rhs`, with
+        the servo's torques taken from its state st (``CompiledModel.servo_state``) when given, and rhs is this
+        class's own (else rhs itself, which evaluates the servo again)."""
+        if st is None or self.contact is not None or self._km is None or not keeps_methods(self, ArmSystem, ('rhs',)):
+            return self.rhs(t, y, u)[self.nq:self.nq + self.nv]
+        q, v = self.split(y)
+        return self._km.aba(q, v, self.generalized_forces(y, u, t, st[:, 4]))
 
     def _state_outputs(self, t, y, u, wrenches, st=None):
         """:meth:`outputs` without the servo's and sensors' messages (st: the servo's state at (t, y), if known)."""

@@ -153,7 +153,7 @@ def control_messages(system, t, y, u, st=None) -> list:
         out.append((ERROR_TOPIC, js, M.joint_state(t_ns, s.names, st[:, 0] - q[s.si[:, 1]], st[:, 1] - v[s.v_index],
                                                    st[:, 4])))
     if system.sensors is not None:
-        qdd = system.rhs(t, y, u)[system.nq:system.nq + system.nv]
+        qdd = system.sensor_accelerations(t, y, u, st)
         fext = None
         if system.contact is not None:
             fext = system.contact.body_forces(km, q, system.contact.point_outputs(km, q, v))
