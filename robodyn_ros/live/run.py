@@ -58,12 +58,13 @@ def check_rate_factor(value) -> float:
 
 
 class _Unowned:
-    """The scene's script without the ports a client has taken over (its compiled programs kept:
-    :class:`LiveRun` stops the block path when a programmed port is taken over)."""
+    """The scene's script without the ports a client has taken over (its compiled programs and its messages' times
+    kept: :class:`LiveRun` stops the block path when a programmed port is taken over)."""
 
     def __init__(self, script, owned: set):
         self.script, self.owned = script, owned
         self.programs = getattr(script, 'programs', None)
+        self.next_send = getattr(script, 'next_send', None)
 
     def __call__(self, t, y):
         return {p: v for p, v in self.script(t, y).items() if p not in self.owned}
