@@ -572,6 +572,8 @@ class ArmSystem(System):
                                           t_end, srv, SVs)
         steps = n_full + (h_last > 0.0)
         more = {'odom': None, 'contacts': Cs if c is not None else None, 'control': None}
+        if srv is not None:   # its joints publish the torque it applies (as _state_outputs sets them, not adds)
+            TAUs[:k, self.servo.v_index] = SVs[:k, :, 4]
         if control:   # each period's servo and sensor messages, as outputs() builds them
             inputs = dict(held)
             more['control'] = ctl = []
