@@ -628,11 +628,30 @@ simulation: {integrator: rosenbrock2, dt: 1.0e-3}
 """
 
 
+def _a1_text(servo: bool) -> str:
+    """a1_stand with an IMU on the trunk and a force-torque sensor in a calf (on a floating base on the ground);
+    servo: its joints position-commanded, a trajectory message holding the posture at 0.25 s, instead of pd_hold."""
+    text = find_scene('a1_stand').read_text()
+    i, j = text.index('\ncommands:'), text.index('\ninitial_state:')
+    sensors = ('\nsensors:\n  - {kind: imu, link: trunk, name: body, noise: {angular_velocity: 0.01}, seed: 2}\n'
+               '  - {kind: force_torque, joint: FR_calf_joint, frame: FR_calf, name: fr_knee}')
+    if not servo:
+        return text[:j] + sensors + text[j:]
+    text = text.replace('    floating: true\n', '    floating: true\n    command_interfaces: position\n')
+    i, j = text.index('\ncommands:'), text.index('\ninitial_state:')
+    posture = '[0.0, 0.8, -1.5, 0.0, 0.8, -1.5, 0.0, 0.8, -1.5, 0.0, 0.8, -1.5]'
+    commands = ('\ncommands:\n  trajectory:\n    profile: trajectory\n    send_at: 0.25\n'
+                f'    points: [{{time_from_start: 0.2, positions: {posture}}}]')
+    return text[:i] + commands + sensors + text[j:]
+
+
 def _servo_scene(case):
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         if case == 'xarm7_trajectory':
             return load_scene(case)
+        if case in ('a1_sensors', 'a1_servo'):
+            return parse_scene(_a1_text(case == 'a1_servo'), file=f'{case}.yaml')
         text = XARM_MIXED if case == 'mixed' else XARM_MIXED.replace('    command_interfaces', '    #')
         if case == 'sensors_only':   # no servo: one effort port, its sine over all seven joints
             i = text.index('commands:')
@@ -642,7 +661,7 @@ def _servo_scene(case):
 
 
 @pytest.mark.parametrize('case,pieces', [('xarm7_trajectory', False), ('mixed', False), ('mixed', True),
-                                         ('sensors_only', False)])
+                                         ('sensors_only', False), ('a1_sensors', False), ('a1_servo', False)])
 def test_a_servo_and_sensors_take_blocks_with_the_per_period_bytes(tmp_path, monkeypatch, case, pieces):
     """An arm on position, velocity and effort commands (a joint servo with the model feed-forward, trajectory
     messages sent at 0, 0.355 and 0.8 s, an effort sine on the rest, one joint's effort clamped) with a
@@ -652,16 +671,19 @@ def test_a_servo_and_sensors_take_blocks_with_the_per_period_bytes(tmp_path, mon
     end before each period at whose start a message is due (that period runs on the per-period path), and
     are computed ahead."""
     scene = _servo_scene(case)
-    duration = 1.5
-    kw = dict(integrator='rosenbrock2', diagnostics_periods=(0.05, 0.13) if pieces else (0.05,))
+    a1 = case.startswith('a1')   # a floating base on a ground, 200 Hz
+    duration = 1.0 if a1 else 1.5
+    kw = dict(integrator='rosenbrock2', diagnostics_periods=(0.05, 0.13) if pieces else (0.05,),
+              rate=200.0 if a1 else 100.0)
     ahead = _Ahead(monkeypatch)
     count = _Count(monkeypatch)
     piped = _run(tmp_path, scene, 'piped', duration, **kw)
     blocked = count.periods
     monkeypatch.setattr(B.BlockRunner, 'plan', classmethod(lambda cls, *a: None))
     slow = _run(tmp_path, scene, 'period', duration, **kw)
-    n = int(round(duration * 100))
-    messages = {'xarm7_trajectory': 0, 'mixed': 2, 'sensors_only': 0}[case]   # (periods 36 and 80 send one)
+    n = int(round(duration * kw['rate']))
+    # the periods that send a message: mixed 36 and 80, a1_servo 50
+    messages = {'xarm7_trajectory': 0, 'mixed': 2, 'sensors_only': 0, 'a1_sensors': 0, 'a1_servo': 1}[case]
     # period 0 (and 1, where the recorder first meets the commands' layout) and the messages' on the other path
     assert n - 2 - messages <= blocked <= n - 1 - messages and piped[2].diag.block_periods == blocked
     assert ahead.counts()[0] >= 1 and ahead.counts()[1] == 0
@@ -670,7 +692,11 @@ def test_a_servo_and_sensors_take_blocks_with_the_per_period_bytes(tmp_path, mon
     _same_simulator(piped[2], slow[2])
     from robodyn_ros.recording.reader import summarize
     topics = summarize(tmp_path / 'piped.mcap')['topics']
-    want = {'/markers'} | ({'/joint_trajectory_desired', '/joint_trajectory_error'} if case != 'sensors_only' else set())
-    assert want <= set(topics) and sum('imu' in t for t in topics) == 1 and sum('wrist' in t for t in topics) == 1
+    servo = case not in ('sensors_only', 'a1_sensors')
+    want = {'/markers'} | ({'/joint_trajectory_desired', '/joint_trajectory_error'} if servo else set())
+    want |= {'/imu/body', '/ft/fr_knee'} if a1 else {'/imu/hand', '/ft/wrist'}
+    assert want <= set(topics), sorted(topics)
+    if a1:   # standing on its feet: contacts in the recording and touching at the end
+        assert sum('contact' in t for t in topics) >= 4 and piped[2].diagnostics_values()['contact_active'] >= 3
     if case == 'mixed':   # the clamped joint: its command beyond the URDF's effort limit
         assert piped[2].ports['effort'].clamped > 0

@@ -597,10 +597,10 @@ class McapRunSink:
             if self.markers is not None:   # drawn from each period's state (the block has no outputs)
                 ny = sim.system.ny
                 many = getattr(sim.system, 'contact_point_outputs', None)
-                P = many(blk.z[i:i + m, :ny]) if many is not None else None
+                P = many(blk.z[i:i + m, :ny]) if many is not None and blk.control is None else None
                 if P is not None:   # the m periods' markers at once: the same bytes
                     data = self.markers.state_messages(t_out[i:i + m], P)
-                elif blk.control is not None:   # the sensors' frames and readings of each period
+                elif blk.control is not None:   # the sensors' frames and readings of each period (and contacts)
                     data = [self.markers.message(int(t_out[i + j]), MarkerInputs(
                         contact_points=sim.system.contact_points(blk.z[i + j, :ny]), imu_poses=blk.control[i + j][1],
                         ft_wrenches=blk.control[i + j][2])) for j in range(m)]

@@ -536,9 +536,9 @@ class ArmSystem(System):
         selections, and where :meth:`outputs` (or what it calls for joint states and wrenches) is
         not ArmSystem's own. A joint servo or sensors need ``held``, the inputs held over the periods
         (``Simulator.held_inputs``: the servo's setpoint program is fixed; the effort port's entry is each
-        period's command, clamped), and a fixed base without a ground: the compiled loop runs the servo
-        at every stage and gives its state at each period's end, from which :meth:`control_outputs` builds
-        that period's messages as :meth:`outputs` does. Returns ``(k, code, Zs, Us, (position, velocity,
+        period's command, clamped): the compiled loop runs the servo at every stage and gives its state
+        at each period's end, from which :meth:`control_outputs` builds that period's messages as
+        :meth:`outputs` does (on a ground too: the sensors then read the contacts' forces). Returns ``(k, code, Zs, Us, (position, velocity,
         effort), Fs, steps, more)``: see ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of
         each period's end, Fs None without wrenches, steps (K,) per period; more: ``{'odom': (K, 13)
         position, orientation, linear, angular of a free root (else None), 'contacts': (K, nl, 6) the links'
@@ -547,7 +547,7 @@ class ArmSystem(System):
         """
         control = self.servo is not None or self.sensors is not None
         if not self._fuses(integrator_name, z) or self.model.has_spherical or not self._B_is_selection \
-                or (control and (held is None or not self._simple or self.contact is not None)) \
+                or (control and held is None) \
                 or self._coupled or not keeps_methods(self, ArmSystem, _PERIOD_METHODS_OF):
             return None
         grid = self._grids.get(dt)
