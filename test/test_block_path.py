@@ -632,10 +632,10 @@ def _a1_text(servo: bool) -> str:
     """a1_stand with an IMU on the trunk and a force-torque sensor in a calf (on a floating base on the ground);
     servo: its joints position-commanded, a trajectory message holding the posture at 0.25 s, instead of pd_hold."""
     text = find_scene('a1_stand').read_text()
-    i, j = text.index('\ncommands:'), text.index('\ninitial_state:')
     sensors = ('\nsensors:\n  - {kind: imu, link: trunk, name: body, noise: {angular_velocity: 0.01}, seed: 2}\n'
                '  - {kind: force_torque, joint: FR_calf_joint, frame: FR_calf, name: fr_knee}')
     if not servo:
+        j = text.index('\ninitial_state:')
         return text[:j] + sensors + text[j:]
     text = text.replace('    floating: true\n', '    floating: true\n    command_interfaces: position\n')
     i, j = text.index('\ncommands:'), text.index('\ninitial_state:')
@@ -667,9 +667,10 @@ def test_a_servo_and_sensors_take_blocks_with_the_per_period_bytes(tmp_path, mon
     messages sent at 0, 0.355 and 0.8 s, an effort sine on the rest, one joint's effort clamped) with a
     force-torque sensor and an IMU, both noisy: its block path computes the servo at every stage and the
     sensors' messages of each period as outputs() does, so the recording (servo desired and error states,
-    sensor readings, their markers) and the Simulator are those of the per-period path, byte for byte. Blocks
-    end before each period at whose start a message is due (that period runs on the per-period path), and
-    are computed ahead."""
+    sensor readings, their markers) and the Simulator are those of the per-period path, byte for byte; so are the
+    A1's on its ground (a floating base; its sensors read the contacts' forces), on pd_hold or position-commanded.
+    Blocks end before each period at whose start a message is due (that period runs on the per-period path),
+    and are computed ahead."""
     scene = _servo_scene(case)
     a1 = case.startswith('a1')   # a floating base on a ground, 200 Hz
     duration = 1.0 if a1 else 1.5
