@@ -26,6 +26,12 @@ class CommandError(ValueError):
     """A command that was refused; the message says what was expected. The state is unchanged."""
 
 
+
+def clamp_to_limit(value: np.ndarray, limit) -> np.ndarray:
+    """What the actuators apply of command value under effort limits (None: value itself): the one clamp of
+    the per-period path (:meth:`CommandPort.clamped_to_limit`) and of the block path's sensor inputs."""
+    return value if limit is None else np.clip(value, -limit, limit)
+
 @dataclass
 class CommandPort:
     """Zero-order-hold storage of one input port.
@@ -52,7 +58,7 @@ class CommandPort:
     def clamped_to_limit(self, value: np.ndarray) -> np.ndarray:
         """What the actuators apply of command value: clamped to the port's effort limits (value itself
         without limits)."""
-        return value if self.limit is None else np.clip(value, -self.limit, self.limit)
+        return clamp_to_limit(value, self.limit)
 
 
 class CommandPorts:

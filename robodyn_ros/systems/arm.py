@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
+from ..commands import clamp_to_limit
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, StepBudgetError, make_integrator
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL, Model, bryan_angles, limit_table
@@ -578,7 +579,7 @@ class ArmSystem(System):
             inputs = dict(held)
             more['control'] = ctl = []
             for j in range(k):
-                inputs['effort'] = Us[j] if lim is None else np.clip(Us[j], -ulim, ulim)   # as the port applies it
+                inputs['effort'] = clamp_to_limit(Us[j], None if lim is None else ulim)   # as the port applies it
                 ctl.append(self.control_outputs(float(t_end[j]), Zs[j, :self.ny], inputs,
                                                 None if srv is None else SVs[j]))
         if self._simple:
