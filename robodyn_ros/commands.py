@@ -19,18 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .systems.base import clamp_to_limit
+
 __all__ = ['CommandError', 'CommandPort', 'CommandPorts']
 
 
 class CommandError(ValueError):
     """A command that was refused; the message says what was expected. The state is unchanged."""
 
-
-
-def clamp_to_limit(value: np.ndarray, limit) -> np.ndarray:
-    """What the actuators apply of command value under effort limits (None: value itself): the one clamp of
-    the per-period path (:meth:`CommandPort.clamped_to_limit`) and of the block path's sensor inputs."""
-    return value if limit is None else np.clip(value, -limit, limit)
 
 @dataclass
 class CommandPort:

@@ -28,12 +28,11 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
-from ..commands import clamp_to_limit
 from .. import kernels
 from ..integrators import IntegrationError, IntegratorStats, StepBudgetError, make_integrator
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL, Model, bryan_angles, limit_table
 from .base import (BACKENDS, InputPort, LazyValues, LazyWrenches, System, SystemOutputs,  # noqa: F401
-                   default_backend, effort_actuation, keeps_methods)
+                   clamp_to_limit, default_backend, effort_actuation, keeps_methods)
 
 
 #: recorded states after which joint wrenches are batched in one compiled call (kernels.outputs)

@@ -158,6 +158,13 @@ def compiled_fused_advance(cs, grids: dict, integrator_name, dt, t0, z0, t1, u_v
     return z, IntegratorStats.of_fused_steps(integrator_name, n_steps)
 
 
+def clamp_to_limit(value: np.ndarray, limit) -> np.ndarray:
+    """What the actuators apply of command value under effort limits (None: value itself): the one clamp of
+    the per-period path (:meth:`robodyn_ros.commands.CommandPort.clamped_to_limit`) and of the block path's
+    sensor inputs (``ArmSystem.fused_periods``)."""
+    return value if limit is None else np.clip(value, -limit, limit)
+
+
 @dataclass(frozen=True)
 class InputPort:
     """A named command input: its size, the names of its elements and their unit.
