@@ -27,7 +27,7 @@ from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix,
 from .servo import SW_SAT, servo_forces_add, servo_jacobian_add, servo_side, servo_state, servo_time_rate
 from ..integrators import GROW_MAX, H_MIN, SAFETY, SHRINK_MAX   # the controller's constants (in the fingerprint)
 from ..model import SPHERICAL
-from .tree import (_JIT, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
+from .tree import (_JIT, _LEAF, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
                    rnea_ws, tangent_rate_into, tangent_velocity_into, transforms, workspace,
                    world_kinematics_ws)
@@ -37,7 +37,7 @@ from .treefn import bm_at, fd_at
 # ----------------------------------------------------------------------------------------------
 # fused fixed-step integration of an arm with its work quadrature
 # ----------------------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_LEAF)
 def arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv):
     """``tauv = B u − D v − F tanh(v / v_s) + τ_lim`` at ``z = [q, v, W(, W_lim)]``; returns the power
     ``vᵀ tauv``. F: Coulomb joint friction (``passive.add_coulomb_friction``; zeros = none).
@@ -69,7 +69,7 @@ def arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv):
     return P
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W, cpl, cs, con, fx, t, srv, dyn):
     """``dz/dt`` for ``z = [q, v, W]``: ``[q̇; ABA(q, v, τ); vᵀ τ]`` with ``τ = B u − D v − F tanh(v/v_s) +
     τ_lim``;
@@ -340,7 +340,7 @@ def arm_controlled_steps(mi, mf, damping, friction, v_s, lim, tau_app, nq, z, dt
     return -1
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def passive_jacobian(damping, friction, v_s, lim, q, v, qs, use_qs, Dm, Km):
     """The passive Jacobian of a tree at (q, v) added to Dm, Km: ``Dm += −∂τ_p/∂v``, ``Km += −∂τ_p/∂q``
     (nv, nv, tangent coordinates; the caller starts them at zero, or K at the gravity stiffness), as the
@@ -365,7 +365,7 @@ LIMIT_EXPLICIT = 0.05
 LIMIT_CONTACT = 1e-6
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _first_root(x0, x1, x2):
     """The smallest t > 0 with ``x0 + x1 t + x2 t² = 0`` (x0 < 0: inside), or inf."""
     if x2 == 0.0:
@@ -384,7 +384,7 @@ def _first_root(x0, x1, x2):
     return best
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _entry_step(x0, xd, xs, h, k, m):
     """Sub-step of a step h that meets a stop (stiffness k, inertia m) whose signed penetration is
     x0 <= 0 at its start, xd its rate, xs > 0 at the stage point ``h kq1`` (= ``h xd + γh² xa``): h when
@@ -410,7 +410,7 @@ def _entry_step(x0, xd, xs, h, k, m):
     return min(_first_root(x0, xd, GAMMA * xa), h)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def limit_event(lim, q, v, h, qs, H):
     """The step to take when the stage point qs (nq,) of a step h from (q, v) is beyond a stop the branch
     at q left out of J: h (no such stop, or every one explicit over h: :data:`LIMIT_EXPLICIT`), 0 (at
@@ -434,7 +434,7 @@ def limit_event(lim, q, v, h, qs, H):
     return step
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _stop_entry(th, thd, ths, lo, hi, h, k, m):
     """One component's entry step (:func:`limit_event`, :func:`_entry_step`) at angle th, rate thd, stage value
     ths, limits lo, hi, stiffness k and inertia m; inf when it is beyond a limit already (its branch is in J)
@@ -469,7 +469,7 @@ def _spherical_limit_event(lim, r, q, v, h, qs, H):
     return step
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W):
     """The bias/mass pass (:func:`.treefn.generic_bm`) on a ground (con: :func:`arm_rhs`): ``bias = C + g − τ_c`` with the contacts'
     generalised force ``τ_c = Σ J_iᵀ F_i`` (their body forces fx (nb, 6), :func:`.contact.ground_fext_ws`,
@@ -493,7 +493,7 @@ def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W):
     return Pc, touching
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def contact_stage_jacobian(mi, mf, con, touching, Dc, K2, cj, W):
     """Touch-down within a step: when more points touch at the stage point Y (whose poses and velocities
     W holds: :func:`arm_rhs` at Y) than the ``touching`` at zₙ -- a point's friction slope ``μ f_n / v_s``
@@ -515,7 +515,7 @@ def contact_stage_jacobian(mi, mf, con, touching, Dc, K2, cj, W):
     return contact_jacobian_add(con, mi, mf, W, Dc, K2, cj[0], cj[1])
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs, W, mat, cpl, red, touching, srv,
                         sat):
     """The iteration matrix ``A = M + γh D + γ²h² K`` (R5) of :func:`arm_rosenbrock_step` and its Cholesky
@@ -559,7 +559,7 @@ def arm_implicit_matrix(mi, mf, damping, friction, v_s, lim, q, v, h, qs, use_qs
     return gamma if factor_stage_matrix(H, Dm, Km, gamma * h, A, L, cpl, red) else 0.0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def factor_stage_matrix(H, Dm, Km, gh, A, L, cpl, red):
     """Factor the iteration matrix (:func:`robodyn_ros.kernels.rosenbrock.factor_iteration_matrix`); for a
     tree with mimic joints (cpl, :mod:`.coupled`) its reduction to the independent joints,
@@ -577,7 +577,7 @@ def factor_stage_matrix(H, Dm, Km, gh, A, L, cpl, red):
     return cholesky(Ar, Ar.shape[0], Lr)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def solve_stage(L, Km, gh, force, bq, kv, tmp, cpl, red):
     """kv (nv,) of one stage (R6): :func:`robodyn_ros.kernels.rosenbrock.stage_velocity`; with mimic joints
     in the independent ones, ``A_r kv_r = Gᵀ (force − γh K bq)``, ``kv = G kv_r``."""
@@ -613,7 +613,7 @@ def rosenbrock_work(nv: int, nr: int):
             np.zeros(CTL_SIZE))
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def tangent_rate(mi, simple, q, v, out):
     """:func:`~robodyn_ros.kernels.tree.tangent_rate_into`, or ``out = v`` when ``simple`` (1-DOF joints only)."""
     if simple:
@@ -623,7 +623,7 @@ def tangent_rate(mi, simple, q, v, out):
         tangent_rate_into(mi, q, v, out)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def stiffness_rate(mi, simple, con, q, bq, out):
     """The stage rate bq (tangent coordinates) in the coordinates K acts on: bq itself, but on a ground
     (con) of a tree with a free root ``Φ bq`` (:func:`~robodyn_ros.kernels.tree.tangent_velocity_into`):
@@ -637,7 +637,7 @@ def stiffness_rate(mi, simple, con, q, bq, out):
     return out
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def retract(mi, simple, q, dq, h, out):
     """:func:`~robodyn_ros.kernels.tree.retract_into`, or ``out = q + h dq`` when ``simple`` (1-DOF joints only)."""
     if simple:
@@ -647,7 +647,7 @@ def retract(mi, simple, q, dq, h, out):
         retract_into(mi, q, dq, h, out)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, h, split, W, dz, Y, k1, tauv, vec,
                         mat, cpl, cs, red, con, fx, cj, t, srv, dyn):
     """One linearly implicit step (:mod:`robodyn_ros.kernels.rosenbrock`, (R1)-(R6)) of an arm,

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..model import FREE, PRISMATIC, REVOLUTE, SPHERICAL
 from .jit import njit
-from .tree import _JIT, AX, AXK, E0_, E_, JTYPE, PARENT, R0_, R_, V_, VIDX, transforms, workspace, world_kinematics_ws
+from .tree import _JIT, _LEAF, AX, AXK, E0_, E_, JTYPE, PARENT, R0_, R_, V_, VIDX, transforms, workspace, world_kinematics_ws
 
 #: columns of gp
 GN, GH, GK, GD, GMU, GVS, NG = 0, 3, 4, 5, 6, 7, 8
@@ -66,7 +66,7 @@ GN, GH, GK, GD, GMU, GVS, NG = 0, 3, 4, 5, 6, 7, 8
 PX, PF, PDEPTH, PSLIP, PPOWER, PACTIVE, NP = 0, 3, 6, 7, 8, 9, 10
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def point_depth(gp, cf, c, b, W):
     """``(x0, x1, x2, δ)``: the contact point x_c of point c (a row of cf) of body b (world coordinates)
     and its penetration (C1), from the body poses in W (``W[b, R0_]``, ``W[b, E0_]``)."""
@@ -84,7 +84,7 @@ def point_depth(gp, cf, c, b, W):
     return x0, x1, x2, gp[GH] - (n0 * x0 + n1 * x1 + n2 * x2)          # (C1)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def touching_points(con, W):
     """How many points penetrate the plane (δ > 0) at the configuration whose body poses are in W
     (``W[:, R0_]``, ``W[:, E0_]``: :func:`~robodyn_ros.kernels.tree.world_kinematics_ws` done): the
@@ -101,7 +101,7 @@ def touching_points(con, W):
     return n
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def point_force(gp, cf, c, b, W):
     """Force of the ground on point c (a row of cf) of body b, from W (transforms and
     :func:`~robodyn_ros.kernels.tree.world_kinematics_ws` done).
@@ -133,7 +133,7 @@ def point_force(gp, cf, c, b, W):
     return True, x0, x1, x2, F0, F1, F2, depth, slip, F0 * u0 + F1 * u1 + F2 * u2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _group_clear(gp, cg, cgf, g, W):
     """True when group g's bounding sphere is wholly above the plane (none of its points can touch)."""
     b = cg[g, 0]
@@ -144,7 +144,7 @@ def _group_clear(gp, cg, cgf, g, W):
     return gp[GN] * x0 + gp[GN + 1] * x1 + gp[GN + 2] * x2 - gp[GH] > cgf[g, 3]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def ground_fext_ws(con, W, fext):
     """External body forces of the ground into fext (nb, 6), ``[n; f]`` in body coordinates about the
     body origin (as :func:`~robodyn_ros.kernels.tree.aba_ws` takes them; rows of bodies without a
@@ -178,7 +178,7 @@ def ground_fext_ws(con, W, fext):
     return P
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def contact_points_ws(con, W, out):
     """Every point's outputs into out (nc, NP) (columns ``PX, PF, PDEPTH, PSLIP, PPOWER, PACTIVE``):
     the contact point and the force on the body (world), the penetration (signed: < 0 above the
@@ -226,7 +226,7 @@ def ground_fext(con, mi, mf, q, v):
     return fext, P
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def point_jacobian(mi, mf, W, b, x0, x1, x2, J, cols):
     """World velocity Jacobian (3, nv) of the point x of body b into J (its nonzero columns only: the
     velocity coordinates of b's joint and its ancestors, listed in cols; returns their count). W:
@@ -337,7 +337,7 @@ def contact_jacobian_add(con, mi, mf, W, Dm, Km, J, cols):
     return touching
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def body_point(b, W, x0, x1, x2):
     """The world point x in body b's coordinates, s = E0 (x − r0) (3 floats)."""
     d0, d1, d2 = x0 - W[b, R0_], x1 - W[b, R0_ + 1], x2 - W[b, R0_ + 2]
@@ -346,7 +346,7 @@ def body_point(b, W, x0, x1, x2):
             W[b, E0_ + 6] * d0 + W[b, E0_ + 7] * d1 + W[b, E0_ + 8] * d2)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def point_velocity(b, W, x0, x1, x2):
     """The velocity (world, 3 floats) of the material point of body b at world position x: the point in
     body coordinates, s = E0 (x − r0), its velocity v_O + ω × s (body), then world axes."""
@@ -361,7 +361,7 @@ def point_velocity(b, W, x0, x1, x2):
     return u0, u1, u2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _slip(gp, cf, c, b, W, x0, x1, x2):
     """The tangential velocity u_t (world, 3 floats) of point c of body b at its contact point x."""
     n0, n1, n2 = gp[GN], gp[GN + 1], gp[GN + 2]
@@ -451,7 +451,7 @@ def point_body_forces(mi, mf, q, P, body_of, fext):
         fext[b, 5] += f2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _poses_ws(mi, W):
     """Root-to-body transforms ``W[:, E0_]``, ``W[:, R0_]`` from the Xup in W (the pose half of
     :func:`~robodyn_ros.kernels.tree.world_kinematics_ws`)."""

@@ -27,7 +27,7 @@ import math
 import numpy as np
 from .jit import njit
 
-from .tree import _JIT
+from .tree import _JIT, _LEAF
 
 
 OK, SINGULAR = 0, 1
@@ -39,7 +39,7 @@ NINFO = 4
 # ----------------------------------------------------------------------------------------------
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def flag(b):
     """``b`` as a plain (non-constant) bool. numba compiles a jitted callee once per *constant*
     argument it is called with; passing flags through this keeps a single compiled version of the
@@ -47,7 +47,7 @@ def flag(b):
     return b != 0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def cholesky(A, nd, L):
     """Lower Cholesky factor of the symmetric positive definite A (n, n) into L; False if not PD.
 
@@ -78,7 +78,7 @@ def cholesky(A, nd, L):
     return True
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def chol_solve(L, nd, b, x):
     """Solve ``L Lᵀ x = b`` (L from :func:`cholesky` with the same nd)."""
     n = L.shape[0]
@@ -249,7 +249,7 @@ def singular_values_2(B, sv):
     sv[1] = min(s0, s1)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def chol_solve_cols(L, nd, X):
     """Solve ``L Lᵀ Y = X`` in place for every column of X (n, m): the operations of
     :func:`chol_solve` column by column, in the same order, with the columns updated together
@@ -458,7 +458,7 @@ def project_velocities(M, nd, K, v, g, rcond):
     return OK
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def quat_to_R(q0, q1, q2, q3, R):
     """:func:`robodyn_ros.spatial.quat_to_R` of ``(x, y, z, w)`` into R (3, 3)."""
     x, y, z, w = q0, q1, q2, q3
@@ -473,7 +473,7 @@ def quat_to_R(q0, q1, q2, q3, R):
     R[2, 2] = 1 - 2 * (x * x + y * y)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def cross(a, b, out):
     """``out = a × b`` (3-vectors; out must not alias a or b)."""
     out[0] = a[1] * b[2] - a[2] * b[1]

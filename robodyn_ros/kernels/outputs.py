@@ -13,7 +13,7 @@ from .jit import njit
 from . import tree
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', _nrt=True)
 def _joint_wrenches_many(mi, mf, Q, V, TAU, fext, has_fext):
     # has_fext is an argument (a plain bool), not the constant False: numba then calls the
     # joint_wrenches it already compiled (and cached) for CompiledModel.joint_wrenches instead of

@@ -13,7 +13,7 @@ import math
 from .jit import njit
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', _nrt=False)
 def add_coulomb_friction(friction, v_s, v, tau):
     """``tau[k] -= friction[k] tanh(v[k] / v_s)`` for every joint k (in place; all arrays (nv,))."""
     for k in range(v.shape[0]):
@@ -21,7 +21,7 @@ def add_coulomb_friction(friction, v_s, v, tau):
             tau[k] -= friction[k] * math.tanh(v[k] / v_s)
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', _nrt=False)
 def friction_jacobian_add(friction, v_s, v, Dm):
     """``Dm[k, k] += f_k sech²(v_k / v_s) / v_s``: minus the derivative of :func:`add_coulomb_friction`'s
     torque with respect to v_k, the friction's share of the passive damping of the linearly implicit

@@ -17,7 +17,7 @@ import numpy as np
 
 from .jit import njit   # numba's, or without numba the functions as they are (plain Python)
 
-_JIT = dict(cache=True, nogil=True)
+_JIT = dict(cache=True, nogil=True, _nrt=True)
 
 
 @njit(**_JIT)

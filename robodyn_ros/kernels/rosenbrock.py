@@ -82,7 +82,7 @@ import math
 from .jit import njit
 
 from .linalg import chol_solve, cholesky
-from .tree import _JIT
+from .tree import _JIT, _LEAF
 
 #: γ of (R1)-(R3): the root of 2γ² − 4γ + 1 = 0 (L-stable) with the smaller error constant (see above)
 GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
@@ -93,7 +93,7 @@ GAMMA_STOP = 1.0 + 1.0 / math.sqrt(2.0)
 B1, B2, C21 = 1.5, 0.5, -2.0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def factor_iteration_matrix(H, Dm, Km, gh, A, L):
     """``A = H + γh Dm + (γh)² Km`` (R5) and its Cholesky factor into L; False if not positive definite.
 
@@ -107,7 +107,7 @@ def factor_iteration_matrix(H, Dm, Km, gh, A, L):
     return cholesky(A, nv, L)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def stage_rhs(Km, gh, force, bq, tmp):
     """tmp (nv,) = ``force − γh Km bq``, the right-hand side of (R6) in the full coordinates."""
     nv = tmp.shape[0]
@@ -118,7 +118,7 @@ def stage_rhs(Km, gh, force, bq, tmp):
         tmp[i] = force[i] - gh * s
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def stage_velocity(L, Km, gh, force, bq, kv, tmp):
     """kv (nv,) of (R6): ``A kv = force − γh Km bq`` with A = L Lᵀ; force = M bv (nv,), bq (nv,) the
     stage's tangent rate; tmp (nv,) scratch."""
@@ -126,7 +126,7 @@ def stage_velocity(L, Km, gh, force, bq, kv, tmp):
     chol_solve(L, kv.shape[0], tmp, kv)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def mat_vec(H, x, out):
     """``out = H x`` for a dense H (n, n)."""
     n = H.shape[0]

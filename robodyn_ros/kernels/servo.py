@@ -65,7 +65,7 @@ import numpy as np
 
 from .jit import njit
 from .passive import add_coulomb_friction
-from .tree import _JIT
+from .tree import _JIT, _LEAF
 from .treefn import id_at
 
 #: columns of si
@@ -91,7 +91,7 @@ C_T0 = 0
 NC = 7
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def segment_at(T, t):
     """Index of the program segment in force at time t: the last k with ``T[k] <= t`` (0 before T[0])."""
     lo = 0
@@ -107,7 +107,7 @@ def segment_at(T, t):
     return lo
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def setpoint_eval(C, k, col, t, out, j):
     """``out[SW_QS, j], out[SW_QDS, j], out[SW_QDDS, j] = q*(t), q̇*(t), q̈*(t)`` of column col of
     segment k of a program C (module docstring), by Horner's rule in ``τ = t − t₀``."""
@@ -119,7 +119,7 @@ def setpoint_eval(C, k, col, t, out, j):
     out[SW_QDDS, j] = 2.0 * c2 + tau * (6.0 * c3 + tau * (12.0 * c4 + tau * 20.0 * c5))
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def servo_side(srv, side):
     """Say which side of the step grid the next stages are on (``OPT_SIDE``: +1 a step's start, −1 its end,
     0 within); nothing without a servo (srv None)."""
@@ -127,7 +127,7 @@ def servo_side(srv, side):
         srv[6][OPT_SIDE] = side
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def servo_desired(srv, t, q):
     """The desired values of every servo joint at time t into ``sw[SW_QS:SW_QDDS + 1]`` (a velocity
     joint: ``q* = q`` (no position term), ``q̇*`` its setpoint, ``q̈* = 0``); returns the program's segment
@@ -146,7 +146,7 @@ def servo_desired(srv, t, q):
     return k
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W, dyn):
     """The feed-forward torques of (S1) into ``sw[SW_FF]`` (nv,): RNEA at the desired motion (the servo
     joints at ``sw[SW_QS:SW_QDDS + 1]``, the others at their own q, v and zero acceleration: the ``id`` at
@@ -177,7 +177,7 @@ def servo_feedforward(mi, mf, damping, friction, v_s, srv, q, v, W, dyn):
         ff[a] = (ff[a] + (damping[a] * vd[a] - pp[a])) + 0.0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W, dyn):
     """``tauv += τ`` of (S1) at time t (s) and state (q (nq,), v (nv,)); returns the servo's power
     ``Σ q̇_j τ_j`` (W). Leaves in sw the desired values, the applied torques ``SW_U``, the saturation
@@ -212,7 +212,7 @@ def servo_forces_add(mi, mf, damping, friction, v_s, srv, t, q, v, tauv, W, dyn)
     return P
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def servo_jacobian_add(srv, sat, Dm, Km):
     """The servo's share of the implicit step's passive Jacobian (module docstring): ``Dm[v, v] += kd``
     and, for a position joint, ``Km[v, v] += kp`` on every joint whose flag in sat (ns,) is 0 (not
@@ -227,7 +227,7 @@ def servo_jacobian_add(srv, sat, Dm, Km):
             Km[vi, vi] += sf[j, SF_KP]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def servo_time_rate(srv, Ft):
     """``Ft (nv,) = ∂τ/∂t`` of the servo's stiff part at its last evaluation: ``kp q̇* + kd q̈*`` on the
     unsaturated position joints, 0 elsewhere (the time term of the linearly implicit step)."""

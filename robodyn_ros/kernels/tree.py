@@ -61,7 +61,14 @@ T_, TMP_, L_, S1_, S2_, S3_, S4_, FC_ = 0, 36, 45, 81, 87, 93, 99, 105
 U3_, DI3_ = 141, 159
 NW = 168
 
-_JIT = dict(cache=True, nogil=True, error_model='numpy')
+_JIT = dict(cache=True, nogil=True, error_model='numpy', _nrt=True)
+#: options of a kernel that allocates no array: without numba's reference counting (``_nrt=False``), so
+#: a call does not count a reference to each array argument up and down again (about 3 ns per array
+#: argument per call; docs/speed.md). A kernel that does not say ``_nrt`` takes its caller's setting, so
+#: :data:`_JIT` says True: an allocating kernel called from one of these counts its own arrays. numba refuses
+#: to compile such a kernel if it allocates. One returning an array (a view of an argument) must only be
+#: called from kernels with these options (its callers count no reference either).
+_LEAF = dict(_JIT, _nrt=False)
 
 
 @njit(**_JIT)
@@ -73,7 +80,7 @@ def workspace(nb):
 # ----------------------------------------------------------------------------------------------
 # spatial arithmetic on (E, r) transforms and 6-vectors stored in W
 # ----------------------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_LEAF)
 def xmot(W, i, sr, sc, dr, dc):
     """``W[dr, dc:dc+6] = X_i W[sr, sc:sc+6]`` (motion): ``[E w; E (u - r × w)]``; may alias."""
     w0, w1, w2 = W[sr, sc], W[sr, sc + 1], W[sr, sc + 2]
@@ -87,7 +94,7 @@ def xmot(W, i, sr, sc, dr, dc):
         W[dr, dc + 3 + a] = e0 * u0 + e1 * u1 + e2 * u2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def xforce_T_add(W, i, sr, sc, dr, dc):
     """``W[dr, dc:dc+6] += X_iᵀ W[sr, sc:sc+6]`` (force, child -> parent): ``[Eᵀ n + r × Eᵀ f; Eᵀ f]``."""
     n0, n1, n2 = W[sr, sc], W[sr, sc + 1], W[sr, sc + 2]
@@ -104,7 +111,7 @@ def xforce_T_add(W, i, sr, sc, dr, dc):
     W[dr, dc + 5] += g2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def etxe(e, x):
     """``Eᵀ X E`` for 3x3 matrices given as row-major 9-tuples (returns a 9-tuple)."""
     m0 = x[0] * e[0] + x[1] * e[3] + x[2] * e[6]
@@ -121,7 +128,7 @@ def etxe(e, x):
             e[2] * m0 + e[5] * m3 + e[8] * m6, e[2] * m1 + e[5] * m4 + e[8] * m7, e[2] * m2 + e[5] * m5 + e[8] * m8)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def xinertia_T_add(W, i, sr, sc, dr, dc, ur, uc, dinv):
     """``W[dr, dc:dc+36] += X_iᵀ (A - U Uᵀ dinv) X_i`` for a symmetric 6x6 A at ``W[sr, sc:sc+36]``.
 
@@ -200,7 +207,7 @@ def xinertia_T_add(W, i, sr, sc, dr, dc, ur, uc, dinv):
             W[dr, dc + 6 * (3 + a) + 3 + b] += R[3 * a + b]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def rigid_inertia(mf, i, W, dr, dc):
     """Body i's spatial inertia ``[Ī h×; h×ᵀ m1]`` (book eq. 2.63) into ``W[dr, dc:dc+36]``."""
     h0, h1, h2 = mf[i, HV], mf[i, HV + 1], mf[i, HV + 2]
@@ -217,7 +224,7 @@ def rigid_inertia(mf, i, W, dr, dc):
             W[dr, dc + 6 * (3 + b) + a] = W[dr, dc + 6 * a + 3 + b]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def rigid_inertia_times(mf, i, W, sr, sc, dr, dc):
     """``W[dr, dc:dc+6] = I_i W[sr, sc:sc+6]``: ``[Ī w + h × u; m u - h × w]``."""
     w0, w1, w2 = W[sr, sc], W[sr, sc + 1], W[sr, sc + 2]
@@ -232,7 +239,7 @@ def rigid_inertia_times(mf, i, W, sr, sc, dr, dc):
     W[dr, dc + 5] = m * u2 - (h0 * w1 - h1 * w0)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def cross_force_add(W, vr, vc, fr, fc, dr, dc):
     """``W[dr, dc:dc+6] += v ×* f`` (book eq. 2.32): ``[w × n + u × f; w × f]``."""
     w0, w1, w2 = W[vr, vc], W[vr, vc + 1], W[vr, vc + 2]
@@ -247,7 +254,7 @@ def cross_force_add(W, vr, vc, fr, fc, dr, dc):
     W[dr, dc + 5] += w0 * f1 - w1 * f0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def cross_motion_add(W, vr, vc, mr, mc, dr, dc):
     """``W[dr, dc:dc+6] += v × m`` (book eq. 2.31): ``[w × mw; w × mu + u × mw]``."""
     w0, w1, w2 = W[vr, vc], W[vr, vc + 1], W[vr, vc + 2]
@@ -265,7 +272,7 @@ def cross_motion_add(W, vr, vc, mr, mc, dr, dc):
 # ----------------------------------------------------------------------------------------------
 # joints
 # ----------------------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_LEAF)
 def joint_transform(mi, mf, q, i, W):
     """``Xup[i] = XJ(q_i) Xtree[i]`` as ``(E, r)`` into ``W[i, E_]``, ``W[i, R_]``.
 
@@ -337,14 +344,14 @@ def joint_transform(mi, mf, q, i, W):
             W[i, R_ + a] = mf[i, RT + a]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def transforms(mi, mf, q, W):
     """Every body's ``Xup`` into W."""
     for i in range(mi.shape[0]):
         joint_transform(mi, mf, q, i, W)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def joint_motion(mi, mf, x, i, W, dr, dc):
     """``W[dr, dc:dc+6] = S_i x_i`` (joint velocity vJ, or S a)."""
     jt = mi[i, JTYPE]
@@ -367,7 +374,7 @@ def joint_motion(mi, mf, x, i, W, dr, dc):
             W[dr, dc + a] = x[s + a]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def joint_nv(jt):
     """Number of velocity coordinates of a joint type."""
     if jt == FREE:
@@ -379,7 +386,7 @@ def joint_nv(jt):
     return 1
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def project_force(mi, mf, W, sr, sc, j, out, off):
     """``out[off + v_j : off + v_j + nv_j] = S_jᵀ W[sr, sc:sc+6]`` (a joint's share of a body force)."""
     jt = mi[j, JTYPE]
@@ -398,7 +405,7 @@ def project_force(mi, mf, W, sr, sc, j, out, off):
             out[t + a] = W[sr, sc + a]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def base_acceleration(mf, W, dr, dc):
     """``a0 = -[0; g]`` into ``W[dr, dc:dc+6]``, gravity from the last row of mf."""
     g = mf.shape[0] - 1
@@ -410,7 +417,7 @@ def base_acceleration(mf, W, dr, dc):
     W[dr, dc + 5] = -mf[g, 2]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def chol6_solve(W, ar, ac, br, bc, xr, xc):
     """Solve ``A x = b`` for a symmetric positive definite A (6, 6) at ``W[ar, ac:ac+36]`` by Cholesky.
 
@@ -440,7 +447,7 @@ def chol6_solve(W, ar, ac, br, bc, xr, xc):
         W[xr, xc + i] = s / W[s_, L_ + 7 * i]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def spherical_articulated(W, i, tau, s, propagate, arm):
     """ABA pass 2 at a spherical joint i (``S = [1; 0]``, book Table 7.1 with a 3-column S).
 
@@ -491,7 +498,7 @@ def spherical_articulated(W, i, tau, s, propagate, arm):
 # ----------------------------------------------------------------------------------------------
 # algorithms (Xup already in W: call transforms first)
 # ----------------------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_LEAF)
 def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
     """Articulated-body forward dynamics (book Table 7.1) into qdd (nv,).
 
@@ -611,7 +618,7 @@ def aba_ws(mi, mf, q, v, tau, fext, has_fext, qdd, W):
                 W[i, A_ + a] = W[s_, S4_ + a]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W):
     """Recursive Newton–Euler (book Table 5.1) into tau (nv,); joint wrenches left in ``W[:, P_]``.
 
@@ -655,7 +662,7 @@ def rnea_ws(mi, mf, q, v, acc, fext, has_fext, tau, W):
             xforce_T_add(W, i, i, P_, p, P_)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def rbi_T_add(W, i, sr, sc, dr, dc):
     """Composite rigid-body inertia ``+= X_iᵀ I X_i`` in 10-number form ``[m, h (3), Ī (6: 00 01 02 11 12 22)]``.
 
@@ -687,7 +694,7 @@ def rbi_T_add(W, i, sr, sc, dr, dc):
     W[dr, dc + 9] += P[8] - 2.0 * r2 * g2 - m * r2 * r2 + d
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def crba_ws(mi, mf, H, W):
     """Composite-rigid-body joint-space inertia (book Table 6.2) into H (nv, nv) (C order), zeroed by caller;
     a joint's armature is added to its diagonal entries (``M + diag(a)``).
@@ -761,7 +768,7 @@ def crba_ws(mi, mf, H, W):
                     H[t + m2, s + k] = H[s + k, t + m2]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def world_kinematics_ws(mi, mf, v, W):
     """Every body's root-to-body transform and velocity into W (Xup already there: :func:`transforms`).
 
@@ -793,7 +800,7 @@ def world_kinematics_ws(mi, mf, v, W):
                                              + W[i, E_ + 3 * a + 2] * W[p, E0_ + 6 + b])
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def energies_ws(mi, mf, q, v, W):
     """``(kinetic, potential)`` (J): ``½ Σ vᵢᵀ Iᵢ vᵢ + ½ Σ a q̇²`` (the rotors' share, armature a) and
     ``-gᵀ Σ mᵢ cᵢ`` (world coms).
@@ -822,7 +829,7 @@ def energies_ws(mi, mf, q, v, W):
     return 0.5 * kin, -(mf[g, 0] * mc0 + mf[g, 1] * mc1 + mf[g, 2] * mc2)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def qdot_into(mi, q, v, out):
     """``dq/dt`` (nq,) into out: v for 1-DOF joints; ``[R v_lin, ½ quat ⊗ [w; 0]]`` for free ones,
     ``½ quat ⊗ [w; 0]`` for spherical ones."""
@@ -856,7 +863,7 @@ def qdot_into(mi, q, v, out):
             out[q0] = v[v0]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def normalize_into(mi, q):
     """Renormalise free- and spherical-joint quaternions of q in place (the projection onto the manifold)."""
     for i in range(mi.shape[0]):
@@ -868,7 +875,7 @@ def normalize_into(mi, q):
                 q[s + a] /= n
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def tangent_rate_into(mi, q, v, out):
     """The configuration rate of (q, v) in tangent coordinates, out (nv,): v for 1-DOF joints, the
     body angular velocity ω for spherical joints, ``[ω; R(q) v_lin]`` for a free joint (its position
@@ -891,7 +898,7 @@ def tangent_rate_into(mi, q, v, out):
             out[s] = v[s]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def tangent_velocity_into(mi, q, t, out):
     """The inverse of :func:`tangent_rate_into` at q: the velocity coordinates out (nv,) of a tangent
     vector t (nv,): t itself but for a free joint's linear part, ``R(q)ᵀ t_lin`` (world frame -> body)."""
@@ -912,7 +919,7 @@ def tangent_velocity_into(mi, q, t, out):
             out[s] = t[s]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def retract_into(mi, q, dq, h, out):
     """``out (nq,) = q ⊕ h dq`` for a tangent increment dq (nv,) (:func:`tangent_rate_into`'s
     coordinates): ``q + h dq`` for 1-DOF joints and a free joint's position; ``quat ⊗ exp(h ω/2)`` for
@@ -946,7 +953,7 @@ def retract_into(mi, q, dq, h, out):
 # ----------------------------------------------------------------------------------------------
 # joint-limit moments (Huston eq. 20.2.1)
 # ----------------------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_LEAF)
 def limit_moment(th, thd, lo, hi, k, c, mode):
     """The joint-limit moment of Huston eq. (20.2.1) at angle th, rate thd (range [lo, hi]).
 
@@ -968,7 +975,7 @@ def limit_moment(th, thd, lo, hi, k, c, mode):
     return 0.0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def rotation_vector(x, y, z, w, out):
     """Rotation vector φ (3,) of the unit quaternion (x, y, z, w) into out, |φ| <= π; returns the
     coefficient b of ``J_r⁻¹(φ) = 1 + ½ φ× + b φ×²`` (right Jacobian: ``φ̇ = J_r⁻¹(φ) ω``, ω in the
@@ -984,7 +991,7 @@ def rotation_vector(x, y, z, w, out):
     return 1.0 / (th * th) - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def limit_forces_add(lim, q, v, tau):
     """``tau += `` the joint-limit moments of every row of ``lim`` (:func:`robodyn_ros.model.limit_table`).
 
@@ -1030,7 +1037,7 @@ def _spherical_limit_forces_add(lim, r, q, v, tau):
     tau[vi + 2] += J02 * m0 + J12 * m1 + J22 * m2
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def limit_slopes(th, thd, lo, hi, k, c, mode):
     """``(k_a, c_a)``: the stop's share of the stiffness and damping of the linearly implicit step
     (:mod:`robodyn_ros.kernels.rosenbrock`), ``−∂M/∂θ`` and ``−∂M/∂θ̇`` of :func:`limit_moment` on the branch
@@ -1047,7 +1054,7 @@ def limit_slopes(th, thd, lo, hi, k, c, mode):
     return 0.0, 0.0
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _limit_frame(lim, r, q, v, phi, Jm, d):
     """Rotation vector φ (3,) of a spherical limit row r at q, ``J = J_r⁻¹(φ)`` into Jm (3, 3) and
     ``φ̇ = J ω`` into d (3,) (see :func:`limit_forces_add`)."""
@@ -1063,7 +1070,7 @@ def _limit_frame(lim, r, q, v, phi, Jm, d):
         d[e] = Jm[e, 0] * v[vi] + Jm[e, 1] * v[vi + 1] + Jm[e, 2] * v[vi + 2]
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def limit_jacobian_add(lim, q, v, qs, use_qs, Dm, Km):
     """``Km += −∂τ_lim/∂q``, ``Dm += −∂τ_lim/∂v`` (nv, nv) of :func:`limit_forces_add` on the branches at
     (q, v) (:func:`limit_slopes`) -- with use_qs also the outward branch of every stop the configuration
@@ -1127,7 +1134,7 @@ def _spherical_limit_jacobian_add(lim, r, q, v, qs, use_qs, Dm, Km):
     return active
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def gravity_stiffness_ws(mi, mf, W, G):
     """``G = ∂g/∂q`` (nv, nv, overwritten) over the 1-DOF joints, from the composite inertias that
     :func:`crba_ws` leaves in W (call it first): the Hessian of the gravitational potential V, with

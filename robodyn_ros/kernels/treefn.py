@@ -38,7 +38,7 @@ from .jit import njit
 from .tree import _JIT, aba_ws, crba_ws, gravity_stiffness_ws, rnea_ws, transforms, workspace
 
 #: options of every cfunc behind an address (generic and generated): numba's numpy error model, as the kernels
-CFUNC_OPTIONS = dict(cache=True, error_model='numpy')
+CFUNC_OPTIONS = dict(cache=True, error_model='numpy', _nrt=False)
 #: ``fd(mi, mf, q, v, tau, qdd, W)``, ``bm(mi, mf, q, v, zero, bias, H, G, W)`` and ``id(mi, mf, q, v, qdd, tau, W)``
 #: as numba signatures, and their first-class function types (made by :func:`_numba_types` when numba is loaded)
 FD_SIG = BM_SIG = ID_SIG = FD_TYPE = BM_TYPE = ID_TYPE = None
