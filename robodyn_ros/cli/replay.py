@@ -21,6 +21,10 @@ import time
 
 #: one line for ``robodyn --help``
 HELP = 'publish a recording back onto its topics with /clock'
+#: seconds --wait-subscribers waits on after the replay's publishers have each matched a subscriber: discovery
+#: matches the two ends separately, and a subscriber that has not yet matched the replay drops a volatile
+#: message (the first /joint_states and /clock were lost so once in a test run under load)
+SETTLE = 0.25
 
 
 def add_parser(sub):
@@ -34,7 +38,8 @@ def add_parser(sub):
     p.add_argument('--delay', type=float, default=0.5,
                    help='wall seconds to wait for subscribers to connect before the first message')
     p.add_argument('--wait-subscribers', action='store_true',
-                   help='start as soon as every replayed topic has a subscriber (waiting at most --delay s)')
+                   help='start once every replayed topic has a subscriber, and the subscribers have had '
+                        f'{SETTLE:g} s to match the replay in turn (waiting at most --delay s)')
     return p
 
 
@@ -115,8 +120,11 @@ def main(args) -> int:
             pubs[topic] = node.create_publisher(msg_class(type_name), topic, qos)
         clock_pub = pubs.get('/clock') or node.create_publisher(msg_class(M.TOPIC_TYPES['/clock']), '/clock', 10)
         end = time.monotonic() + args.delay
+        matched = None   # when every publisher had matched a subscriber
         while time.monotonic() < end:
-            if args.wait_subscribers and all(p.get_subscription_count() for p in pubs.values()):
+            if args.wait_subscribers and matched is None and all(p.get_subscription_count() for p in pubs.values()):
+                matched = time.monotonic()
+            if matched is not None and time.monotonic() >= matched + SETTLE:
                 break
             rclpy.spin_once(node, timeout_sec=min(0.05, max(end - time.monotonic(), 0.0)))
         wall0, t0, last_clock = time.monotonic(), None, None
