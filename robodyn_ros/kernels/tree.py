@@ -976,8 +976,8 @@ def limit_moment(th, thd, lo, hi, k, c, mode):
 
 
 @njit(**_LEAF)
-def rotation_vector(x, y, z, w, out):
-    """Rotation vector φ (3,) of the unit quaternion (x, y, z, w) into out, |φ| <= π; returns the
+def rotation_vector_parts(x, y, z, w):
+    """``(b, φ0, φ1, φ2)``: the rotation vector φ of the unit quaternion (x, y, z, w), |φ| <= π, and the
     coefficient b of ``J_r⁻¹(φ) = 1 + ½ φ× + b φ×²`` (right Jacobian: ``φ̇ = J_r⁻¹(φ) ω``, ω in the
     rotated frame), ``b = 1/θ² - (1 + cos θ)/(2 θ sin θ)``, series ``1/12 + θ²/720`` near 0."""
     if w < 0.0:
@@ -985,10 +985,17 @@ def rotation_vector(x, y, z, w, out):
     sn = math.sqrt(x * x + y * y + z * z)
     th = 2.0 * math.atan2(sn, w)
     f = th / sn if sn > 1e-12 else 2.0 / w
-    out[0], out[1], out[2] = f * x, f * y, f * z
+    p0, p1, p2 = f * x, f * y, f * z
     if th < 1e-3:
-        return 1.0 / 12.0 + th * th / 720.0
-    return 1.0 / (th * th) - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))
+        return 1.0 / 12.0 + th * th / 720.0, p0, p1, p2
+    return 1.0 / (th * th) - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th)), p0, p1, p2
+
+
+@njit(**_LEAF)
+def rotation_vector(x, y, z, w, out):
+    """:func:`rotation_vector_parts` with φ (3,) into out; returns b."""
+    b, out[0], out[1], out[2] = rotation_vector_parts(x, y, z, w)
+    return b
 
 
 @njit(**_LEAF)
@@ -996,7 +1003,7 @@ def limit_forces_add(lim, q, v, tau):
     """``tau += `` the joint-limit moments of every row of ``lim`` (:func:`robodyn_ros.model.limit_table`).
 
     A 1-DOF joint: :func:`limit_moment` of ``(q, v)``. A spherical joint: :func:`_spherical_limit_forces_add`.
-    (Called at every stage of every step: it allocates nothing for 1-DOF rows.)
+    (Called at every stage of every step: it allocates nothing.)
     """
     for r in range(lim.shape[0]):
         if int(lim[r, 0]) != SPHERICAL:
@@ -1007,19 +1014,17 @@ def limit_forces_add(lim, q, v, tau):
             _spherical_limit_forces_add(lim, r, q, v, tau)
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _spherical_limit_forces_add(lim, r, q, v, tau):
     """:func:`limit_forces_add` of the spherical row r: per component of its rotation vector φ (joint
     frame) with ``φ̇ = J_r⁻¹(φ) ω``; the moments M (conjugate to φ) act on ω as ``J_r⁻ᵀ M`` (same power
-    ``M·φ̇``)."""
-    phi = np.empty(3)
+    ``M·φ̇``). Allocates nothing (every stage of every step calls it)."""
     qi = int(lim[r, 1])
     vi = int(lim[r, 2])
     mode = int(lim[r, 3])
     k = lim[r, 10]
     c = lim[r, 11]
-    b = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
-    p0, p1, p2 = phi[0], phi[1], phi[2]
+    b, p0, p1, p2 = rotation_vector_parts(q[qi], q[qi + 1], q[qi + 2], q[qi + 3])
     w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
     pp = p0 * p0 + p1 * p1 + p2 * p2
     # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
