@@ -448,20 +448,15 @@ def _stop_entry(th, thd, ths, lo, hi, h, k, m):
     return math.inf
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _spherical_limit_event(lim, r, q, v, h, qs, H):
     """:func:`limit_event` of the spherical row r: the smallest entry step over its rotation vector's three
     components (:func:`~robodyn_ros.kernels.tree._limit_frame` at q and at qs), inf when none enters."""
-    phi = np.empty(3)
-    phs = np.empty(3)
-    Jm = np.empty((3, 3))
-    d = np.empty(3)
-    ds = np.empty(3)
     vi = int(lim[r, 2])
     k = lim[r, 10]
     step = math.inf
-    _limit_frame(lim, r, q, v, phi, Jm, d)
-    _limit_frame(lim, r, qs, v, phs, Jm, ds)
+    phi, _, d = _limit_frame(lim, r, q, v)
+    phs, _, _ = _limit_frame(lim, r, qs, v)
     for e in range(3):
         s = _stop_entry(phi[e], d[e], phs[e], lim[r, 4 + 2 * e], lim[r, 5 + 2 * e], h, k, H[vi + e, vi + e])
         if s < step:

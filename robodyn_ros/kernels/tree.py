@@ -976,7 +976,7 @@ def limit_moment(th, thd, lo, hi, k, c, mode):
 
 
 @njit(**_LEAF)
-def rotation_vector_parts(x, y, z, w):
+def rotation_vector(x, y, z, w):
     """``(b, φ0, φ1, φ2)``: the rotation vector φ of the unit quaternion (x, y, z, w), |φ| <= π, and the
     coefficient b of ``J_r⁻¹(φ) = 1 + ½ φ× + b φ×²`` (right Jacobian: ``φ̇ = J_r⁻¹(φ) ω``, ω in the
     rotated frame), ``b = 1/θ² - (1 + cos θ)/(2 θ sin θ)``, series ``1/12 + θ²/720`` near 0."""
@@ -989,13 +989,6 @@ def rotation_vector_parts(x, y, z, w):
     if th < 1e-3:
         return 1.0 / 12.0 + th * th / 720.0, p0, p1, p2
     return 1.0 / (th * th) - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th)), p0, p1, p2
-
-
-@njit(**_LEAF)
-def rotation_vector(x, y, z, w, out):
-    """:func:`rotation_vector_parts` with φ (3,) into out; returns b."""
-    b, out[0], out[1], out[2] = rotation_vector_parts(x, y, z, w)
-    return b
 
 
 @njit(**_LEAF)
@@ -1024,7 +1017,7 @@ def _spherical_limit_forces_add(lim, r, q, v, tau):
     mode = int(lim[r, 3])
     k = lim[r, 10]
     c = lim[r, 11]
-    b, p0, p1, p2 = rotation_vector_parts(q[qi], q[qi + 1], q[qi + 2], q[qi + 3])
+    b, p0, p1, p2 = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3])
     w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
     pp = p0 * p0 + p1 * p1 + p2 * p2
     # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
@@ -1060,19 +1053,19 @@ def limit_slopes(th, thd, lo, hi, k, c, mode):
 
 
 @njit(**_LEAF)
-def _limit_frame(lim, r, q, v, phi, Jm, d):
-    """Rotation vector φ (3,) of a spherical limit row r at q, ``J = J_r⁻¹(φ)`` into Jm (3, 3) and
-    ``φ̇ = J ω`` into d (3,) (see :func:`limit_forces_add`)."""
+def _limit_frame(lim, r, q, v):
+    """``(φ, J, d)`` of a spherical limit row r at q, as tuples: its rotation vector φ (3), ``J = J_r⁻¹(φ)``
+    row-major (9) and ``φ̇ = J ω`` (3) (see :func:`limit_forces_add`)."""
     qi = int(lim[r, 1])
     vi = int(lim[r, 2])
-    bb = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3], phi)
-    p0, p1, p2 = phi[0], phi[1], phi[2]
+    bb, p0, p1, p2 = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3])
     pp = p0 * p0 + p1 * p1 + p2 * p2
-    Jm[0, 0], Jm[0, 1], Jm[0, 2] = 1.0 + bb * (p0 * p0 - pp), -0.5 * p2 + bb * p0 * p1, 0.5 * p1 + bb * p0 * p2
-    Jm[1, 0], Jm[1, 1], Jm[1, 2] = 0.5 * p2 + bb * p1 * p0, 1.0 + bb * (p1 * p1 - pp), -0.5 * p0 + bb * p1 * p2
-    Jm[2, 0], Jm[2, 1], Jm[2, 2] = -0.5 * p1 + bb * p2 * p0, 0.5 * p0 + bb * p2 * p1, 1.0 + bb * (p2 * p2 - pp)
-    for e in range(3):
-        d[e] = Jm[e, 0] * v[vi] + Jm[e, 1] * v[vi + 1] + Jm[e, 2] * v[vi + 2]
+    J00, J01, J02 = 1.0 + bb * (p0 * p0 - pp), -0.5 * p2 + bb * p0 * p1, 0.5 * p1 + bb * p0 * p2
+    J10, J11, J12 = 0.5 * p2 + bb * p1 * p0, 1.0 + bb * (p1 * p1 - pp), -0.5 * p0 + bb * p1 * p2
+    J20, J21, J22 = -0.5 * p1 + bb * p2 * p0, 0.5 * p0 + bb * p2 * p1, 1.0 + bb * (p2 * p2 - pp)
+    w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
+    return ((p0, p1, p2), (J00, J01, J02, J10, J11, J12, J20, J21, J22),
+            (J00 * w0 + J01 * w1 + J02 * w2, J10 * w0 + J11 * w1 + J12 * w2, J20 * w0 + J21 * w1 + J22 * w2))
 
 
 @njit(**_LEAF)
@@ -1100,43 +1093,49 @@ def limit_jacobian_add(lim, q, v, qs, use_qs, Dm, Km):
     return active
 
 
-@njit(**_JIT)
+@njit(**_LEAF)
 def _spherical_limit_jacobian_add(lim, r, q, v, qs, use_qs, Dm, Km):
     """:func:`limit_jacobian_add` of the spherical row r: its moments act through the rotation vector φ
     with ``φ̇ = J_r⁻¹(φ) ω`` (and ``δφ = J_r⁻¹ δ`` for a tangent increment δ), so it adds
     ``J_r⁻ᵀ diag(k_a) J_r⁻¹`` and ``J_r⁻ᵀ diag(c_a) J_r⁻¹`` (the change of J_r⁻¹ itself is left out: any J
-    keeps the method's order). Returns its number of stop terms."""
-    phi = np.empty(3)
-    phs = np.empty(3)
-    Jm = np.empty((3, 3))
-    Js = np.empty((3, 3))
-    d = np.empty(3)
-    ka = np.empty(3)
-    ca = np.empty(3)
-    active = 0
+    keeps the method's order). Returns its number of stop terms. Allocates nothing."""
     vi = int(lim[r, 2])
     mode = int(lim[r, 3])
     k = lim[r, 10]
     c = lim[r, 11]
-    _limit_frame(lim, r, q, v, phi, Jm, d)
+    phi, Jm, d = _limit_frame(lim, r, q, v)
+    phs = phi
     if use_qs:
-        _limit_frame(lim, r, qs, v, phs, Js, ka)
+        phs, _, _ = _limit_frame(lim, r, qs, v)
+    ka0, ca0 = _stop_slopes(lim, r, 0, phi[0], d[0], phs[0], use_qs, k, c, mode)
+    ka1, ca1 = _stop_slopes(lim, r, 1, phi[1], d[1], phs[1], use_qs, k, c, mode)
+    ka2, ca2 = _stop_slopes(lim, r, 2, phi[2], d[2], phs[2], use_qs, k, c, mode)
+    ka, ca = (ka0, ka1, ka2), (ca0, ca1, ca2)
+    active = 0
     for e in range(3):
-        lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
-        ka[e], ca[e] = limit_slopes(phi[e], d[e], lo, hi, k, c, mode)
-        if use_qs and ka[e] == 0.0 and (phs[e] > hi or phs[e] < lo):
-            ka[e], ca[e] = k, c
         active += ka[e] != 0.0 or ca[e] != 0.0
     for a in range(3):
         for b in range(3):
             sk = 0.0
             sc = 0.0
             for e in range(3):
-                sk += Jm[e, a] * ka[e] * Jm[e, b]
-                sc += Jm[e, a] * ca[e] * Jm[e, b]
+                sk += Jm[3 * e + a] * ka[e] * Jm[3 * e + b]
+                sc += Jm[3 * e + a] * ca[e] * Jm[3 * e + b]
             Km[vi + a, vi + b] += sk
             Dm[vi + a, vi + b] += sc
     return active
+
+
+@njit(**_LEAF)
+def _stop_slopes(lim, r, e, p, dp, ps, use_qs, k, c, mode):
+    """``(k_e, c_e)`` of component e of the spherical row r (:func:`limit_slopes` at its angle p and rate
+    dp), with use_qs the outward branch when its stage value ps is beyond a limit and the branch at p is not
+    in."""
+    lo, hi = lim[r, 4 + 2 * e], lim[r, 5 + 2 * e]
+    ke, ce = limit_slopes(p, dp, lo, hi, k, c, mode)
+    if use_qs and ke == 0.0 and (ps > hi or ps < lo):
+        ke, ce = k, c
+    return ke, ce
 
 
 @njit(**_LEAF)
