@@ -1012,21 +1012,11 @@ def _spherical_limit_forces_add(lim, r, q, v, tau):
     """:func:`limit_forces_add` of the spherical row r: per component of its rotation vector φ (joint
     frame) with ``φ̇ = J_r⁻¹(φ) ω``; the moments M (conjugate to φ) act on ω as ``J_r⁻ᵀ M`` (same power
     ``M·φ̇``). Allocates nothing (every stage of every step calls it)."""
-    qi = int(lim[r, 1])
     vi = int(lim[r, 2])
     mode = int(lim[r, 3])
     k = lim[r, 10]
     c = lim[r, 11]
-    b, p0, p1, p2 = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3])
-    w0, w1, w2 = v[vi], v[vi + 1], v[vi + 2]
-    pp = p0 * p0 + p1 * p1 + p2 * p2
-    # J = 1 + ½ φ× + b (φ φᵀ - |φ|² 1)
-    J00, J01, J02 = 1.0 + b * (p0 * p0 - pp), -0.5 * p2 + b * p0 * p1, 0.5 * p1 + b * p0 * p2
-    J10, J11, J12 = 0.5 * p2 + b * p1 * p0, 1.0 + b * (p1 * p1 - pp), -0.5 * p0 + b * p1 * p2
-    J20, J21, J22 = -0.5 * p1 + b * p2 * p0, 0.5 * p0 + b * p2 * p1, 1.0 + b * (p2 * p2 - pp)
-    d0 = J00 * w0 + J01 * w1 + J02 * w2
-    d1 = J10 * w0 + J11 * w1 + J12 * w2
-    d2 = J20 * w0 + J21 * w1 + J22 * w2
+    (p0, p1, p2), (J00, J01, J02, J10, J11, J12, J20, J21, J22), (d0, d1, d2) = _limit_frame(lim, r, q, v)
     m0 = limit_moment(p0, d0, lim[r, 4], lim[r, 5], k, c, mode)
     m1 = limit_moment(p1, d1, lim[r, 6], lim[r, 7], k, c, mode)
     m2 = limit_moment(p2, d2, lim[r, 8], lim[r, 9], k, c, mode)
@@ -1054,8 +1044,8 @@ def limit_slopes(th, thd, lo, hi, k, c, mode):
 
 @njit(**_LEAF)
 def _limit_frame(lim, r, q, v):
-    """``(φ, J, d)`` of a spherical limit row r at q, as tuples: its rotation vector φ (3), ``J = J_r⁻¹(φ)``
-    row-major (9) and ``φ̇ = J ω`` (3) (see :func:`limit_forces_add`)."""
+    """``(φ, J, d)`` of a spherical limit row r at q, as tuples: its rotation vector φ (3), ``J = J_r⁻¹(φ) =
+    1 + ½ φ× + b (φ φᵀ − |φ|² 1)`` row-major (9) and ``φ̇ = J ω`` (3) (see :func:`limit_forces_add`)."""
     qi = int(lim[r, 1])
     vi = int(lim[r, 2])
     bb, p0, p1, p2 = rotation_vector(q[qi], q[qi + 1], q[qi + 2], q[qi + 3])
