@@ -157,9 +157,12 @@ class BlockRunner:
                 return None
         # the system may still decline (e.g. joint_states that are not its state as it is): ask with no period
         none = np.zeros(0)
-        if sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim.work_state(), none, none,
-                              np.array(sim.ports[port].applied, dtype=float), program, wrenches,
-                              **_held(sim, others)) is None:
+        from .kernels import jit
+        with jit.quiet():   # (interpreted, this probe asks for no machine code: the first block asks)
+            declined = sys_.fused_periods(sim.settings['integrator'], sim.integrator.dt, sim.work_state(), none, none,
+                                          np.array(sim.ports[port].applied, dtype=float), program, wrenches,
+                                          **_held(sim, others)) is None
+        if declined:
             return None
         runner = cls(sim, port, program, sinks, wrenches, pipeline, halt)
         runner.others, runner.due = others, due

@@ -119,6 +119,56 @@ def test_interpreted_urdf_robots_record_the_compiled_bytes(recorded, variant):
     assert len(a) > 1000 and a == b
 
 
+#: a process whose arm loops are not compiled yet while the kernels they call are (the package's cache, warm): the loops
+#: run as Python calling their callees' machine code (jit._Hybrid); no compiler child
+_MIXED = r'''
+import contextlib, io, json, sys, traceback
+from robodyn_ros.kernels import jit
+LOOPS = {'run_arm_periods', 'arm_steps', 'arm_controlled_steps', 'arm_rosenbrock_step', 'arm_rhs'}
+real = jit.load_cached
+jit.load_cached = lambda d, sig, key=None, poll=True: None if d.py_func.__name__ in LOOPS else real(d, sig, key, poll)
+class Child:
+    generation = 0
+    def request(self, what, first=False): pass
+    def poll(self): pass
+    def recent_generation(self): return 0
+    def wait(self): pass
+jit.COMPILER = Child()
+from robodyn_ros.cli import main
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            status = main(argv)
+    except BaseException:
+        status, err = 99, io.StringIO(traceback.format_exc())
+    print(json.dumps([status, err.getvalue()[-2000:]]), flush=True)
+print(json.dumps(sorted({d.py_func.__name__ for d, _ in jit._SIGS.values()} & LOOPS)))
+print(json.dumps(len(jit._ENTRIES)))
+'''
+MIXED = ['a1_stand', 'stanford_arm', 'huston_human17', 'solo12_drop', 'xarm7_trajectory']
+
+
+@pytest.mark.processes
+def test_interpreted_loops_calling_compiled_kernels_record_the_compiled_bytes(recorded, tmp_path):
+    """The arm loops interpreted while the kernels they call are compiled (a first run once the compiler child has
+    done the loop's pieces): each call goes to machine code or to Python, and the files are the compiled run's, for a
+    legged robot on the ground, an RK4 arm, the 17-body human with spherical stops, a falling quadruped and a servoed
+    arm with sensors."""
+    import json
+    argv = [['run', scene, '--duration', str(DURATION.get(scene, 0.2)), '--record', str(tmp_path / f'{scene}.mcap')]
+            for scene in MIXED]
+    env = dict(_env('interpret', None), ROBODYN_BACKEND='numba')
+    r = subprocess.run([PY, '-c', _MIXED, json.dumps(argv)], env=env, capture_output=True, text=True, timeout=1800)
+    assert r.returncode == 0, r.stderr[-3000:]
+    *runs, loops, entries = [json.loads(line) for line in r.stdout.strip().splitlines()[-len(MIXED) - 2:]]
+    assert set(loops) >= {'run_arm_periods'}   # the loops were interpreted
+    assert entries >= 10                       # and called machine code
+    for scene, (status, err) in zip(MIXED, runs):
+        assert status == 0, err
+        assert (tmp_path / f'{scene}.mcap').read_bytes() == recorded[scene][1][2].read_bytes(), scene
+
+
 _COLD_THEN_WAIT = r'''
 import sys
 from robodyn_ros.kernels import jit
@@ -203,15 +253,129 @@ def test_where_python_raises_the_call_is_compiled_and_gives_the_compiled_result(
     assert np.array_equal(np.isnan(out), np.isnan(ref)) and np.isnan(out).any()
 
 
-def test_interpreted_calls_use_the_python_source_of_every_kernel_they_reach():
-    """python_kernel rebinds a kernel's callees to their Python source: the interpreted RNEA calls no
-    dispatcher (a compiled callee would compile or load on a cold cache, in the foreground)."""
+def test_interpreted_calls_reach_every_kernel_they_call_through_its_python_source_or_its_machine_code():
+    """python_kernel rebinds a kernel's callees: the interpreted RNEA calls no dispatcher (a compiled callee would
+    compile on a cold cache, in the foreground) but each callee's _Hybrid, whose Python is the callee's source."""
     from numba.core.dispatcher import Dispatcher
     from robodyn_ros.kernels import tree
     f = jit.python_kernel(tree.rnea_into)
     ns = f.__globals__
     assert not any(isinstance(ns[name], Dispatcher) for name in f.__code__.co_names if name in ns)
-    assert ns['rnea_ws'].__code__ is tree.rnea_ws.py_func.__code__
+    assert isinstance(ns['rnea_ws'], jit._Hybrid) and ns['rnea_ws'].py.__code__ is tree.rnea_ws.py_func.__code__
+
+
+class _Child:
+    """A compiler child that compiles nothing and notes what it is asked, in order."""
+
+    generation = 0
+
+    def __init__(self):
+        self.asked = []
+
+    def request(self, what, first=False):
+        self.asked.append((what[2], first))
+
+    def poll(self):
+        pass
+
+    def recent_generation(self):
+        return self.generation
+
+
+def _pendulum_args():
+    from robodyn_ros.scene import load_scene
+    model = load_scene('betancur_pendulum').system.model
+    mi, mf = kernels.pack_model(model, merge=True)
+    rng = np.random.default_rng(5)
+    return mi, mf, rng.normal(size=model.nq), rng.normal(size=model.nv), rng.normal(size=model.nv)
+
+
+def _spied(f, name):
+    """The interpreted kernel f with its callee ``name``'s Python source counting its calls (the count: a list)."""
+    hybrid = f.__globals__[name]
+    calls = []
+    py = hybrid.py
+    hybrid.py = lambda *a: calls.append(1) or py(*a)
+    return calls
+
+
+def test_an_interpreted_kernel_calls_the_machine_code_of_its_callees_where_there_is_some(monkeypatch):
+    """Mode 'interpret': the interpreted ABA calls aba_ws's machine code (in the package's cache: warm) instead of its
+    Python, and gets the compiled kernel's bits; mode 'python' runs the Python source."""
+    from robodyn_ros.kernels import tree
+    mi, mf, q, v, tau = _pendulum_args()
+    ref = np.empty(v.size)
+    tree.aba_into(mi, mf, q, v, tau, ref)   # compiled
+    monkeypatch.setattr(jit, 'COMPILER', _Child())
+    for mode, python_calls in (('interpret', 0), ('python', 1)):
+        monkeypatch.setattr(jit, 'MODE', mode)
+        f = jit.python_kernel(tree.aba_into)
+        calls = _spied(f, 'aba_ws')
+        out = np.empty(v.size)
+        f(mi, mf, q, v, tau, out)
+        assert len(calls) == python_calls, mode
+        assert np.array_equal(out, ref)
+    assert jit.COMPILER.asked == []   # nothing missing, nothing asked
+
+
+def test_machine_code_is_not_given_python_only_dynamics_tokens(monkeypatch):
+    """A callee whose dynamics address is a Python-only token (a negative int, treefn.GENERIC_TOKENS) runs as Python:
+    machine code would call it; with the generic cfunc's address it runs as machine code. Both give aba_into's bits."""
+    from robodyn_ros.kernels import tree, treefn
+    mi, mf, q, v, tau = _pendulum_args()
+    ref = np.empty(v.size)
+    tree.aba_into(mi, mf, q, v, tau, ref)
+    treefn.call_fd(treefn.generic_addresses()[0], mi, mf, q, v, tau, np.empty(v.size))   # its machine code in memory
+    monkeypatch.setattr(jit, 'COMPILER', _Child())
+    monkeypatch.setattr(jit, 'MODE', 'interpret')
+    calls = []
+    h = jit._Hybrid(treefn.call_fd, lambda *a: calls.append(1) or jit.python_kernel(treefn.call_fd)(*a))
+    assert h.addresses == (0,)
+    for fd, python_calls in ((treefn.GENERIC_TOKENS[0], 1), (treefn.generic_addresses()[0], 1)):   # (calls so far)
+        out = np.empty(v.size)
+        h(fd, mi, mf, q, v, tau, out)
+        assert len(calls) == python_calls and np.array_equal(out, ref)
+
+
+def test_callees_ask_for_machine_code_after_their_call_and_before_their_callers(monkeypatch):
+    """With nothing compiled (every lookup misses), an interpreted ABA asks the child for aba_ws after running it,
+    marked first (an interpreted kernel's callee), and then for aba_into, unmarked (a call from Python); a quiet
+    probe asks for nothing; a call from Python faster than SMALL_CALL asks only at its 100th."""
+    from robodyn_ros.kernels import tree
+    mi, mf, q, v, tau = _pendulum_args()
+    monkeypatch.setattr(jit, 'COMPILER', _Child())
+    monkeypatch.setattr(jit, 'MODE', 'interpret')
+    monkeypatch.setattr(jit, 'load_cached', lambda d, sig, key=None, poll=True: None)
+    monkeypatch.setattr(jit, '_ENTRIES', {})
+    monkeypatch.setattr(jit, '_SMALL', {})
+    monkeypatch.setattr(jit, 'SMALL_CALL', 0.0)   # every call counts as slow here
+    monkeypatch.setattr(tree.aba_into, '_robodyn_python', None, raising=False)   # a fresh interpreted kernel
+    sig = tuple(tree.aba_into.typeof_pyval(a) for a in (mi, mf, q, v, tau, np.empty(v.size)))
+    with jit.quiet():
+        jit._interpret_then_request(tree.aba_into, sig, (mi, mf, q, v, tau, np.empty(v.size)))
+    assert jit.COMPILER.asked == []
+    monkeypatch.setattr(tree.aba_into, '_robodyn_python', None, raising=False)
+    jit._interpret_then_request(tree.aba_into, sig, (mi, mf, q, v, tau, np.empty(v.size)))
+    asked = jit.COMPILER.asked
+    assert ('aba_ws', True) in asked and asked[-1] == ('aba_into', False)
+    assert asked.index(('aba_ws', True)) < len(asked) - 1
+    monkeypatch.setattr(jit, 'SMALL_CALL', 1e9)   # now every call is short
+    jit.COMPILER.asked.clear()
+    for k in range(100):
+        jit.request_after(tree.aba_into, sig, 0.0)
+        assert len(jit.COMPILER.asked) == (1 if k == 99 else 0)
+
+
+def test_the_child_takes_requests_marked_first_before_the_others_and_every_request_once():
+    """The compiler child's queue: the requests marked ``!`` first, each kind in the order it came; and its reader
+    yields every line of its input once, then ends."""
+    import io
+    q = jit._Requests()
+    for line in (b'a\n', b'!b\n', b'c\n', b'!d\n'):
+        q.add(line)
+    assert [q.take() for _ in range(5)] == [b'!b\n', b'!d\n', b'a\n', b'c\n', None]
+    lines = [b'%d\n' % k if k % 3 else b'!%d\n' % k for k in range(50)]
+    assert sorted(jit._requests(io.BytesIO(b''.join(lines)))) == sorted(lines)
 
 
 def _kinds_of_arguments(rng):
@@ -294,12 +458,12 @@ def test_a_kernel_asked_for_again_is_typed_once_and_looked_up_once_per_compiler_
     real = type(fresh).typeof_pyval
     monkeypatch.setattr(type(fresh), 'typeof_pyval', lambda self, a: typed.append(a) or real(self, a))
     monkeypatch.setattr(type(fresh._cache), 'load_overload', lambda self, sig, ctx: looked.append(sig))
-    monkeypatch.setattr(jit.COMPILER, 'request', lambda what: asked.append(what))
+    monkeypatch.setattr(jit.COMPILER, 'request', lambda what, first=False: asked.append(what))
     monkeypatch.setattr(jit, 'MODE', 'interpret')
     for _ in range(5):
-        jit.request_compiled(fresh, args)
+        jit.request_compiled(fresh, args, 1.0)   # (after a call that took 1 s)
     assert len(typed) == len(args) and len(looked) == 1 and len(asked) == 5
     assert asked[0][:3] == ('kernel', tree.aba_into.py_func.__module__, 'aba_into')
     monkeypatch.setattr(jit.COMPILER, 'generation', jit.COMPILER.generation + 1)   # the child finished a request
-    jit.request_compiled(fresh, args)
+    jit.request_compiled(fresh, args, 1.0)
     assert len(looked) == 2 and len(typed) == len(args)

@@ -11,8 +11,12 @@ call from Python does when no machine code for its argument types is in memory (
 
 * ``'compile'`` (numba's way, the default): load it from the kernels' cache, else compile it now;
 * ``'interpret'`` (``robodyn run`` and the sim node): load it from the cache if it is there; else run the
-  kernel's Python source in the interpreter (:func:`python_kernel`: every kernel it calls as Python too)
-  and have a child process compile it (:class:`_Compiler`), whose machine code the next call loads. The
+  kernel's Python source in the interpreter (:func:`python_kernel`), and have a child process compile it
+  (:class:`_Compiler`), whose machine code the next call loads. The interpreted kernel calls the machine code of
+  each kernel it calls once that is in memory or in the cache (:class:`_Hybrid`), else its Python source, and
+  asks the child for it after the call: the child gets the callees before the callers that contain them, those
+  an interpreted kernel calls before those Python calls (:class:`_Requests`), so a long first run speeds up as
+  the child compiles its loop's pieces, instead of staying interpreted until the whole loop is compiled. The
   interpreter does the same IEEE double operations in the same order (Python floats and numpy scalars
   are doubles, ``math`` is the same C library, numba contracts no multiply-add), so a run's bytes do not
   depend on which calls were interpreted (every bundled scene is recorded both ways in
@@ -105,7 +109,8 @@ def python_kernel(func, math_module=None, overrides=None):
             ns['math'] = math if math_module is None else math_module
             for name, obj in list(ns.items()):
                 if _is_kernel(obj) and name not in extra:
-                    ns[name] = rebound(obj.py_func)
+                    py = rebound(obj.py_func)
+                    ns[name] = py if math_module is not None else _Hybrid(obj, py)
             ns.update(extra)
         return ns
 
@@ -255,8 +260,7 @@ def _kernel_dispatcher_class(base):
             entry = load_cached(self, sig, key)
             if entry is not None:
                 return entry
-            COMPILER.request(('kernel', self.py_func.__module__, self.py_func.__name__, sig))
-            return lambda *a: run_interpreted(self, sig, a)
+            return lambda *a: _interpret_then_request(self, sig, a)
 
         def get_call_template(self, args, kws):
             # a call from another kernel: typed by its arguments' plain types, never their literal ones.
@@ -324,13 +328,15 @@ def signature_of(d, args):
 _MISSES: dict = {}
 
 
-def load_cached(d, sig, key=None):
+def load_cached(d, sig, key=None, poll=True):
     """The entry point of kernel d for the argument types sig: in memory, or loaded from the kernels' cache
     (numba's ``Dispatcher.compile`` without its compiling part); None if neither. key: what stands for sig
-    (:func:`signature_of`; hashing numba's types costs more than the lookup)."""
+    (:func:`signature_of`; hashing numba's types costs more than the lookup); poll: read what the compiler
+    child has finished first (else what was read last, :meth:`_Compiler.recent_generation`)."""
     if key is None:
         key = (id(d), sig)
-    COMPILER.poll()
+    if poll:
+        COMPILER.poll()
     if _MISSES.get(key) == COMPILER.generation:   # (a compile in this process clears _MISSES)
         return None
     existing = d.overloads.get(sig)
@@ -349,14 +355,15 @@ def load_cached(d, sig, key=None):
         return cres.entry_point
 
 
-def request_compiled(d, args) -> None:
+def request_compiled(d, args, seconds: float) -> None:
     """Have the compiler child compile kernel d for the types of args, unless it is in memory or the cache
-    (nothing while numba is not loaded: :data:`DEFERRED`)."""
+    (nothing while numba is not loaded: :data:`DEFERRED`), after an interpreted call that took ``seconds``
+    (:func:`request_after`)."""
     if MODE != 'interpret' or isinstance(d, Deferred):
         return
     sig, key = signature_of(d, args)
     if load_cached(d, sig, key) is None:
-        COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig))
+        request_after(d, sig, seconds)
 
 
 def interpreted(d):
@@ -398,6 +405,123 @@ def run_interpreted(d, sig, args, fallback=None):
         return d(*args)
 
 
+def _interpret_then_request(d, sig, args):
+    """Kernel d run interpreted on args (:func:`run_interpreted`), then the compiler child asked for its machine code
+    (:func:`request_after`)."""
+    t0 = time.perf_counter()
+    try:
+        return run_interpreted(d, sig, args)
+    finally:
+        request_after(d, sig, time.perf_counter() - t0)
+
+
+#: > 0 inside :func:`quiet`
+QUIET = [0]
+
+
+class quiet:
+    """``with quiet():`` interpreted calls ask the compiler child for nothing (a probe, e.g. a loop asked whether it
+    takes a system with no periods to run, would put the loop before the callees a real call reaches)."""
+
+    def __enter__(self):
+        QUIET[0] += 1
+
+    def __exit__(self, *exc):
+        QUIET[0] -= 1
+
+
+#: ``{(id(kernel), signature): interpreted calls}`` of calls shorter than :data:`SMALL_CALL` not yet requested
+_SMALL: dict = {}
+
+
+def request_after(d, sig, seconds: float) -> None:
+    """Ask the compiler child for kernel d's machine code for the argument types sig, after an interpreted call that
+    took ``seconds``: after the kernels it called asked for theirs (:class:`_Hybrid`), so that the child compiles the
+    callees, which the next interpreted calls take up, before the callers that contain them. A call shorter than
+    :data:`SMALL_CALL` asks only at its 100th (a loop's first call with nothing to do, e.g. a block of no periods,
+    would put the whole loop before its callees)."""
+    if QUIET[0]:
+        return
+    if seconds < SMALL_CALL:
+        k = (id(d), sig)
+        n = _SMALL[k] = _SMALL.get(k, 0) + 1
+        if n < 100:
+            return
+    COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig))
+
+
+#: ``{key of signature_of: entry point}`` of the machine code interpreted kernels' callees found (:class:`_Hybrid`;
+#: numba's own lookup hashes its types, which costs more than the call)
+_ENTRIES: dict = {}
+#: parameter names of the dynamics' addresses (:mod:`.treefn`): a negative one is a Python-only token, which machine
+#: code cannot call
+_ADDRESS_PARAMETERS = ('dyn', 'fd', 'bm', 'id')
+
+
+def _token(x) -> bool:
+    """x holds a Python-only dynamics token (:data:`.treefn.GENERIC_TOKENS` and kin: a negative int)."""
+    if type(x) is int:
+        return x < 0
+    return type(x) is tuple and any(type(y) is int and y < 0 for y in x)
+
+
+class _Hybrid:
+    """A kernel as interpreted kernels call it (:func:`python_kernel`): under :data:`MODE` ``'interpret'`` its machine
+    code when that is in memory or in the kernels' cache for these argument types (loaded, never compiled in this
+    process), else its Python source, after which the compiler child is asked for the machine code. The same
+    operations either way (module docstring), so a run's bytes do not change; an interpreted run takes up each
+    callee's machine code as soon as the child has it, small callees first, instead of only the top kernel's."""
+
+    __slots__ = ('kernel', 'py', 'addresses', 'missed', 'small')
+
+    def __init__(self, kernel, py):
+        self.kernel, self.py = kernel, py
+        code = kernel.py_func.__code__
+        self.addresses = tuple(i for i, n in enumerate(code.co_varnames[:code.co_argcount])
+                               if n in _ADDRESS_PARAMETERS)
+        self.missed = None   # the compiler's generation when a lookup last found no machine code
+        self.small = 0       # > 0: its interpreted call took less than SMALL_CALL; Python for this many more calls
+
+    def __call__(self, *args):
+        if self.small:
+            self.small -= 1   # (then looked at again: the same kernel may take longer on other arguments)
+            return self.py(*args)
+        if MODE != 'interpret' or not LOADED:
+            return self.py(*args)
+        d = self.kernel.real if isinstance(self.kernel, Deferred) else self.kernel
+        if self.missed == COMPILER.recent_generation() and not d.overloads:
+            return self.py(*args)   # nothing compiled since it found none (the common case, at no cost)
+        for i in self.addresses:
+            if _token(args[i]):
+                return self.py(*args)
+        try:
+            sig, key = signature_of(d, args)
+        except Exception:   # (an argument numba cannot type: Python only)
+            return self.py(*args)
+        entry = _ENTRIES.get(key)
+        if entry is None:
+            entry = load_cached(d, sig, key, poll=False)
+        if entry is not None:
+            _ENTRIES[key] = entry
+            return entry(*args)
+        self.missed = COMPILER.generation
+        t0 = time.perf_counter()
+        try:
+            return self.py(*args)
+        finally:
+            if time.perf_counter() - t0 < SMALL_CALL:
+                self.small = SMALL_CALLS
+            elif not QUIET[0]:   # (first: what an interpreted loop calls, before what Python calls once)
+                COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig), first=True)
+
+
+#: an interpreted callee faster than this (s) stays Python (:class:`_Hybrid`): a call of machine code from Python,
+#: its arguments typed, costs a few µs
+SMALL_CALL = 30e-6
+#: calls such a callee then stays Python before it is timed again
+SMALL_CALLS = 1000
+#: seconds between two looks at what the compiler child has finished, from interpreted callees (:class:`_Hybrid`)
+POLL_EVERY = 0.02
 #: one thread at a time in :class:`_Compiler`: requests and polls come from the run's thread and from the block
 #: path's thread computing ahead (a module global, not an attribute: numba's cache pickles what kernels reach)
 _COMPILER_LOCK = threading.RLock()
@@ -414,21 +538,33 @@ class _Compiler:
         self.sent = set()
         self.generation = 0
         self.done: set = set()
+        self._polled = 0.0
 
-    def request(self, what) -> None:
-        """Have the child compile ``what`` (:meth:`_request`), one thread at a time."""
+    def request(self, what, first: bool = False) -> None:
+        """Have the child compile ``what`` (:meth:`_request`), one thread at a time; first: before the requests
+        not so marked that it has not begun."""
         with _COMPILER_LOCK:
-            self._request(what)
+            self._request(what, first)
 
     def poll(self) -> None:
         """Read what the child has finished since the last look (no wait), one thread at a time."""
         with _COMPILER_LOCK:
             self._poll()
 
-    def _request(self, what) -> None:
+    def recent_generation(self) -> int:
+        """:attr:`generation`, read from the child at most every :data:`POLL_EVERY` s (a read is a system call;
+        interpreted kernels call their callees many times a step)."""
+        now = time.monotonic()
+        if now - self._polled >= POLL_EVERY:
+            self._polled = now
+            self.poll()
+        return self.generation
+
+    def _request(self, what, first: bool = False) -> None:
         """Have the child compile ``what``: ``('kernel', module, function, signature)``, ``('call', module,
         function, *args)`` (a function that compiles, e.g. the cfuncs of :mod:`.treefn`, or a model's generated
-        module: ``codegen.load(path)``). The child names no module itself, so this room imports none of them."""
+        module: ``codegen.load(path)``). The child names no module itself, so this room imports none of them.
+        first: the child takes it before the requests without (a line starting ``!``)."""
         import base64
         import pickle
         if what in self.sent:
@@ -444,7 +580,7 @@ class _Compiler:
             os.set_blocking(self.proc.stdout.fileno(), False)
             self._buf = b''
         try:
-            self.proc.stdin.write(base64.b64encode(pickle.dumps(what)) + b'\n')
+            self.proc.stdin.write((b'!' if first else b'') + base64.b64encode(pickle.dumps(what)) + b'\n')
             self.proc.stdin.flush()
         except OSError:   # the child is gone: these calls stay interpreted
             pass
@@ -484,16 +620,60 @@ class _Compiler:
 COMPILER = _Compiler()
 
 
+class _Requests:
+    """The compiler child's requests not yet begun: those marked first (a line starting ``!``) before the others,
+    each kind in the order it came."""
+
+    def __init__(self):
+        self.first, self.rest = [], []
+
+    def add(self, line: bytes) -> None:
+        (self.first if line.startswith(b'!') else self.rest).append(line)
+
+    def take(self):
+        """The next request to compile, or None when there is none."""
+        if self.first:
+            return self.first.pop(0)
+        return self.rest.pop(0) if self.rest else None
+
+
+def _requests(stream):
+    """The requests of stream (the child's stdin), one line each, in :class:`_Requests`' order among those that have
+    come in; read by a thread, so that a request marked first overtakes those waiting."""
+    pending = _Requests()
+    more = threading.Condition()
+    ended = []
+
+    def read():
+        for line in stream:
+            with more:
+                pending.add(line)
+                more.notify()
+        with more:
+            ended.append(True)
+            more.notify()
+    threading.Thread(target=read, daemon=True).start()
+    while True:
+        with more:
+            line = pending.take()
+            while line is None and not ended:
+                more.wait()
+                line = pending.take()
+        if line is None:
+            return
+        yield line
+
+
 def main() -> int:
-    """The compiler child: compile each request read from stdin, print its line when done."""
+    """The compiler child: compile each request read from stdin (:func:`_requests`), print its line when done."""
     import base64
     import importlib
     import pickle
     from . import AVAILABLE
     if not AVAILABLE:
         return 1
-    for line in sys.stdin.buffer:
-        what = pickle.loads(base64.b64decode(line.strip()))
+    for line in _requests(sys.stdin.buffer):
+        what = pickle.loads(base64.b64decode(line.strip().lstrip(b'!')))
         try:
             if what[0] == 'kernel':
                 getattr(importlib.import_module(what[1]), what[2]).compile(what[3])

@@ -33,6 +33,8 @@ Interpreted (:mod:`.jit`, a cold cache), ``fd_at``, ``bm_at`` and ``id_at`` look
 """
 from __future__ import annotations
 
+import time
+
 from . import jit
 from .jit import njit
 from .tree import _JIT, aba_ws, crba_ws, gravity_stiffness_ws, rnea_ws, transforms, workspace
@@ -230,11 +232,14 @@ def call(d, args: list, dyn_index: int, tokens: bool):
     cfuncs."""
     if not tokens:
         return d(*args)
-    jit.request_compiled(d, args)   # (tokens type as addresses: the child compiles what the next call takes)
 
     def compiled():
         fd, bm, id_ = generic_pointers()
         real = list(args)
         real[dyn_index] = fd.address if isinstance(args[dyn_index], int) else (fd.address, bm.address, id_.address)
         return d(*real)
-    return jit.run_interpreted(d, None, args, fallback=compiled)
+    t0 = time.perf_counter()
+    try:
+        return jit.run_interpreted(d, None, args, fallback=compiled)
+    finally:   # (tokens type as addresses: the child compiles what the next call takes, after the callees it asked for)
+        jit.request_compiled(d, args, time.perf_counter() - t0)
