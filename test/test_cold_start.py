@@ -122,7 +122,6 @@ def test_interpreted_urdf_robots_record_the_compiled_bytes(recorded, variant):
 #: a process whose arm loops are not compiled yet while the kernels they call are (the package's cache, warm): the loops
 #: run as Python calling their callees' machine code (jit._Hybrid); no compiler child
 _MIXED = r'''
-import contextlib, io, json, sys, traceback
 from robodyn_ros.kernels import jit
 LOOPS = {'run_arm_periods', 'arm_steps', 'arm_controlled_steps', 'arm_rosenbrock_step', 'arm_rhs'}
 real = jit.load_cached
@@ -134,15 +133,7 @@ class Child:
     def recent_generation(self): return 0
     def wait(self): pass
 jit.COMPILER = Child()
-from robodyn_ros.cli import main
-for argv in json.loads(sys.argv[1]):
-    err = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-            status = main(argv)
-    except BaseException:
-        status, err = 99, io.StringIO(traceback.format_exc())
-    print(json.dumps([status, err.getvalue()[-2000:]]), flush=True)
+''' + _RUNS + r'''
 print(json.dumps(sorted({d.py_func.__name__ for d, _ in jit._SIGS.values()} & LOOPS)))
 print(json.dumps(len(jit._ENTRIES)))
 '''
