@@ -73,9 +73,10 @@ def test_a_short_run_does_not_load_numba_and_records_the_compiled_bytes(tmp_path
 
 
 def test_numba_loads_mid_run_at_the_budget_and_the_bytes_do_not_change(tmp_path):
+    # (the run interprets about 0.023 s of kernels here, 4.6x the budget: its recorder's loops run as numpy)
     argv = ['run', 'stanford_arm', '--duration', '0.5', '--record']
-    mid = _robodyn(argv + [str(tmp_path / 'mid.mcap')], budget=0.03, patch_expect=True)
-    assert mid['numba'] and mid['spent'] >= 0.03          # interpreted past the budget, then loaded
+    mid = _robodyn(argv + [str(tmp_path / 'mid.mcap')], budget=0.005, patch_expect=True)
+    assert mid['numba'] and mid['spent'] >= 0.005         # interpreted past the budget, then loaded
     assert mid['left'] == []                               # every kernel in every namespace is numba's now
     compiled = _robodyn(argv + [str(tmp_path / 'compiled.mcap')], budget=0)
     assert compiled['numba'] and compiled['spent'] == 0

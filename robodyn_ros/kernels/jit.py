@@ -366,11 +366,27 @@ def request_compiled(d, args, seconds: float) -> None:
         request_after(d, sig, seconds)
 
 
+#: ``{kernel's Python function: what runs in its place while it is not compiled}`` (:func:`interpreted_by`)
+_INTERPRETED_BY: dict = {}
+
+
+def interpreted_by(kernel):
+    """``@interpreted_by(kernel)``: the decorated function runs for calls of ``kernel`` from Python while kernel is
+    interpreted (a Deferred one, a miss under :data:`MODE` 'interpret' or 'python'), instead of its Python source:
+    for a kernel whose loop over every byte of a batch is fast compiled and slow interpreted, and is written as
+    well by a few numpy calls (the recorder's rows and record headers, :mod:`.records`), with the same results,
+    which a test compares. Returns the function."""
+    def register(f):
+        _INTERPRETED_BY[getattr(kernel, 'py_func', kernel)] = f
+        return f
+    return register
+
+
 def interpreted(d):
-    """Kernel d as Python (:func:`python_kernel`), made once."""
+    """Kernel d as Python (:func:`python_kernel`, or what :func:`interpreted_by` gave), made once."""
     py = d._robodyn_python if isinstance(d, Deferred) else getattr(d, '_robodyn_python', None)
     if py is None:
-        py = d._robodyn_python = python_kernel(d)
+        py = d._robodyn_python = _INTERPRETED_BY.get(d.py_func) or python_kernel(d)
     return py
 
 

@@ -7,7 +7,12 @@ writing the messages one at a time (the recording tests compare files byte for b
 ``tf_values_many`` does the same for the ``/tf`` numbers of a batch (:meth:`robodyn_ros.tf.TfTree.transform_values`).
 
 numba is optional (README, "Dependencies"): without it these loops run as plain Python (the
-same operations, so the same bytes, slower), so that a recording never needs it.
+same operations, so the same bytes, slower), so that a recording never needs it. The two that
+write every byte of a batch, :func:`fill_rows` and :func:`fill_headers`, run as numpy instead
+whenever they are not compiled (:func:`fill_rows_numpy`, :func:`fill_headers_numpy`: without numba,
+and on a cold cache until the compiler child has them, :func:`.jit.interpreted_by`): the same bytes,
+written by a few array calls per batch rather than a Python loop over every byte (an A1's first
+run spent 4 of its 18 s there). ``test/test_records.py`` compares the three forms byte for byte.
 """
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ import math
 
 import numpy as np
 
-from .jit import njit   # numba's, or without numba the functions as they are (plain Python)
+from .jit import NUMBA, interpreted_by, njit   # njit: numba's, or without numba the functions as they are
 
 _JIT = dict(cache=True, nogil=True, _nrt=True)
 
@@ -99,6 +104,54 @@ def fill_rows(template, bits, value_col, value_at, times, stamp_at, stamp_of, ou
             sec = t // 1_000_000_000
             _put(row, stamp_at[i], sec & 0xFFFFFFFF, 4)
             _put(row, stamp_at[i] + 4, t - sec * 1_000_000_000, 4)
+
+
+def _little_endian(x, nbytes):
+    """The low ``nbytes`` bytes of each integer of x, little-endian, as uint8 (..., nbytes): what
+    :func:`_put` writes (two's complement for a negative one)."""
+    x = np.asarray(x)
+    x = np.ascontiguousarray(x, dtype='<u8' if x.dtype.kind == 'u' else '<i8')
+    return x.view(np.uint8).reshape(x.shape + (8,))[..., :nbytes]
+
+
+@interpreted_by(fill_headers)
+def fill_headers_numpy(records, offsets, sizes, channels, log_times, sequence):
+    """:func:`fill_headers` by array calls (the same bytes; what runs while it is not compiled)."""
+    n = offsets.shape[0]
+    if n == 0:
+        return
+    order = np.argsort(channels, kind='stable')
+    c = channels[order]
+    first = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])            # each channel's first message, in order
+    rank = np.arange(n) - np.repeat(first, np.diff(np.r_[first, n]))  # messages of its channel before it
+    s = np.empty(n, dtype=np.int64)
+    s[order] = sequence[c] + rank + 1
+    sequence[c[np.r_[first[1:] - 1, n - 1]]] = s[order[np.r_[first[1:] - 1, n - 1]]]
+    head = np.empty((n, 31), dtype=np.uint8)
+    head[:, 0] = 5
+    head[:, 1:9] = _little_endian(sizes - 9, 8)
+    head[:, 9:11] = _little_endian(channels, 2)
+    head[:, 11:15] = _little_endian(s, 4)
+    head[:, 15:23] = _little_endian(log_times, 8)
+    head[:, 23:31] = head[:, 15:23]
+    records[np.asarray(offsets, dtype=np.int64)[:, None] + np.arange(31)] = head
+
+
+@interpreted_by(fill_rows)
+def fill_rows_numpy(template, bits, value_col, value_at, times, stamp_at, stamp_of, out):
+    """:func:`fill_rows` by array calls (the same bytes; what runs while it is not compiled)."""
+    out[:] = template
+    if value_col.shape[0]:
+        out[:, value_at[:, None] + np.arange(8)] = _little_endian(bits[:, value_col], 8)
+    if stamp_at.shape[0]:
+        t = times[:, stamp_of]
+        sec = t // 1_000_000_000
+        out[:, stamp_at[:, None] + np.arange(4)] = _little_endian(sec & 0xFFFFFFFF, 4)
+        out[:, stamp_at[:, None] + np.arange(4, 8)] = _little_endian(t - sec * 1_000_000_000, 4)
+
+
+if not NUMBA:   # (no compiled form: the recorder calls these)
+    fill_headers, fill_rows = fill_headers_numpy, fill_rows_numpy
 
 
 @njit(error_model='numpy', **_JIT)
