@@ -328,6 +328,33 @@ def test_machine_code_is_not_given_python_only_dynamics_tokens(monkeypatch):
         assert len(calls) == python_calls and np.array_equal(out, ref)
 
 
+def test_a_callee_once_found_goes_through_numbas_dispatcher_and_other_types_still_run_as_python(monkeypatch):
+    """Once a _Hybrid has found its kernel's machine code, numba's dispatcher types each call (in C); arguments of
+    types with no machine code in memory or the cache do not compile or interpret through it (_Miss) but run the
+    Python source and ask the child, marked first, as before the kernel was found."""
+    from robodyn_ros.kernels import records
+    records._put(np.zeros(8, dtype=np.uint8), 0, 1, 1)   # machine code for uint8 buffers in memory
+    monkeypatch.setattr(jit, 'COMPILER', _Child())
+    monkeypatch.setattr(jit, 'MODE', 'interpret')
+    monkeypatch.setattr(jit, 'SMALL_CALL', 0.0)   # (else a call this short stays Python)
+    monkeypatch.setattr(jit, 'load_cached', lambda d, sig, key=None, poll=True:
+                        d.overloads[sig].entry_point if sig in d.overloads else None)
+    monkeypatch.setattr(jit, '_ENTRIES', {})
+    python = []
+    h = jit._Hybrid(records._put, lambda *a: python.append(a[0].dtype) or records._put.py_func(*a))
+    for k in range(3):
+        b = np.zeros(4, dtype=np.uint8)
+        h(b, 1, 0x0A0B, 2)
+        assert b.tolist() == [0, 0x0B, 0x0A, 0] and python == [] and h.found
+    for k in range(2):
+        b = np.zeros(4, dtype=np.int64)   # no machine code for int64 buffers
+        h(b, 1, 0x0A0B, 2)
+        assert b.tolist() == [0, 0x0B, 0x0A, 0] and python == [np.dtype(np.int64)] * (k + 1)
+    assert not jit._IN_HYBRID.on
+    assert jit.COMPILER.asked == [('_put', True)] * 2
+    assert np.dtype(np.int64) not in {s[0].dtype for s in records._put.overloads}   # nothing compiled here
+
+
 def test_callees_ask_for_machine_code_after_their_call_and_before_their_callers(monkeypatch):
     """With nothing compiled (every lookup misses), an interpreted ABA asks the child for aba_ws after running it,
     marked first (an interpreted kernel's callee), and then for aba_into, unmarked (a call from Python); a quiet

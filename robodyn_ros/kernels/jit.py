@@ -13,7 +13,8 @@ call from Python does when no machine code for its argument types is in memory (
 * ``'interpret'`` (``robodyn run`` and the sim node): load it from the cache if it is there; else run the
   kernel's Python source in the interpreter (:func:`python_kernel`), and have a child process compile it
   (:class:`_Compiler`), whose machine code the next call loads. The interpreted kernel calls the machine code of
-  each kernel it calls once that is in memory or in the cache (:class:`_Hybrid`), else its Python source, and
+  each kernel it calls once that is in memory or in the cache (:class:`_Hybrid`: after the first, through numba's
+  dispatcher, which types the arguments in C), else its Python source, and
   asks the child for it after the call: the child gets the callees before the callers that contain them, those
   an interpreted kernel calls before those Python calls (:class:`_Requests`), so a long first run speeds up as
   the child compiles its loop's pieces, instead of staying interpreted until the whole loop is compiled. The
@@ -249,6 +250,8 @@ def _kernel_dispatcher_class(base):
         """numba's CPU dispatcher; on a miss from Python under MODE 'interpret', interprets (module docstring)."""
 
         def _compile_for_args(self, *args, **kws):
+            if _in_hybrid():
+                raise _Miss   # (a _Hybrid looks it up)
             if MODE == 'compile' or kws:
                 return super()._compile_for_args(*args, **kws)
             from numba.core.dispatcher import OmittedArg
@@ -488,7 +491,7 @@ class _Hybrid:
     operations either way (module docstring), so a run's bytes do not change; an interpreted run takes up each
     callee's machine code as soon as the child has it, small callees first, instead of only the top kernel's."""
 
-    __slots__ = ('kernel', 'py', 'addresses', 'missed', 'small')
+    __slots__ = ('kernel', 'py', 'addresses', 'missed', 'small', 'found')
 
     def __init__(self, kernel, py):
         self.kernel, self.py = kernel, py
@@ -497,6 +500,7 @@ class _Hybrid:
                                if n in _ADDRESS_PARAMETERS)
         self.missed = None   # the compiler's generation when a lookup last found no machine code
         self.small = 0       # > 0: its interpreted call took less than SMALL_CALL; Python for this many more calls
+        self.found = False   # its machine code was found for some argument types
 
     def __call__(self, *args):
         if self.small:
@@ -504,12 +508,23 @@ class _Hybrid:
             return self.py(*args)
         if MODE != 'interpret' or not LOADED:
             return self.py(*args)
-        d = self.kernel.real if isinstance(self.kernel, Deferred) else self.kernel
-        if self.missed == COMPILER.recent_generation() and not d.overloads:
-            return self.py(*args)   # nothing compiled since it found none (the common case, at no cost)
         for i in self.addresses:
             if _token(args[i]):
                 return self.py(*args)
+        d = self.kernel.real if isinstance(self.kernel, Deferred) else self.kernel
+        if self.found:
+            # numba's dispatcher types the arguments, in C (signature_of, in Python, was a sixth of a cold A1
+            # run's CPU time); arguments of types it has no machine code in memory for raise _Miss in
+            # KernelDispatcher._compile_for_args, before anything runs, and are looked up below
+            _IN_HYBRID.on = True
+            try:
+                return d(*args)
+            except _Miss:
+                pass
+            finally:
+                _IN_HYBRID.on = False
+        elif self.missed == COMPILER.recent_generation() and not d.overloads:
+            return self.py(*args)   # nothing compiled since it found none (the common case, at no cost)
         try:
             sig, key = signature_of(d, args)
         except Exception:   # (an argument numba cannot type: Python only)
@@ -519,6 +534,7 @@ class _Hybrid:
             entry = load_cached(d, sig, key, poll=False)
         if entry is not None:
             _ENTRIES[key] = entry
+            self.found = True
             return entry(*args)
         self.missed = COMPILER.generation
         t0 = time.perf_counter()
@@ -529,6 +545,24 @@ class _Hybrid:
                 self.small = SMALL_CALLS
             elif not QUIET[0]:   # (first: what an interpreted loop calls, before what Python calls once)
                 COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig), first=True)
+
+
+#: ``.on``: this thread is in a :class:`_Hybrid`'s call of numba's dispatcher, where a miss raises :class:`_Miss`
+class _HybridCall(threading.local):
+    on = False
+
+
+_IN_HYBRID = _HybridCall()
+
+
+def _in_hybrid() -> bool:
+    """This thread is in a :class:`_Hybrid`'s call of numba's dispatcher. (A function: numba's cache pickles the
+    closures kernels reach, KernelDispatcher's methods by value, and a thread-local object does not pickle.)"""
+    return _IN_HYBRID.on
+
+
+class _Miss(Exception):
+    """Raised by a kernel called from a :class:`_Hybrid` for argument types it has no machine code in memory for."""
 
 
 #: an interpreted callee faster than this (s) stays Python (:class:`_Hybrid`): a call of machine code from Python,
