@@ -466,7 +466,12 @@ def request_after(d, sig, seconds: float) -> None:
         n = _SMALL[k] = _SMALL.get(k, 0) + 1
         if n < 100:
             return
-    COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig))
+    _ask(d, sig)
+
+
+def _ask(d, sig, first: bool = False) -> None:
+    """Have the compiler child compile kernel d for the argument types sig (first: before requests not so marked)."""
+    COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig), first)
 
 
 #: ``{key of signature_of: entry point}`` of the machine code interpreted kernels' callees found (:class:`_Hybrid`;
@@ -544,7 +549,7 @@ class _Hybrid:
             if time.perf_counter() - t0 < SMALL_CALL:
                 self.small = SMALL_CALLS
             elif not QUIET[0]:   # (first: what an interpreted loop calls, before what Python calls once)
-                COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig), first=True)
+                _ask(d, sig, first=True)
 
 
 #: ``.on``: this thread is in a :class:`_Hybrid`'s call of numba's dispatcher, where a miss raises :class:`_Miss`

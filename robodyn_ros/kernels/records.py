@@ -126,7 +126,8 @@ def fill_headers_numpy(records, offsets, sizes, channels, log_times, sequence):
     rank = np.arange(n) - np.repeat(first, np.diff(np.r_[first, n]))  # messages of its channel before it
     s = np.empty(n, dtype=np.int64)
     s[order] = sequence[c] + rank + 1
-    sequence[c[np.r_[first[1:] - 1, n - 1]]] = s[order[np.r_[first[1:] - 1, n - 1]]]
+    last = order[np.r_[first[1:] - 1, n - 1]]                        # each channel's last message
+    sequence[channels[last]] = s[last]
     head = np.empty((n, 31), dtype=np.uint8)
     head[:, 0] = 5
     head[:, 1:9] = _little_endian(sizes - 9, 8)
