@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -128,7 +129,8 @@ real = jit.load_cached
 jit.load_cached = lambda d, sig, key=None, poll=True: None if d.py_func.__name__ in LOOPS else real(d, sig, key, poll)
 class Child:
     generation = 0
-    def request(self, what, first=False): pass
+    def request(self, what, first=False, spent=0.0): pass
+    def spend(self, n, seconds): pass
     def poll(self): pass
     def recent_generation(self): return 0
     def wait(self): pass
@@ -162,6 +164,7 @@ def test_interpreted_loops_calling_compiled_kernels_record_the_compiled_bytes(re
 
 _COLD_THEN_WAIT = r'''
 import sys
+import types
 from robodyn_ros.kernels import jit
 from robodyn_ros.cli import main
 status = main(sys.argv[1:])
@@ -172,6 +175,7 @@ sys.exit(status)
 
 _LOADS = r'''
 import sys
+import types
 from robodyn_ros.kernels import jit, cache
 from robodyn_ros.cli import main
 status = main(sys.argv[1:])
@@ -197,10 +201,15 @@ def test_a_cold_run_has_a_child_compile_what_the_next_run_loads_and_new_robots_l
     args = ['run', str(first), '--duration', '0.2', '--record']
     env = _env('interpret', tmp_path / 'cache')
     env.pop('ROBODYN_COLD_START')   # robodyn run sets 'interpret' itself
+    env['ROBODYN_COMPILE_LOG'] = str(tmp_path / 'compile.log')
     a = subprocess.run([PY, '-c', _COLD_THEN_WAIT, *args, str(tmp_path / 'a.mcap')], env=env, capture_output=True,
                        text=True, timeout=1800)
     assert a.returncode == 0, a.stderr[-2000:]
-    assert int(a.stdout.split('requested')[1].split()[0]) >= 5
+    requested = int(a.stdout.split('requested')[1].split()[0])
+    assert requested >= 5
+    log = (tmp_path / 'compile.log').read_text().splitlines()   # ROBODYN_COMPILE_LOG: a line per request
+    assert len(log) == requested and all(' done (' in line for line in log), log
+    env.pop('ROBODYN_COMPILE_LOG')
     b = subprocess.run([PY, '-c', _LOADS, *args, str(tmp_path / 'b.mcap')], env=env, capture_output=True,
                        text=True, timeout=600)
     assert b.returncode == 0, b.stderr[-2000:]
@@ -262,9 +271,18 @@ class _Child:
 
     def __init__(self):
         self.asked = []
+        self.spent = []
+        self.whats = []
 
-    def request(self, what, first=False):
+    def request(self, what, first=False, spent=0.0):
         self.asked.append((what[2], first))
+        self.whats.append(what)
+        self.spend(len(self.whats) - 1, spent)
+        return len(self.whats) - 1
+
+    def spend(self, n, seconds):
+        what = self.whats[n]
+        self.spent.append((what[2], str(getattr(what[3][0], 'dtype', what[3][0])), seconds))
 
     def poll(self):
         pass
@@ -396,6 +414,120 @@ def test_the_child_takes_requests_marked_first_before_the_others_and_every_reque
     assert sorted(jit._requests(io.BytesIO(b''.join(lines)))) == sorted(lines)
 
 
+def test_the_child_takes_first_the_request_that_saves_most_interpreted_time_per_compile_cost():
+    """Among requests marked first, the child takes the one with the largest interpreted time so far (the parent's
+    ``?`` lines) over its compile cost; requests with no time, in the order they came; those not marked first after
+    them, in the order they came, whatever their time. The times sent by _Compiler's polls are the sums of what
+    spend was given, keyed by the lines the child was sent."""
+    import base64
+    import pickle
+    q = jit._Requests(cost={b'a': 1.0, b'b': 10.0, b'c': 1.0, b'd': 2.0, b'e': 1.0}.__getitem__)
+    for line in (b'!a\n', b'!b\n', b'e\n', b'!c\n', b'!d\n'):   # numbered 0 to 4 as they come
+        q.add(line)
+    q.add(b'?' + base64.b64encode(pickle.dumps({1: 5.0, 3: 0.8, 4: 1.0, 2: 9.0})) + b'\n')
+    # gains: a 0 (none), b 0.5, c 0.8, d 0.5 (b came first), e not marked first; by time alone b, d, c
+    assert [q.take() for _ in range(6)] == [b'!c\n', b'!b\n', b'!d\n', b'!a\n', b'e\n', None]
+    q = jit._Requests()   # no cost: the time alone
+    for line in (b'!a\n', b'!b\n'):
+        q.add(line)
+    q.add(b'?' + base64.b64encode(pickle.dumps({0: 1.0, 1: 2.0})) + b'\n')
+    assert q.take() == b'!b\n'
+
+    class Stdin:
+        def __init__(self):
+            self.lines = []
+
+        def write(self, b):
+            self.lines.append(b)
+
+        def flush(self):
+            pass
+    c = jit._Compiler()
+    c.proc = type('P', (), {'stdin': Stdin(), 'stdout': None})()
+    for name in ('x', 'y'):
+        c.request(('kernel', 'm', name, ()), first=True, spent=0.25)
+    c.spend(0, 1.0)
+    c.spend(None, 7.0)   # (a request not sent)
+    c._tell()
+    c._tell()   # (at most every TELL_EVERY s, and only when the time grew)
+    sent = c.proc.stdin.lines
+    assert len(sent) == 3 and sent[0].startswith(b'!') and sent[2].startswith(b'?'), sent
+    q = jit._Requests()
+    for line in sent:
+        q.add(line)
+    assert q.spent == {0: 1.25, 1: 0.25}
+    assert q.take() == sent[0]
+
+
+def test_an_interpreted_callee_counts_its_own_time_beyond_its_interpreted_callees(monkeypatch):
+    """A _Hybrid running Python times its call and gives the child the time beyond its timed callees' (a clock that
+    advances only where the test says): an outer call of 1 + inner 2 + 0.5 s spends 1.5 s, the inner 2 s; the first
+    call of each asks with its time, the later ones (no lookup) add theirs to that request."""
+    import numba
+    jit.load_numba()
+
+    def inner_k(b):
+        return b
+
+    def outer_k(b):
+        return b
+    inner_k, outer_k = numba.njit(cache=False)(inner_k), numba.njit(cache=False)(outer_k)   # never compiled
+    clock = [0.0]
+    monkeypatch.setattr(jit, 'time', type('T', (), {'perf_counter': staticmethod(lambda: clock[0]),
+                                                     'monotonic': staticmethod(lambda: clock[0])}))
+    monkeypatch.setattr(jit, 'COMPILER', _Child())
+    monkeypatch.setattr(jit, 'MODE', 'interpret')
+    monkeypatch.setattr(jit, 'load_cached', lambda d, sig, key=None, poll=True: None)
+    monkeypatch.setattr(jit, '_ENTRIES', {})
+
+    def inner_py(*a):
+        clock[0] += 2.0
+
+    def outer_py(*a):
+        clock[0] += 1.0
+        inner(np.zeros(4, dtype=np.int64))
+        clock[0] += 0.5
+    inner = jit._Hybrid(inner_k, inner_py)
+    outer = jit._Hybrid(outer_k, outer_py)
+    for _ in range(3):
+        outer(np.zeros(4, dtype=np.uint8))
+    assert jit.COMPILER.asked == [('inner_k', True), ('outer_k', True)]   # each once
+    assert jit.COMPILER.spent == [('inner_k', 'int64', 2.0), ('outer_k', 'uint8', 1.5)] * 3
+    assert jit._INNER.times == []
+    fast = jit._Hybrid(inner_k, lambda *a: None)   # shorter than SMALL_CALL: neither asks nor spends
+    fast(np.zeros(4, dtype=np.uint8))
+    assert len(jit.COMPILER.spent) == 6 and fast.small == jit.SMALL_CALLS
+
+
+def test_a_request_costs_its_code_and_that_of_the_callees_it_compiles_with_it():
+    """The child's compile cost of a kernel: the fixed cost, its bytecode, and that of each kernel it reaches with no
+    machine code in the process (numba compiles those with it); once the callee has machine code, only its own;
+    once it has its own for the signature asked, the fixed cost; 'call' requests the fixed cost."""
+    import numba
+    jit.load_numba()
+    leaf = numba.njit(cache=False)(lambda x: x + 1.0)
+    ns = {'leaf': leaf}
+    exec('def caller(x):\n    return leaf(x) * 2.0\n', ns)
+    caller = numba.njit(cache=False)(ns['caller'])
+    mod = types.ModuleType('_cost_probe')
+    mod.caller, mod.leaf = caller, leaf
+    sys.modules['_cost_probe'] = mod
+    try:
+        sig = (numba.float64,)
+        size = {f: len(f.py_func.__code__.co_code) for f in (leaf, caller)}
+        assert jit._code_size(('kernel', '_cost_probe', 'caller', sig)) == \
+            jit.COMPILE_OVERHEAD + size[caller] + size[leaf]
+        leaf(1.0)
+        assert jit._code_size(('kernel', '_cost_probe', 'caller', sig)) == jit.COMPILE_OVERHEAD + size[caller]
+        assert jit._code_size(('kernel', '_cost_probe', 'leaf', sig)) == jit.COMPILE_OVERHEAD
+        assert caller(1.0) == 4.0
+        assert jit._code_size(('kernel', '_cost_probe', 'caller', sig)) == jit.COMPILE_OVERHEAD
+        assert jit._code_size(('call', '_cost_probe', 'caller')) == jit.COMPILE_OVERHEAD
+        assert jit._code_size(('kernel', '_no_such_module', 'f', sig)) == jit.COMPILE_OVERHEAD
+    finally:
+        del sys.modules['_cost_probe']
+
+
 def _kinds_of_arguments(rng):
     """Arguments of many numba types: arrays of several dtypes and dimensions, C, F and strided, read-only and
     misaligned ones, Python and numpy scalars (ints near the int64 and uint64 limits), None, nested tuples."""
@@ -476,7 +608,7 @@ def test_a_kernel_asked_for_again_is_typed_once_and_looked_up_once_per_compiler_
     real = type(fresh).typeof_pyval
     monkeypatch.setattr(type(fresh), 'typeof_pyval', lambda self, a: typed.append(a) or real(self, a))
     monkeypatch.setattr(type(fresh._cache), 'load_overload', lambda self, sig, ctx: looked.append(sig))
-    monkeypatch.setattr(jit.COMPILER, 'request', lambda what, first=False: asked.append(what))
+    monkeypatch.setattr(jit.COMPILER, 'request', lambda what, first=False, spent=0.0: asked.append(what))
     monkeypatch.setattr(jit, 'MODE', 'interpret')
     for _ in range(5):
         jit.request_compiled(fresh, args, 1.0)   # (after a call that took 1 s)

@@ -469,9 +469,11 @@ def request_after(d, sig, seconds: float) -> None:
     _ask(d, sig)
 
 
-def _ask(d, sig, first: bool = False) -> None:
-    """Have the compiler child compile kernel d for the argument types sig (first: before requests not so marked)."""
-    COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig), first)
+def _ask(d, sig, first: bool = False, spent: float = 0.0):
+    """Have the compiler child compile kernel d for the argument types sig (first: before requests not so marked;
+    spent: seconds its last interpreted call took beyond its interpreted callees', :meth:`_Compiler.request`).
+    Returns the request's number."""
+    return COMPILER.request(('kernel', d.py_func.__module__, d.py_func.__name__, sig), first, spent)
 
 
 #: ``{key of signature_of: entry point}`` of the machine code interpreted kernels' callees found (:class:`_Hybrid`;
@@ -496,7 +498,7 @@ class _Hybrid:
     operations either way (module docstring), so a run's bytes do not change; an interpreted run takes up each
     callee's machine code as soon as the child has it, small callees first, instead of only the top kernel's."""
 
-    __slots__ = ('kernel', 'py', 'addresses', 'missed', 'small', 'found')
+    __slots__ = ('kernel', 'py', 'addresses', 'missed', 'small', 'found', 'asked')
 
     def __init__(self, kernel, py):
         self.kernel, self.py = kernel, py
@@ -506,6 +508,7 @@ class _Hybrid:
         self.missed = None   # the compiler's generation when a lookup last found no machine code
         self.small = 0       # > 0: its interpreted call took less than SMALL_CALL; Python for this many more calls
         self.found = False   # its machine code was found for some argument types
+        self.asked = None    # the number of its last request to the compiler child
 
     def __call__(self, *args):
         if self.small:
@@ -529,7 +532,7 @@ class _Hybrid:
             finally:
                 _IN_HYBRID.on = False
         elif self.missed == COMPILER.recent_generation() and not d.overloads:
-            return self.py(*args)   # nothing compiled since it found none (the common case, at no cost)
+            return self._python(args)   # nothing compiled since it found none (the common case: no lookup)
         try:
             sig, key = signature_of(d, args)
         except Exception:   # (an argument numba cannot type: Python only)
@@ -542,14 +545,32 @@ class _Hybrid:
             self.found = True
             return entry(*args)
         self.missed = COMPILER.generation
+        return self._python(args, d, sig)
+
+    def _python(self, args, d=None, sig=None):
+        """The Python source on args, timed: a call shorter than :data:`SMALL_CALL` makes the next
+        :data:`SMALL_CALLS` calls Python at once; a longer one asks the compiler child for kernel d's machine code
+        for the types sig, marked first (what an interpreted loop calls, before what Python calls once), or, d
+        None, adds to the last request's time (:meth:`_Compiler.spend`): what it took beyond its timed
+        interpreted callees (which add theirs to it, :data:`_INNER`)."""
+        inner = _INNER.times
+        inner.append(0.0)
         t0 = time.perf_counter()
         try:
             return self.py(*args)
         finally:
-            if time.perf_counter() - t0 < SMALL_CALL:
+            dt = time.perf_counter() - t0
+            own = dt - inner.pop()
+            if inner:
+                inner[-1] += dt
+            if dt < SMALL_CALL:
                 self.small = SMALL_CALLS
-            elif not QUIET[0]:   # (first: what an interpreted loop calls, before what Python calls once)
-                _ask(d, sig, first=True)
+            elif QUIET[0]:
+                pass
+            elif d is not None:
+                self.asked = _ask(d, sig, first=True, spent=own)
+            elif self.asked is not None:
+                COMPILER.spend(self.asked, own)
 
 
 #: ``.on``: this thread is in a :class:`_Hybrid`'s call of numba's dispatcher, where a miss raises :class:`_Miss`
@@ -566,6 +587,17 @@ def _in_hybrid() -> bool:
     return _IN_HYBRID.on
 
 
+class _Inner(threading.local):
+    """``.times``: per :class:`_Hybrid` call running its Python source on this thread, innermost last, the seconds its
+    own such callees took so far (what its call took beyond them is its own: :meth:`_Compiler.request`)."""
+
+    def __init__(self):
+        self.times = []
+
+
+_INNER = _Inner()
+
+
 class _Miss(Exception):
     """Raised by a kernel called from a :class:`_Hybrid` for argument types it has no machine code in memory for."""
 
@@ -577,6 +609,8 @@ SMALL_CALL = 30e-6
 SMALL_CALLS = 1000
 #: seconds between two looks at what the compiler child has finished, from interpreted callees (:class:`_Hybrid`)
 POLL_EVERY = 0.02
+#: seconds between two reports to the compiler child of the time spent in interpreted kernels (:meth:`_Compiler._tell`)
+TELL_EVERY = 0.1
 #: one thread at a time in :class:`_Compiler`: requests and polls come from the run's thread and from the block
 #: path's thread computing ahead (a module global, not an attribute: numba's cache pickles what kernels reach)
 _COMPILER_LOCK = threading.RLock()
@@ -594,12 +628,30 @@ class _Compiler:
         self.generation = 0
         self.done: set = set()
         self._polled = 0.0
+        #: ``{request number: seconds}``: the time the interpreted calls of each kernel asked for took beyond their
+        #: timed interpreted callees', so far: what its machine code saves (:meth:`request`); requests are numbered
+        #: in the order sent
+        self.spent: dict = {}
+        self._numbers: dict = {}
+        self._told = (0.0, 0.0)
 
-    def request(self, what, first: bool = False) -> None:
+    def request(self, what, first: bool = False, spent: float = 0.0):
         """Have the child compile ``what`` (:meth:`_request`), one thread at a time; first: before the requests
-        not so marked that it has not begun."""
+        not so marked that it has not begun. spent: what the call that asks took beyond its interpreted callees
+        (:meth:`spend`). Returns the request's number (None: not sent)."""
         with _COMPILER_LOCK:
             self._request(what, first)
+        n = self._numbers.get(what)
+        self.spend(n, spent)
+        return n
+
+    def spend(self, n, seconds: float) -> None:
+        """Add seconds to the time spent in the interpreted calls of request number n (:meth:`request`; None:
+        nothing), which the polls send to the child (:meth:`_tell`) to order the requests marked first by
+        (:class:`_Requests`). (Without the lock: the time is a hint for the child's order, and a lost addition costs
+        nothing.)"""
+        if n is not None:
+            self.spent[n] = self.spent.get(n, 0.0) + seconds
 
     def poll(self) -> None:
         """Read what the child has finished since the last look (no wait), one thread at a time."""
@@ -625,6 +677,7 @@ class _Compiler:
         if what in self.sent:
             return
         self.sent.add(what)
+        self._numbers[what] = len(self._numbers)
         if self.proc is None:
             import subprocess
             env = dict(os.environ, ROBODYN_COLD_START='compile', _ROBODYN_DEFER_NUMBA='')
@@ -640,9 +693,26 @@ class _Compiler:
         except OSError:   # the child is gone: these calls stay interpreted
             pass
 
+    def _tell(self) -> None:
+        """Send the child the time spent in each requested kernel's interpreted calls (a line ``?`` + the pickled
+        :attr:`spent`, a few bytes per request) when it grew, at most every :data:`TELL_EVERY` s."""
+        import base64
+        import pickle
+        now = time.monotonic()
+        total = sum(self.spent.values())
+        if now - self._told[0] < TELL_EVERY or total == self._told[1]:
+            return
+        self._told = (now, total)
+        try:
+            self.proc.stdin.write(b'?' + base64.b64encode(pickle.dumps(self.spent)) + b'\n')
+            self.proc.stdin.flush()
+        except OSError:
+            pass
+
     def _poll(self) -> None:
         if self.proc is None:
             return
+        self._tell()
         try:
             chunk = self.proc.stdout.read()
         except OSError:
@@ -676,26 +746,84 @@ COMPILER = _Compiler()
 
 
 class _Requests:
-    """The compiler child's requests not yet begun: those marked first (a line starting ``!``) before the others,
-    each kind in the order it came."""
+    """The compiler child's requests not yet begun: those marked first (a line starting ``!``: an interpreted
+    kernel's callees) before the others. Among those marked first, the one whose machine code saves most per second
+    of compiling: the seconds the parent has spent in its interpreted calls so far (a line ``?``,
+    :meth:`_Compiler._tell`, by the requests' numbers in the order they came) over ``cost(line)`` (what compiling
+    it takes, in any unit; 1 without cost); the one that came first among equals (none spent: the order they came).
+    The others in the order they came.
 
-    def __init__(self):
-        self.first, self.rest = [], []
+    A kernel compiled late costs the parent its interpreted calls meanwhile; of two, the one with the larger
+    interpreted time per compile time goes first: a cold A1 run interprets its implicit step's Cholesky factor at
+    0.36 ms a call, which compiles in 0.2 s, and ABA at 0.11 ms a call beyond its callees, which takes 3.5 s."""
+
+    def __init__(self, cost=None):
+        self.first, self.rest = [], []   # (number, line) each
+        self.spent: dict = {}
+        self.cost = cost
+        self.count = 0
 
     def add(self, line: bytes) -> None:
-        (self.first if line.startswith(b'!') else self.rest).append(line)
+        if line.startswith(b'?'):
+            import base64
+            import pickle
+            self.spent = pickle.loads(base64.b64decode(line[1:].strip()))
+            return
+        (self.first if line.startswith(b'!') else self.rest).append((self.count, line))
+        self.count += 1
+
+    def _gain(self, n: int, line: bytes) -> float:
+        spent = self.spent.get(n, 0.0)
+        return spent / self.cost(line.strip().lstrip(b'!')) if spent and self.cost is not None else spent
 
     def take(self):
-        """The next request to compile, or None when there is none."""
+        """The next request to compile (its line), or None when there is none."""
         if self.first:
-            return self.first.pop(0)
-        return self.rest.pop(0) if self.rest else None
+            return self.first.pop(max(range(len(self.first)), key=lambda k: self._gain(*self.first[k])))[1]
+        return self.rest.pop(0)[1] if self.rest else None
 
 
-def _requests(stream):
+def _code_size(what) -> float:
+    """What compiling request ``what`` takes, roughly: the bytecode size of the kernel and of the kernels it reaches
+    that have no machine code in this process yet (numba compiles them with it), plus :data:`COMPILE_OVERHEAD`; a
+    cold A1 run's callees took 0.6–1.8 ms of compiling per bytecode instruction beyond a constant of about 0.1 s."""
+    import importlib
+    if what[0] != 'kernel':
+        return COMPILE_OVERHEAD
+    try:
+        k = getattr(importlib.import_module(what[1]), what[2])
+    except Exception:
+        return COMPILE_OVERHEAD
+    seen = set()
+    size = COMPILE_OVERHEAD
+    if what[3] not in getattr(k, 'overloads', {}):
+        size += len(k.py_func.__code__.co_code)
+    todo = [k.py_func]
+    while todo:
+        f = todo.pop()
+        g = f.__globals__
+        for name in f.__code__.co_names:
+            o = g.get(name)
+            if o is not None and _is_kernel(o) and id(o) not in seen:
+                seen.add(id(o))
+                pf = getattr(o, 'py_func', None)
+                if pf is None:
+                    continue
+                todo.append(pf)
+                if not getattr(o, 'overloads', None):
+                    size += len(pf.__code__.co_code)
+    return float(size)
+
+
+#: bytecode bytes that stand for a compile's fixed cost in :func:`_code_size` (about 0.1 s; an instruction is about
+#: 4 bytes of CPython 3.11's code, with its caches)
+COMPILE_OVERHEAD = 400
+
+
+def _requests(stream, cost=None):
     """The requests of stream (the child's stdin), one line each, in :class:`_Requests`' order among those that have
     come in; read by a thread, so that a request marked first overtakes those waiting."""
-    pending = _Requests()
+    pending = _Requests(cost)
     more = threading.Condition()
     ended = []
 
@@ -727,8 +855,14 @@ def main() -> int:
     from . import AVAILABLE
     if not AVAILABLE:
         return 1
-    for line in _requests(sys.stdin.buffer):
+    log = os.environ.get('ROBODYN_COMPILE_LOG')
+    start = time.monotonic()
+
+    def cost(key):
+        return _code_size(pickle.loads(base64.b64decode(key)))
+    for line in _requests(sys.stdin.buffer, cost):
         what = pickle.loads(base64.b64decode(line.strip().lstrip(b'!')))
+        t0 = time.monotonic()
         try:
             if what[0] == 'kernel':
                 getattr(importlib.import_module(what[1]), what[2]).compile(what[3])
@@ -737,6 +871,9 @@ def main() -> int:
             status = b'done'
         except Exception as e:   # reported, and the parent keeps interpreting that call
             status = f'failed {type(e).__name__}'.encode()
+        if log:   # when each request began and how long it took, for a person measuring
+            with open(log, 'a') as f:
+                f.write(f'{t0 - start:8.2f} {time.monotonic() - t0:6.2f} {status.decode()} {what[:3]}\n')
         try:
             sys.stdout.buffer.write(status + b' ' + line.strip()[:40] + b'\n')
             sys.stdout.buffer.flush()
