@@ -79,7 +79,8 @@ class PeriodBlock:
     ``effort`` (K, ·) and, when computed, the joint wrenches ``wrenches`` (K, n, 6) in the order
     of ``template.wrenches``; ``odom`` (K, 13: position, orientation, linear, angular) of a system
     that publishes one, and the ground's ``contacts`` (K, nl, 6) in the order of ``template.contacts``
-    (else None); ``control``: per period the servo's and sensors' ``(messages, imu_poses, ft_wrenches)``
+    and every contact point's outputs ``points`` (K, np, NP) (``ArmSystem.contact_point_outputs`` of each
+    period's end) (else None); ``control``: per period the servo's and sensors' ``(messages, imu_poses, ft_wrenches)``
     (``ArmSystem.control_outputs``; else None). template: the SystemOutputs of one such period (names, frames, how wrenches are
     computed), the same for all K. z: (K, ny + 1 + parts) the Simulator's state and work quadrature
     ``[y, W, W_parts]`` at each period's end. The Simulator is at the end of the last one, or, with
@@ -99,6 +100,7 @@ class PeriodBlock:
     contacts: np.ndarray | None = None
     arrive: object = None
     control: list | None = None
+    points: np.ndarray | None = None
 
 
 class BlockRunner:
@@ -283,11 +285,13 @@ class BlockRunner:
         commands = {} if self.program is None else {self.port: Us[a:b]}
         position, velocity, effort = outs
         odom, contacts, control = more.get('odom'), more.get('contacts'), more.get('control')
+        points = more.get('points')
         block = PeriodBlock(t_cmd=t_cmd[a:b], t_out=t_out[a:b], commands=commands, position=position[a:b],
                             velocity=velocity[a:b], effort=effort[a:b], wrenches=None if Fs is None else Fs[a:b],
                             template=self.template, z=Zs[a:b], odom=None if odom is None else odom[a:b],
                             contacts=None if contacts is None else contacts[a:b], arrive=arrive if whole else None,
-                            control=None if control is None else control[a:b])
+                            control=None if control is None else control[a:b],
+                            points=None if points is None else points[a:b])
         for s in self.sinks:
             s.on_block(block, self.sim)
         arrive(b - a - 1)

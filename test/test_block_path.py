@@ -478,6 +478,9 @@ class _Ahead:
     ('stanford_arm', 'numba', dict(record=False)),
     ('stanford_arm', 'generated', dict(script='none')),                    # no script: the command held
     ('a1_stand', 'numba', dict(integrator='rosenbrock2', rate=200.0)),    # a free root on a ground
+    # the same with the recorder's own chunks: its batches then take many periods, whose markers come from the
+    # block's contact points (with 3000-byte chunks a batch takes one A1 period)
+    ('a1_stand', 'numba', dict(integrator='rosenbrock2', rate=200.0, chunk_size=768 * 1024)),
 ])
 def test_the_block_computed_ahead_gives_the_bytes_of_the_block_computed_in_turn(tmp_path, monkeypatch, case,
                                                                                   backend, kw):

@@ -450,12 +450,13 @@ class CompiledModel:
                 'budget': bool(ctl[arm.CTL_BUDGET]), 'done': float(ctl[arm.CTL_DONE])}
 
     def run_periods(self, method: str, B, z, dt, t_start, n_full, h_last, program, u, Zs, Us, TAUs, Fs, want_f,
-                    ulim, Cs, t_end, srv=None, SVs=None, tol=None):
+                    ulim, Cs, t_end, srv=None, SVs=None, tol=None, CPs=None):
         """K publication periods in one compiled call (``arm.run_arm_periods``, the loops' one entry): the
         per-period path (:meth:`integrate_arm`) and the block path (``ArmSystem.fused_periods``). program:
         a compiled command profile ``(kind, P, times, values, BT, Bq)`` or None (u held); B (nv, nu), or no
         rows (u is τ_app); t_end (K,) the periods' ends; srv: None, or a joint servo (:mod:`.servo`), whose
-        outputs go to SVs (K, ns, 6) when it has rows; tol: see :meth:`integrate_arm`. Returns ``(k, code,
+        outputs go to SVs (K, ns, 6) when it has rows; tol: see :meth:`integrate_arm`; CPs (K, np, NP): every
+        contact point's outputs at each period's end, when it has rows (None: not kept). Returns ``(k, code,
         step)``. Between two calls a run on backend 'auto' takes up the
         model's generated code (:meth:`poll_generated`)."""
         import time
@@ -466,6 +467,8 @@ class CompiledModel:
         kind, P, times, values, BT, Bq = program
         if SVs is None:
             SVs = np.empty((t_start.shape[0], 0, 6))
+        if CPs is None:
+            CPs = np.empty((t_start.shape[0], 0, contact.NP))
         ros = None
         if method == 'rosenbrock2':
             if self._ros is None:
@@ -483,7 +486,8 @@ class CompiledModel:
         out = treefn.call(arm.run_arm_periods, [
             self.mi, self.mf, self.mi_r, self.mf_r, self.damping, self.friction, self.v_s, self.lim, B, self.nq,
             FUSED_METHODS[method], z, float(dt), t_start, n_full, h_last, kind, P, times, values, BT, Bq, u, Zs, Us,
-            TAUs, Fs, bool(want_f), ulim, self.con, self.cpo, Cs, t_end, srv, SVs, self.cpl, ros, dyn], 37, tokens)
+            TAUs, Fs, bool(want_f), ulim, self.con, self.cpo, Cs, CPs, t_end, srv, SVs, self.cpl, ros, dyn], 38,
+            tokens)
         if generic:
             self._spent += time.perf_counter() - t0
         return out

@@ -765,8 +765,8 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
 
 @njit(**_JIT)
 def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, method, z, dt, t_start, n_full, h_last,
-                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs, t_end, srv, SVs,
-                    cpl, ros, dyn):
+                    kind, P, times, values, BT, Bq, u, Zs, Us, TAUs, Fs, want_f, ulim, con, cpo, Cs, CPs, t_end, srv,
+                    SVs, cpl, ros, dyn):
     """K publication periods of an arm in one call: per period k the scripted command at its
     start ``t_start[k]`` (:func:`command_eval`, kind ``CMD_NONE``: u held as given), clamped to the
     effort limits ulim (nu,) (inf: none) as the Simulator clamps it (np.clip), ``τ_app = B u_clamped``
@@ -779,7 +779,8 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
     the same functions. con: None, or the ground contacts (:func:`arm_rhs`; z then ends with W_c), with
     cpo = ``(body_of, link_of)`` (each point's body of the full tree and its link's row in Cs) and the
     links' contact wrenches ``Cs[k]`` (nl, 6) (:func:`.contact.link_wrenches`; Cs with no links: not
-    computed). srv: None, or a joint servo (:mod:`.servo`) held over the K periods (its setpoint program
+    computed) and every point's outputs ``CPs[k]`` (np, NP) (:func:`.contact.contact_points`, which both come
+    from; CPs with no points: not kept). srv: None, or a joint servo (:mod:`.servo`) held over the K periods (its setpoint program
     fixed), evaluated at each stage; with SVs (K, ns, 6) (SVs with no rows: not computed) its torques at each
     period's end ``t_end[k]`` join ``TAUs[k]`` (its joints take no B u) and the wrenches' τ, with its desired
     values in ``SVs[k]`` (:func:`.servo.servo_state`). cpl: None, or the mimic coupling (:func:`arm_rhs`; the block path declines such trees, the
@@ -840,10 +841,15 @@ def run_arm_periods(mi, mf, mi_r, mf_r, damping, friction, v_s, lim, B, nq, meth
             servo_state(mi_r, mf_r, damping, friction, v_s, srv, t_end[k], z[:nq], z[nq:nq + nv], Wr, SVs[k], dyn)
             for j in range(srv[0].shape[0]):
                 TAUs[k, srv[0][j, 0]] += SVs[k, j, 4]
-        if con is not None and Cs.shape[1] > 0:   # the contacts at the period's end: per link, and per body
+        if con is not None and (Cs.shape[1] > 0 or CPs.shape[1] > 0):   # the contacts at the period's end
             Pc = contact_points(con, mi_r, mf_r, z[:nq], z[nq:nq + nv])
-            link_wrenches(con[0], Pc, cpo[1], Cs[k])
-            if want_f:
+            if Cs.shape[1] > 0:   # per link
+                link_wrenches(con[0], Pc, cpo[1], Cs[k])
+            if CPs.shape[1] > 0:   # per point (the block path's markers)
+                for p in range(Pc.shape[0]):
+                    for c in range(Pc.shape[1]):
+                        CPs[k, p, c] = Pc[p, c]
+            if want_f:   # per body
                 point_body_forces(mi, mf, z[:nq], Pc, cpo[0], zf)
         if want_f:
             arm_forces(damping, friction, v_s, lim, tau_app, nq, nv, z[:nw], dz, tauv)

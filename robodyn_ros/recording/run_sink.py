@@ -597,7 +597,10 @@ class McapRunSink:
             if self.markers is not None:   # drawn from each period's state (the block has no outputs)
                 ny = sim.system.ny
                 many = getattr(sim.system, 'contact_point_outputs', None)
-                P = many(blk.z[i:i + m, :ny]) if many is not None and blk.control is None else None
+                P = None
+                if blk.control is None:   # the block's own (the compiled loop's, of the same states), else computed
+                    P = blk.points[i:i + m] if blk.points is not None else \
+                        many(blk.z[i:i + m, :ny]) if many is not None else None
                 if P is not None:   # the m periods' markers at once: the same bytes
                     data = self.markers.state_messages(t_out[i:i + m], P)
                 elif blk.control is not None:   # the sensors' frames and readings of each period (and contacts)

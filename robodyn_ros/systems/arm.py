@@ -542,7 +542,8 @@ class ArmSystem(System):
         effort), Fs, steps, more)``: see ``kernels.arm.run_arm_periods``; the joint_states arrays (K, ·) of
         each period's end, Fs None without wrenches, steps (K,) per period; more: ``{'odom': (K, 13)
         position, orientation, linear, angular of a free root (else None), 'contacts': (K, nl, 6) the links'
-        contact wrenches (else None), 'control': (K,) list of each period's ``(messages, imu_poses,
+        contact wrenches (else None), 'points': (K, np, NP) every contact point's outputs
+        (:meth:`contact_point_outputs` of each period's end, else None), 'control': (K,) list of each period's ``(messages, imu_poses,
         ft_wrenches)`` with a servo or sensors (else None)}``.
         """
         control = self.servo is not None or self.sensors is not None
@@ -562,6 +563,10 @@ class ArmSystem(System):
         Fs = np.empty((K, nb, 6) if wrenches else (0, nb, 6))
         c = self.contact
         Cs = np.empty((K, len(c.links) if c is not None else 0, 6))
+        CPs = None
+        if c is not None:
+            from ..kernels.contact import NP
+            CPs = np.empty((K, c.n_points, NP))
         lim = self.inputs['effort'].limit
         ulim = np.full(u.shape[0], np.inf) if lim is None else np.asarray(lim, dtype=float)
         srv = self._srv(held) if self.servo is not None else None
@@ -569,9 +574,9 @@ class ArmSystem(System):
         t_end = np.ascontiguousarray(t_end, dtype=float)
         k, code, _ = self._km.run_periods(integrator_name, self._B, z, dt, np.ascontiguousarray(t_start, dtype=float),
                                           n_full, h_last, program, u, Zs, Us, TAUs, Fs, wrenches, ulim, Cs,
-                                          t_end, srv, SVs)
+                                          t_end, srv, SVs, CPs=CPs)
         steps = n_full + (h_last > 0.0)
-        more = {'odom': None, 'contacts': Cs if c is not None else None, 'control': None}
+        more = {'odom': None, 'contacts': Cs if c is not None else None, 'control': None, 'points': CPs}
         if srv is not None:   # its joints publish the torque it applies (as _state_outputs sets them, not adds)
             TAUs[:k, self.servo.v_index] = SVs[:k, :, 4]
         if control:   # each period's servo and sensor messages, as outputs() builds them
