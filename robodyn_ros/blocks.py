@@ -321,7 +321,8 @@ class BlockRunner:
                                                                       outs[1][a:b])
         extra = getattr(sys_, 'state_extra', None)
         if extra is not None:   # what outputs() would have put in diag.extra at the last state
-            sim.diag.extra.update(extra(sim.y))
+            points = res[7].get('points') if len(res) > 7 else None
+            sim.diag.extra.update(extra(sim.y) if points is None else extra(sim.y, points[b - 1]))
 
 
 class _Ahead:

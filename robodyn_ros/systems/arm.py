@@ -596,13 +596,16 @@ class ArmSystem(System):
                                            Zs[:, self.nq + v0:self.nq + v0 + 3]], axis=1)
         return k, code, Zs, Us, outs, (Fs if wrenches else None), steps, more
 
-    def state_extra(self, y) -> dict:
+    def state_extra(self, y, points=None) -> dict:
         """The diagnostics values :meth:`outputs` puts in ``extra`` at state y (the contact ones on a
-        ground; none otherwise), for the block path, which builds no outputs per period."""
+        ground; none otherwise), for the block path, which builds no outputs per period; points: the contact
+        points' outputs at y (:meth:`contact_point_outputs`) where the caller has them."""
         if self.contact is None:
             return {}
-        q, v = self.split(y)
-        return self.contact.diagnostics(self.contact.point_outputs(self._km, q, v))
+        if points is None:
+            q, v = self.split(y)
+            points = self.contact.point_outputs(self._km, q, v)
+        return self.contact.diagnostics(points)
 
     def _fuses(self, integrator_name, z) -> bool:
         """True when the fused loop computes what the Python path would for this integrator and
