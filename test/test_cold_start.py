@@ -503,6 +503,9 @@ def test_a_request_costs_its_code_and_that_of_the_callees_it_compiles_with_it():
     """The child's compile cost of a kernel: the fixed cost, its bytecode, and that of each kernel it reaches with no
     machine code in the process (numba compiles those with it); once the callee has machine code, only its own;
     once it has its own for the signature asked, the fixed cost; 'call' requests the fixed cost."""
+    import base64
+    import pickle
+
     import numba
     jit.load_numba()
     leaf = numba.njit(cache=False)(lambda x: x + 1.0)
@@ -517,6 +520,9 @@ def test_a_request_costs_its_code_and_that_of_the_callees_it_compiles_with_it():
         size = {f: len(f.py_func.__code__.co_code) for f in (leaf, caller)}
         assert jit._code_size(('kernel', '_cost_probe', 'caller', sig)) == \
             jit.COMPILE_OVERHEAD + size[caller] + size[leaf]
+        line = base64.b64encode(pickle.dumps(('kernel', '_cost_probe', 'caller', sig)))   # the child's form
+        assert jit._line_cost(line) == jit.COMPILE_OVERHEAD + size[caller] + size[leaf]
+        assert jit._line_cost(b'not base64 at all!') == jit.COMPILE_OVERHEAD
         leaf(1.0)
         assert jit._code_size(('kernel', '_cost_probe', 'caller', sig)) == jit.COMPILE_OVERHEAD + size[caller]
         assert jit._code_size(('kernel', '_cost_probe', 'leaf', sig)) == jit.COMPILE_OVERHEAD

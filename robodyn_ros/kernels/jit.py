@@ -815,6 +815,17 @@ def _code_size(what) -> float:
     return float(size)
 
 
+def _line_cost(key: bytes) -> float:
+    """:func:`_code_size` of the request whose line (without its mark) is key; a line it cannot read costs the fixed
+    cost (the child then reports that request failed, where it compiles it)."""
+    import base64
+    import pickle
+    try:
+        return _code_size(pickle.loads(base64.b64decode(key)))
+    except Exception:
+        return float(COMPILE_OVERHEAD)
+
+
 #: bytecode bytes that stand for a compile's fixed cost in :func:`_code_size` (about 0.1 s; an instruction is about
 #: 4 bytes of CPython 3.11's code, with its caches)
 COMPILE_OVERHEAD = 400
@@ -858,9 +869,7 @@ def main() -> int:
     log = os.environ.get('ROBODYN_COMPILE_LOG')
     start = time.monotonic()
 
-    def cost(key):
-        return _code_size(pickle.loads(base64.b64decode(key)))
-    for line in _requests(sys.stdin.buffer, cost):
+    for line in _requests(sys.stdin.buffer, _line_cost):
         what = pickle.loads(base64.b64decode(line.strip().lstrip(b'!')))
         t0 = time.monotonic()
         try:
