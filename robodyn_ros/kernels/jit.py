@@ -624,7 +624,6 @@ class _Compiler:
 
     def __init__(self):
         self.proc = None
-        self.sent = set()
         self.generation = 0
         self.done: set = set()
         self._polled = 0.0
@@ -632,18 +631,22 @@ class _Compiler:
         #: timed interpreted callees', so far: what its machine code saves (:meth:`request`); requests are numbered
         #: in the order sent
         self.spent: dict = {}
-        self._numbers: dict = {}
+        self._numbers: dict = {}   # {request: its number}: what was sent
         self._told = (0.0, 0.0)
 
     def request(self, what, first: bool = False, spent: float = 0.0):
         """Have the child compile ``what`` (:meth:`_request`), one thread at a time; first: before the requests
         not so marked that it has not begun. spent: what the call that asks took beyond its interpreted callees
-        (:meth:`spend`). Returns the request's number (None: not sent)."""
+        (:meth:`spend`). Returns the request's number."""
         with _COMPILER_LOCK:
-            self._request(what, first)
-        n = self._numbers.get(what)
+            n = self._request(what, first)
         self.spend(n, spent)
         return n
+
+    @property
+    def sent(self):
+        """The requests sent to the child (each once)."""
+        return self._numbers.keys()
 
     def spend(self, n, seconds: float) -> None:
         """Add seconds to the time spent in the interpreted calls of request number n (:meth:`request`; None:
@@ -667,17 +670,17 @@ class _Compiler:
             self.poll()
         return self.generation
 
-    def _request(self, what, first: bool = False) -> None:
+    def _request(self, what, first: bool = False) -> int:
         """Have the child compile ``what``: ``('kernel', module, function, signature)``, ``('call', module,
         function, *args)`` (a function that compiles, e.g. the cfuncs of :mod:`.treefn`, or a model's generated
         module: ``codegen.load(path)``). The child names no module itself, so this room imports none of them.
-        first: the child takes it before the requests without (a line starting ``!``)."""
+        first: the child takes it before the requests without (a line starting ``!``). Returns its number."""
         import base64
         import pickle
-        if what in self.sent:
-            return
-        self.sent.add(what)
-        self._numbers[what] = len(self._numbers)
+        n = self._numbers.get(what)
+        if n is not None:
+            return n
+        n = self._numbers[what] = len(self._numbers)
         if self.proc is None:
             import subprocess
             env = dict(os.environ, ROBODYN_COLD_START='compile', _ROBODYN_DEFER_NUMBA='')
@@ -692,6 +695,7 @@ class _Compiler:
             self.proc.stdin.flush()
         except OSError:   # the child is gone: these calls stay interpreted
             pass
+        return n
 
     def _tell(self) -> None:
         """Send the child the time spent in each requested kernel's interpreted calls (a line ``?`` + the pickled
