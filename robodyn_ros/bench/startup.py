@@ -95,8 +95,12 @@ def main(args) -> int:
 # ----------------------------------------------------------------------------------------------
 def child_env(**extra) -> dict:
     """The environment of a measured child: this one without ``PYTHONDONTWRITEBYTECODE`` and
-    ``ROBODYN_BACKEND``, plus ``extra`` (a value of None removes the variable)."""
-    env = {k: v for k, v in os.environ.items() if k not in ('PYTHONDONTWRITEBYTECODE', 'ROBODYN_BACKEND')}
+    ``ROBODYN_BACKEND`` (and without ``OPENBLAS_THREAD_TIMEOUT`` when importing robodyn_ros set it: a
+    robodyn child sets it again itself, a peer's runs as its users run it), plus ``extra`` (a value of
+    None removes the variable)."""
+    import robodyn_ros
+    drop = ('PYTHONDONTWRITEBYTECODE', 'ROBODYN_BACKEND') + (('OPENBLAS_THREAD_TIMEOUT',) if robodyn_ros.SET_BLAS_TIMEOUT else ())
+    env = {k: v for k, v in os.environ.items() if k not in drop}
     for k, v in extra.items():
         if v is None:
             env.pop(k, None)
