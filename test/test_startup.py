@@ -248,3 +248,20 @@ def test_warm_in_worker_processes_leaves_nothing_for_the_loading_pass():
     r = subprocess.run([sys.executable, '-m', 'robodyn_ros.cli', 'warm', 'no_such_scene'], capture_output=True,
                        text=True, env=env, cwd=ROOT, timeout=600)
     assert r.returncode == 2 and r.stderr.count('\n') == 1 and "unknown scene 'no_such_scene'" in r.stderr, r.stderr
+
+
+@pytest.mark.processes
+def test_the_startup_bench_sees_a_compiler_child_until_it_ends():
+    """``bench.startup.compiler_children`` (what the bench waits on before a first run) finds a process whose
+    command line is the compiler child's, and no longer once it has ended."""
+    from robodyn_ros.bench.startup import compiler_children
+    p = subprocess.Popen([sys.executable, '-c', 'import sys; print("up", flush=True); sys.stdin.read()', '-m',
+                          'robodyn_ros.kernels.jit'], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert p.stdout.readline() == b'up\n'   # running (right after its exec, /proc may show no command line yet)
+        assert p.pid in compiler_children()
+    finally:
+        p.stdin.close()
+        p.wait(timeout=60)
+    assert p.pid not in compiler_children()
+    assert os.getpid() not in compiler_children()
