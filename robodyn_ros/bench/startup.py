@@ -99,7 +99,9 @@ def child_env(**extra) -> dict:
     robodyn child sets it again itself, a peer's runs as its users run it), plus ``extra`` (a value of
     None removes the variable)."""
     import robodyn_ros
-    drop = ('PYTHONDONTWRITEBYTECODE', 'ROBODYN_BACKEND') + (('OPENBLAS_THREAD_TIMEOUT',) if robodyn_ros.SET_BLAS_TIMEOUT else ())
+    drop = ('PYTHONDONTWRITEBYTECODE', 'ROBODYN_BACKEND')
+    if robodyn_ros.SET_BLAS_TIMEOUT:
+        drop += ('OPENBLAS_THREAD_TIMEOUT',)
     env = {k: v for k, v in os.environ.items() if k not in drop}
     for k, v in extra.items():
         if v is None:
@@ -349,11 +351,11 @@ def section_cold(args) -> str:
     args.figures['cold'] = cold
     return '\n'.join(['### A fresh install: empty kernel cache (a temporary NUMBA_CACHE_DIR)\n',
                       _table(['process', 'simulation wall', 'process wall', 'CPU', 'peak RSS'], rows), '',
-                      'Without `robodyn warm`, a first run interprets its kernels while a child process compiles them '
-                      'into the cache, and goes on compiling after the run ends; every robot of the same kind then loads '
-                      'them (the kernels take the robot as arrays of fixed types). Each "first run, empty cache" starts '
-                      'once no earlier run\'s compiler child is left; the runs after it share the cache and the machine '
-                      'with the children still compiling.'])
+                      'Without `robodyn warm`, a first run interprets its kernels while a child process compiles '
+                      'them into the cache, and goes on compiling after the run ends; every robot of the same kind '
+                      'then loads them (the kernels take the robot as arrays of fixed types). Each "first run, empty '
+                      'cache" starts once no earlier run\'s compiler child is left; the runs after it share the cache '
+                      'and the machine with the children still compiling.'])
 
 
 _GENERATE = r'''
