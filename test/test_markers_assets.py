@@ -214,3 +214,24 @@ def test_the_block_paths_markers_of_many_periods_are_the_bytes_of_each_periods_m
     one_by_one = [m.message(int(t), MarkerInputs.of_state(s, y)) for t, y in zip(t_ns, Y)]
     assert Markers.of(s).state_messages(t_ns, P) == one_by_one
     assert m.state_messages(t_ns[::-1], P[::-1]) == one_by_one[::-1]   # any order of periods
+
+
+def test_the_recorded_description_is_joined_once_from_pieces_that_share_each_file():
+    """embed_meshes_parts (what the recorder writes): joined, the URDF with each reference replaced by its file
+    as a data URI (built here with re.sub), a file named by several references is one object among the pieces
+    (the A1: 13 references to 5 COLLADA files), and the String CDR the recorder makes of the pieces is the
+    generic encoder's of that text."""
+    from robodyn_ros.assets import embed_meshes_parts
+    from robodyn_ros.recording import cdr
+    urdf = load_scene('a1_stand').system.urdf()
+    parts, notes = embed_meshes_parts(urdf)
+    expected = re.sub(r'(<mesh\b[^>]*?\bfilename=")([^"]*)(")',
+                      lambda m: m.group(1) + 'data:model/vnd.collada+xml;base64,'
+                      + base64.b64encode(asset_file(m.group(2)).read_bytes()).decode('ascii') + m.group(3), urdf)
+    assert notes == () and b''.join(parts) == expected.encode('utf-8')
+    big = [p for p in parts if len(p) > 100_000]
+    assert len(big) == 13 and len({id(p) for p in big}) == 5
+    enc = cdr._Encoder()
+    enc.message('std_msgs/msg/String', {'data': expected})
+    assert cdr.string_message_bytes(parts) == bytes(enc.buf)
+    assert embed_meshes(urdf) == (expected, ())

@@ -585,8 +585,14 @@ def _fast_string_message(msg):
     embedded is tens of MB: the generic encoder copies it three times); None for anything else."""
     if type(msg) is not dict or msg.keys() != {'data'} or type(msg['data']) is not str:
         return None
-    data = msg['data'].encode('utf-8')
-    return b''.join((ENCAPSULATION_HEADER, _U32.pack(len(data) + 1), data, b'\x00'))
+    return string_message_bytes((msg['data'].encode('utf-8'),))
+
+
+def string_message_bytes(parts) -> bytes:
+    """``std_msgs/String`` CDR of the text whose UTF-8 bytes are the pieces ``parts`` (bytes-like) one after the
+    other, in one join (the recorder's robot_description: :func:`robodyn_ros.assets.embed_meshes_parts`)."""
+    n = sum(len(p) for p in parts)
+    return b''.join((ENCAPSULATION_HEADER, _U32.pack(n + 1), *parts, b'\x00'))
 
 
 def _fast_diagnostic_array(msg):

@@ -420,7 +420,8 @@ class McapRunSink:
         t_ns = M.to_ns(sim.t)
         self.writer.add_topic(resolve('robot_description', self.namespace), M.TOPIC_TYPES['robot_description'],
                               qos='transient_local')
-        self._write('robot_description', M.TOPIC_TYPES['robot_description'], M.string(self.description(sim)), t_ns)
+        self._write_data('robot_description', M.TOPIC_TYPES['robot_description'],
+                         cdr.string_message_bytes(self.description_parts(sim)), t_ns)
         if any(p in sim.system.inputs for p in ('position', 'velocity')):   # the joints of each command topic
             self.writer.add_topic(resolve('command_joint_names', self.namespace),
                                   M.TOPIC_TYPES['command_joint_names'], qos='transient_local')
@@ -435,14 +436,19 @@ class McapRunSink:
 
     def description(self, sim) -> str:
         """The recorded robot_description: the system's URDF, its meshes embedded (``embed_meshes``)."""
+        return b''.join(self.description_parts(sim)).decode('utf-8')
+
+    def description_parts(self, sim) -> tuple:
+        """:meth:`description` as the UTF-8 bytes of its pieces (:func:`robodyn_ros.assets.embed_meshes_parts`),
+        which the record joins once."""
         urdf = sim.system.urdf()
         if not self.embed_meshes:
-            return urdf
-        from ..assets import embed_meshes
-        text, notes = embed_meshes(urdf)
+            return (urdf.encode('utf-8'),)
+        from ..assets import embed_meshes_parts
+        parts, notes = embed_meshes_parts(urdf)
         for note in notes:
             warnings.warn(f'recording {self.path or "(live)"}: {note}', stacklevel=2)
-        return text
+        return parts
 
     def hand_over(self):
         """Write the periods held for the next vectorised pass now (a live run about to wait: its
