@@ -434,13 +434,9 @@ class McapRunSink:
         self.markers = Markers.of(sim.system)
         self._next_diag = sim.t
 
-    def description(self, sim) -> str:
-        """The recorded robot_description: the system's URDF, its meshes embedded (``embed_meshes``)."""
-        return b''.join(self.description_parts(sim)).decode('utf-8')
-
     def description_parts(self, sim) -> tuple:
-        """:meth:`description` as the UTF-8 bytes of its pieces (:func:`robodyn_ros.assets.embed_meshes_parts`),
-        which the record joins once."""
+        """The recorded robot_description, the system's URDF with its meshes embedded (``embed_meshes``), as the
+        UTF-8 bytes of its pieces (:func:`robodyn_ros.assets.embed_meshes_parts`), which the record joins once."""
         urdf = sim.system.urdf()
         if not self.embed_meshes:
             return (urdf.encode('utf-8'),)
