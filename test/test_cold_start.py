@@ -623,3 +623,72 @@ def test_a_kernel_asked_for_again_is_typed_once_and_looked_up_once_per_compiler_
     monkeypatch.setattr(jit.COMPILER, 'generation', jit.COMPILER.generation + 1)   # the child finished a request
     jit.request_compiled(fresh, args, 1.0)
     assert len(looked) == 2 and len(typed) == len(args)
+
+
+_FIRST_REQUEST = r'''
+import contextlib, io, json, os, sys
+os.environ['_ROBODYN_DEFER_NUMBA'] = '1'   # the kernels imported as robodyn run imports them: numba not loaded
+from robodyn_ros.kernels import jit
+del os.environ['_ROBODYN_DEFER_NUMBA']
+from robodyn_ros.cli import main
+assert jit.DEFERRED and not jit.LOADED
+seen = []
+request = jit._Compiler._request
+
+
+def first(self, what, first=False):   # was the child there before the run's first request?
+    if not seen:
+        seen.append(self.proc is not None)
+    return request(self, what, first)
+
+
+jit._Compiler._request = first
+with contextlib.redirect_stdout(io.StringIO()):
+    status = main(sys.argv[1:])
+print(json.dumps([status, seen]))
+'''
+
+
+@pytest.mark.processes
+def test_on_an_empty_cache_the_compiler_child_starts_before_the_first_request_and_not_on_a_cache_with_kernels(
+        tmp_path):
+    """A first run (``robodyn run``, which loads numba for a run this long) on an empty kernel cache starts the
+    compiler child before its first interpreted call asks for anything; on a cache holding a compiled kernel
+    (here one index file) the child starts at the first request, as before. Both runs request something."""
+    import json
+
+    from robodyn_ros.kernels import cache
+    runs = {}
+    for name in ('empty', 'with a kernel'):
+        env = _env('interpret', tmp_path / name)
+        env.pop('ROBODYN_COLD_START')   # robodyn run sets 'interpret' itself
+        if name == 'with a kernel':
+            d = Path(cache.kernel_cache_dir().replace(cache.cache_root(), str(tmp_path / name), 1))
+            d.mkdir(parents=True)
+            (d / 'tree.some_kernel-1.py311.nbi').write_bytes(b'')
+        r = subprocess.run([PY, '-c', _FIRST_REQUEST, 'run', 'stanford_arm', '--duration', '0.3'], env=env,
+                           capture_output=True, text=True, timeout=900)
+        assert r.returncode == 0, r.stderr[-2000:]
+        runs[name] = json.loads(r.stdout.strip().splitlines()[-1])
+    assert runs == {'empty': [0, [True]], 'with a kernel': [0, [False]]}
+
+
+def test_a_cache_holds_a_kernel_once_it_has_an_index_file(tmp_path):
+    from robodyn_ros.kernels import cache
+    assert cache.holds_no_kernel(str(tmp_path / 'missing'))
+    (tmp_path / 'tree.qdot_into-1.py311.1.nbc').write_bytes(b'')   # machine code without its index: none
+    assert cache.holds_no_kernel(str(tmp_path))
+    (tmp_path / 'tree.qdot_into-1.py311.nbi').write_bytes(b'')
+    assert not cache.holds_no_kernel(str(tmp_path))
+
+
+@pytest.mark.processes
+def test_a_child_given_nothing_to_compile_readies_its_compiler_and_leaves_the_cache_empty(tmp_path):
+    """The child readies numba's compiler with a function of its own (jit._ready) before its first request; that
+    function is cached nowhere: a child whose input ends at once exits 0 and writes no file."""
+    env = _env('compile', tmp_path / 'cache')
+    r = subprocess.run([PY, '-m', 'robodyn_ros.kernels.jit'], env=env, stdin=subprocess.DEVNULL,
+                       capture_output=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    written = [p for p in (tmp_path / 'cache').rglob('*') if p.is_file()]
+    assert written == []

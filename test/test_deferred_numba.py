@@ -34,7 +34,7 @@ if {patch_expect!r}:
     from robodyn_ros.kernels import jit
     del os.environ['_ROBODYN_DEFER_NUMBA']
     assert jit.DEFERRED and not jit.LOADED
-    jit.expect = lambda seconds: None
+    jit.expect = lambda seconds, before=None: None
 from robodyn_ros.cli import main
 with contextlib.redirect_stdout(out):
     rc = main(json.loads(sys.argv[1]))

@@ -1,6 +1,7 @@
 """``robodyn run``: a headless run of a scene with its scripted commands, recorded to MCAP."""
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -247,18 +248,18 @@ def expect_work(scene, st, live) -> None:
     interpreted, so a run that would outlast the deferral loads numba before it starts: a live run always,
     else the plan's linearisation plus steps × evaluations per step (an error-controlled or automatic method
     counted at 1 ms steps, 4 evaluations each) plus the publication periods."""
-    from ..kernels import jit
+    from ..kernels import jit, start_compiler_if_cold
     if not jit.DEFERRED or jit.LOADED:
         return
     if live:
-        jit.load_numba()
+        jit.expect(math.inf, before=start_compiler_if_cold)
         return
     ny = scene.system.ny
     dt = st.get('dt') or DEFAULT_DT
     evals = EVALS_PER_STEP.get(st.get('integrator'), 4)
     duration = float(st['duration'])
     jit.expect((2 * ny + 1) * ny * PY_RHS_PER_STATE + duration / dt * evals * ny * PY_LOOP_EVAL_PER_STATE
-               + duration * float(st['rate']) * PY_PERIOD)
+               + duration * float(st['rate']) * PY_PERIOD, before=start_compiler_if_cold)
 
 
 def _run_live(args, sock, rate_factor, scene, st, sim) -> int:

@@ -77,7 +77,8 @@ except ImportError as _e:  # the compiled path is off: the systems use the numpy
     AVAILABLE = False
     UNAVAILABLE_REASON = str(_e)
 
-__all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_model', 'FUSED_METHODS', 'warmup']
+__all__ = ['AVAILABLE', 'CACHE_DIR', 'CompiledModel', 'CompiledSystem', 'pack_model', 'FUSED_METHODS', 'warmup',
+           'start_compiler_if_cold']
 
 #: integrator names the fused loop implements -> method code in :mod:`.fixed_step`
 FUSED_METHODS = {'euler': 0, 'semi_implicit_euler': 1, 'rk4': 2, 'rosenbrock2': 3}
@@ -87,6 +88,19 @@ GENERATE_AFTER = 0.5
 #: the bits of −0.0 read as an int64 (no other double has them): :func:`has_negative_zero`
 _NEGATIVE_ZERO_BITS = int(np.iinfo(np.int64).min)
 _EMPTY = np.zeros(0)
+
+
+def start_compiler_if_cold() -> bool:
+    """In a process whose kernels run as Python while a child compiles them (``jit.MODE`` 'interpret': ``robodyn
+    run`` before it loads numba, the sim node at its start), start that child now when the kernel cache holds no
+    compiled kernel (:func:`.cache.holds_no_kernel`): on a first run the child then loads numba and readies its
+    compiler while this process loads numba, builds its simulator and makes its first interpreted call, instead
+    of after that call. Returns whether it started. A cache with kernels in it starts nothing here (a run loads
+    what it uses, and the child starts at a miss, as before)."""
+    if not (AVAILABLE and _jit.MODE == 'interpret') or not _cache.holds_no_kernel():
+        return False
+    _jit.COMPILER.start()
+    return True
 
 
 def has_negative_zero(z) -> bool:

@@ -118,6 +118,16 @@ def kernel_cache_dir() -> str:
     return os.path.join(cache_root(), 'kernels-' + FINGERPRINT[:16])
 
 
+def holds_no_kernel(directory: str | None = None) -> bool:
+    """True when the kernel cache directory (default :func:`kernel_cache_dir`) holds no compiled kernel: none
+    was compiled for these sources here yet (a new install, an edit of the kernels, an empty ``NUMBA_CACHE_DIR``).
+    One directory listing, without numba."""
+    try:
+        return not any(name.endswith('.nbi') for name in os.listdir(directory or kernel_cache_dir()))
+    except OSError:   # (not there yet)
+        return True
+
+
 @functools.lru_cache(maxsize=None)
 def _writable(path: str) -> bool:
     """Create ``path`` if needed; True when a file can be written there (checked once per directory).

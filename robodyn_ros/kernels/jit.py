@@ -224,11 +224,14 @@ def _real(x):
     return x
 
 
-def expect(seconds: float) -> None:
+def expect(seconds: float, before=None) -> None:
     """A deferred process that expects about ``seconds`` of interpreted kernel time loads numba now when
     that is past half of :data:`INTERPRET_BUDGET` (a rough estimate: when in doubt, numba), so a long run pays
-    nothing for the deferral."""
+    nothing for the deferral. before: called first when numba is to be loaded here (``robodyn run``: start the
+    compiler child on a cold cache, :func:`robodyn_ros.kernels.start_compiler_if_cold`)."""
     if DEFERRED and seconds >= 0.5 * INTERPRET_BUDGET:
+        if before is not None and not LOADED:
+            before()
         load_numba()
 
 
@@ -619,8 +622,8 @@ _COMPILER_LOCK = threading.RLock()
 class _Compiler:
     """The child process that compiles what interpreted calls asked for (``python -m robodyn_ros.kernels.jit``):
     requests go in on its stdin (one per line), a line per finished request comes back; :attr:`generation`
-    counts them. The child is started at the first request; when this process ends it finishes what it was
-    given and exits."""
+    counts them. The child is started at the first request, or before it on a cold cache (:meth:`start`); when this
+    process ends it finishes what it was given and exits."""
 
     def __init__(self):
         self.proc = None
@@ -681,6 +684,21 @@ class _Compiler:
         if n is not None:
             return n
         n = self._numbers[what] = len(self._numbers)
+        self._start()
+        try:
+            self.proc.stdin.write((b'!' if first else b'') + base64.b64encode(pickle.dumps(what)) + b'\n')
+            self.proc.stdin.flush()
+        except OSError:   # the child is gone: these calls stay interpreted
+            pass
+        return n
+
+    def start(self) -> None:
+        """Start the child now, before any request (one thread at a time): it loads numba and readies its
+        compiler (:func:`_ready`) while this process goes on, so that the first request is compiled sooner."""
+        with _COMPILER_LOCK:
+            self._start()
+
+    def _start(self) -> None:
         if self.proc is None:
             import subprocess
             env = dict(os.environ, ROBODYN_COLD_START='compile', _ROBODYN_DEFER_NUMBA='')
@@ -690,12 +708,6 @@ class _Compiler:
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
             os.set_blocking(self.proc.stdout.fileno(), False)
             self._buf = b''
-        try:
-            self.proc.stdin.write((b'!' if first else b'') + base64.b64encode(pickle.dumps(what)) + b'\n')
-            self.proc.stdin.flush()
-        except OSError:   # the child is gone: these calls stay interpreted
-            pass
-        return n
 
     def _tell(self) -> None:
         """Send the child the time spent in each requested kernel's interpreted calls (a line ``?`` + the pickled
@@ -862,6 +874,15 @@ def _requests(stream, cost=None):
         yield line
 
 
+def _ready() -> None:
+    """Compile a one-line function, cached nowhere: a process's first compilation also sets up numba's typing and
+    LLVM's target (about 0.3 s on a 2-core machine), which the child then does before its first request comes."""
+    try:
+        _numba_njit(lambda x: x + 1.0)(1.0)
+    except Exception:   # (only ever a head start: the first request would set them up anyway)
+        pass
+
+
 def main() -> int:
     """The compiler child: compile each request read from stdin (:func:`_requests`), print its line when done."""
     import base64
@@ -872,6 +893,7 @@ def main() -> int:
         return 1
     log = os.environ.get('ROBODYN_COMPILE_LOG')
     start = time.monotonic()
+    _ready()
 
     for line in _requests(sys.stdin.buffer, _line_cost):
         what = pickle.loads(base64.b64decode(line.strip().lstrip(b'!')))

@@ -718,6 +718,8 @@ def main(args=None) -> int:
     from ..kernels import jit
     from ..scene import SceneError
     jit.set_mode('interpret')   # a cold cache: run the kernels as Python while a child compiles them
+    from ..kernels import start_compiler_if_cold
+    start_compiler_if_cold()   # (an empty cache: the child gets ready while ROS and the scene start)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # warnings (a URDF read leniently, a marginal step) as one log line each; the default filter
     # prints each once
