@@ -17,8 +17,10 @@ built on :func:`asset_file`, the one place where a mesh reference becomes a file
   normals). URDF meshes are Z-up (REP-103); Foxglove turns an STL or OBJ up only when its 3D panel's
   *Mesh up axis* is set to Z-up (its default is Y-up, which scatters a robot's links), but turns glTF,
   Y-up by its specification, to Z-up always. So the triangles are written Y-up, ``(x, y, z) → (x, z, −y)``,
-  and a recording draws right in any Foxglove, with or without our layout. COLLADA (which states its
-  own up axis) and glTF files are embedded as they are.
+  and a recording draws right in any Foxglove, with or without our layout. COLLADA files are embedded as
+  binary glTF too (:func:`glb_of_collada`: their triangles where Foxglove draws the file, in its colours,
+  a seventh of the bytes; kept on disk once converted), except those with what the converter does not
+  read (a texture, lines), which go as they are, as glTF files do.
 
 A mesh that is not found, or meshes beyond :data:`EMBED_LIMIT` bytes in all, keep their reference
 (with a note saying which and why).
@@ -27,7 +29,9 @@ from __future__ import annotations
 
 import base64
 import functools
+import hashlib
 import json
+import os
 import re
 import struct
 from pathlib import Path
@@ -35,13 +39,13 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ['AssetError', 'asset_file', 'asset_bytes', 'media_type', 'embed_meshes', 'embed_meshes_parts', 'glb_of_mesh',
-           'EMBED_LIMIT', 'MEDIA_TYPES']
+           'glb_of_collada', 'srgb_to_linear', 'EMBED_LIMIT', 'MEDIA_TYPES']
 
 #: mesh file extension -> media type (the types Foxglove's model loader recognises)
 MEDIA_TYPES = {'.dae': 'model/vnd.collada+xml', '.stl': 'model/stl', '.obj': 'model/obj',
                '.glb': 'model/gltf-binary', '.gltf': 'model/gltf+json'}
-#: bytes of mesh files a recorded robot_description embeds at most (the A1's five COLLADA meshes
-#: are 9.7 MB, 13 MB as base64 and about 4 MB in the recording's zstd chunk)
+#: bytes of mesh files a recorded robot_description embeds at most (counted as the files are: the A1's five
+#: COLLADA meshes are 9.7 MB; as glTF, 1.1 MB, 1.5 MB as base64)
 EMBED_LIMIT = 64 * 1024 * 1024
 
 _MESH_FILENAME = re.compile(r'(<mesh\b[^>]*?\bfilename=")([^"]*)(")')
@@ -107,12 +111,103 @@ def glb_of_mesh(data: bytes, ext: str) -> bytes:
            'accessors': [{'bufferView': 0, 'componentType': 5126, 'count': count, 'type': 'VEC3',
                           'min': [float(x) for x in pos.min(axis=0)], 'max': [float(x) for x in pos.max(axis=0)]},
                          {'bufferView': 1, 'componentType': 5126, 'count': count, 'type': 'VEC3'}]}
+    return _glb(doc, binary)
+
+
+def _glb(doc: dict, binary: bytes) -> bytes:
+    """The GLB container of a glTF document and its one binary buffer (each chunk 4-byte aligned: the JSON padded
+    with spaces, the binary with zeros); deterministic (keys sorted)."""
     text = json.dumps(doc, separators=(',', ':'), sort_keys=True).encode('ascii')
-    text += b' ' * (-len(text) % 4)            # chunks are 4-byte aligned: JSON padded with spaces,
-    binary += b'\0' * (-len(binary) % 4)      # the binary chunk with zeros
+    text += b' ' * (-len(text) % 4)
+    binary += b'\0' * (-len(binary) % 4)
     total = 12 + 8 + len(text) + 8 + len(binary)
     return (struct.pack('<4sII', b'glTF', 2, total) + struct.pack('<I4s', len(text), b'JSON') + text
             + struct.pack('<I4s', len(binary), b'BIN\0') + binary)
+
+
+def srgb_to_linear(c):
+    """An sRGB colour component (0..1) as the linear one glTF's ``baseColorFactor`` holds (IEC 61966-2-1)."""
+    c = np.clip(np.asarray(c, dtype=float), 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def glb_of_collada(data: bytes) -> bytes:
+    """A binary glTF 2.0 file (GLB) of what a viewer draws of a COLLADA file (``meshes.collada_primitives``): per
+    primitive its vertices (float32, with their bounds) and indexed triangles (uint16, or uint32 past 65 535
+    vertices), no normals (a glTF viewer then shades each triangle flat), and a non-metallic double-sided
+    material of the primitive's diffuse colour (``baseColorFactor``: the COLLADA colour as sRGB made linear,
+    :func:`srgb_to_linear`, as three.js reads COLLADA colours). Foxglove draws a Z-up COLLADA file as it is and
+    turns a Y-up one, as every glTF file, to Z-up; so a Z-up file's vertices are written Y-up, ``(x, y, z) →
+    (x, z, −y)``, a Y-up file's as they are, and the GLB is drawn where the COLLADA file was. About a seventh of
+    the A1's COLLADA text (its trunk: 4.7 MB → 0.6 MB). Deterministic. Raises ``meshes.MeshError`` for a file
+    it does not read (the caller embeds that one as it is)."""
+    from .meshes import collada_primitives
+    prims, z_up = collada_primitives(data)
+    binary = bytearray()
+    doc_prims, accessors, views, materials = [], [], [], {}
+    for pos, faces, rgba in prims:
+        used, inverse = np.unique(faces.ravel(), return_inverse=True)
+        p = pos[used]
+        if z_up:
+            p = np.stack([p[:, 0], p[:, 2], -p[:, 1]], axis=1)
+        p = p.astype('<f4')
+        small = len(used) < 65536
+        idx = inverse.astype('<u2' if small else '<u4')
+        for chunk, count, extra in ((p.tobytes(), len(p), {'type': 'VEC3', 'componentType': 5126,
+                                                            'min': [float(x) for x in p.min(axis=0)],
+                                                            'max': [float(x) for x in p.max(axis=0)]}),
+                                    (idx.tobytes(), idx.size, {'type': 'SCALAR',
+                                                               'componentType': 5123 if small else 5125})):
+            views.append({'buffer': 0, 'byteOffset': len(binary), 'byteLength': len(chunk),
+                          'target': 34962 if extra['type'] == 'VEC3' else 34963})
+            binary += chunk + b'\0' * (-len(chunk) % 4)
+            accessors.append({'bufferView': len(views) - 1, 'count': count, **extra})
+        colour = tuple(float(x) for x in srgb_to_linear(rgba[:3])) + (float(np.clip(rgba[3], 0.0, 1.0)),)
+        material = materials.setdefault(colour, len(materials))
+        doc_prims.append({'attributes': {'POSITION': len(accessors) - 2}, 'indices': len(accessors) - 1,
+                          'material': material, 'mode': 4})
+    doc = {'asset': {'version': '2.0', 'generator': 'robodyn_ros'}, 'scene': 0, 'scenes': [{'nodes': [0]}],
+           'nodes': [{'mesh': 0}], 'meshes': [{'primitives': doc_prims}],
+           'materials': [{'pbrMetallicRoughness': {'baseColorFactor': list(c), 'metallicFactor': 0.0,
+                                                   'roughnessFactor': 1.0}, 'doubleSided': True} for c in materials],
+           'buffers': [{'byteLength': len(binary)}], 'bufferViews': views, 'accessors': accessors}
+    return _glb(doc, bytes(binary))
+
+
+#: the layout of a cached glTF of a COLLADA file (:mod:`robodyn_ros.disk_cache`): the GLB, or b'' for a refused file
+_GLB_CACHE_FORMAT = b'robodyn_ros glTF of COLLADA 1: the GLB, empty when refused\n'
+#: cached conversions this process used (tests)
+GLB_HITS = [0]
+
+
+def _cached_glb_of_collada(data: bytes) -> bytes | None:
+    """:func:`glb_of_collada` of a COLLADA file's bytes, None where it raises MeshError; kept on disk
+    (:mod:`robodyn_ros.disk_cache`) under the sha256 of the file, of this module's and ``meshes``' source and of
+    numpy's version (all the GLB depends on): reading it and the files costs about a tenth of converting them (the
+    A1's five files: 0.10 s of XML and numbers). The same bytes with or without the cache."""
+    from . import disk_cache
+    from . import meshes
+    from .meshes import MeshError
+    d = disk_cache.directory()
+    if d is not None:
+        h = hashlib.sha256(_GLB_CACHE_FORMAT + np.__version__.encode())
+        for source in (__file__, meshes.__file__):
+            with open(source, 'rb') as f:
+                h.update(f.read())
+        h.update(data)
+        key = h.digest()
+        path = os.path.join(d, f'{key.hex()}.glb')
+        body = disk_cache.load(path, key, _GLB_CACHE_FORMAT)
+        if body is not None:
+            GLB_HITS[0] += 1
+            return body or None
+    try:
+        glb = glb_of_collada(data)
+    except MeshError:
+        glb = None
+    if d is not None:
+        disk_cache.store(d, path, key, _GLB_CACHE_FORMAT, glb or b'')
+    return glb
 
 
 def _data_uri(uri: str, data: bytes) -> tuple:
@@ -122,6 +217,10 @@ def _data_uri(uri: str, data: bytes) -> tuple:
     from .meshes import MeshError
     ext = Path(uri.split('?')[0]).suffix.lower()
     note = None
+    if ext == '.dae':   # as glTF when it reads it; else as it is (a texture, lines: no note, it draws)
+        glb = _cached_glb_of_collada(data)
+        if glb is not None:
+            return (b'data:model/gltf-binary;base64,', base64.b64encode(glb)), None
     if ext in GLB_FORMATS:
         try:
             return (b'data:model/gltf-binary;base64,', base64.b64encode(glb_of_mesh(data, ext))), None
@@ -148,9 +247,9 @@ def embed_meshes(urdf: str, limit: int = EMBED_LIMIT) -> tuple:
 def embed_meshes_parts(urdf: str, limit: int = EMBED_LIMIT) -> tuple:
     """``(parts, notes)``: :func:`embed_meshes`' text as the UTF-8 bytes of its pieces (a tuple: the URDF's
     text between the mesh references, the data URIs' pieces, one object per mesh file however often it is
-    named), which the recorder joins once into its message (the A1's 13 references to 5 COLLADA files are
-    27 MB of text: each copy of it on its way to the file took about 14 ms). ``(urdf.encode('utf-8'),)``
-    when no mesh is embedded. Cached (a node's episodes record the same description)."""
+    named), which the recorder joins once into its message (the A1's 13 references to 5 COLLADA files were
+    27 MB of text as COLLADA, each copy of it on its way to the file about 14 ms; 3.5 MB as glTF).
+    ``(urdf.encode('utf-8'),)`` when no mesh is embedded. Cached (a node's episodes record the same description)."""
     files = {}
     notes = []
     total = 0

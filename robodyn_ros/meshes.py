@@ -6,7 +6,9 @@ smallest enclosing sphere, which is at most that much smaller). Read here with n
 library: STL (binary and ASCII), Wavefront OBJ (``v`` lines) and COLLADA ``.dae`` (the
 ``<float_array>`` of every ``<source>`` whose id names positions, times its ``<unit meter>``; the
 scene graph's node transforms are not applied, so a ``.dae`` whose geometry is placed by them gets a
-sphere around its untransformed vertices: stated, not corrected).
+sphere around its untransformed vertices: stated, not corrected). For a viewer, :func:`collada_primitives`
+reads a COLLADA file's drawn surfaces whole (node transforms, polygons, colours), which a recording embeds as
+glTF (:func:`robodyn_ros.assets.glb_of_collada`).
 
 Where: an absolute path, ``file://`` URI, or ``package://<package>/<path>``, found through the ament
 index (a sourced ROS install), the example-robot-data wheel (its package name), the copy of two of
@@ -27,12 +29,14 @@ from __future__ import annotations
 
 import re
 import struct
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'mesh_triangles', 'bounding_sphere', 'mesh_sphere',
+__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'mesh_triangles', 'collada_primitives', 'bounding_sphere',
+           'mesh_sphere',
            'example_robot_data_dir', 'bundled_robot_data_dir']
 
 
@@ -202,6 +206,191 @@ def _dae(data: bytes) -> np.ndarray:
         raise MeshError('no <source> of positions')
     unit = next((u for u in root.iter() if isinstance(u.tag, str) and u.tag.endswith('unit')), None)
     return np.vstack(out) * float(unit.get('meter', 1.0) if unit is not None else 1.0)
+
+
+#: what :func:`collada_primitives` reads of a COLLADA scene (anything else: MeshError, the file is used as it is)
+COLLADA_PRIMITIVES = ('triangles', 'polylist', 'polygons')
+
+
+def collada_primitives(data: bytes) -> tuple:
+    """The surfaces a viewer draws of a COLLADA (``.dae``) file, as ``([(positions (n, 3), faces (m, 3) int64,
+    rgba (4,)), ...], z_up)``: per instanced geometry and primitive, its vertices in the file's coordinates (every
+    node transform of the visual scene applied, in the order the file lists them, then ``<unit meter>``), its
+    triangles (a polygon of k corners as a fan of k − 2, as three.js' ColladaLoader does) and the diffuse colour
+    its material binds (as the file writes it; white without one), and whether the file is Z-up (else Y-up,
+    COLLADA's default). Reads what robot meshes use: ``<triangles>``, ``<polylist>`` and ``<polygons>`` of
+    ``<instance_geometry>`` and ``<instance_node>`` under ``<matrix>``, ``<translate>``, ``<rotate>`` and
+    ``<scale>``, lambert, phong, blinn and constant materials with a colour. Raises MeshError, naming what it
+    does not read (an X-up file, a texture, a skin, lines), for a file it cannot draw the same way."""
+    try:
+        return _collada_primitives(data)
+    except MeshError:
+        raise
+    except (ValueError, IndexError, KeyError, AttributeError) as e:
+        raise MeshError(f'cannot read the COLLADA file: {type(e).__name__}: {e}') from None
+
+
+def _numbers(text, dtype) -> np.ndarray:
+    """The whitespace-separated numbers of an XML element's text (MeshError when one is not a number)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', DeprecationWarning)   # numpy's word for text it could not read to its end
+        try:
+            return np.fromstring(text or '', dtype=dtype, sep=' ')
+        except (DeprecationWarning, ValueError):
+            raise MeshError(f'not a list of numbers: {(text or "")[:40]!r}...') from None
+
+
+def _collada_primitives(data: bytes) -> tuple:
+    """:func:`collada_primitives` without its error handling."""
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as e:
+        raise MeshError(f'not XML: {e}') from None
+    for el in root.iter():
+        if isinstance(el.tag, str):
+            el.tag = el.tag.rsplit('}', 1)[-1]
+    ids = {el.get('id'): el for el in root.iter() if el.get('id')}
+
+    def target(el, attr='url'):
+        ref = (el.get(attr) or '').lstrip('#')
+        if ref not in ids:
+            raise MeshError(f'<{el.tag}> names {ref!r}, which the file does not hold')
+        return ids[ref]
+
+    def floats(el, n=None):
+        x = _numbers(el.text, float)
+        if n is not None and x.size != n:
+            raise MeshError(f'<{el.tag}> holds {x.size} numbers, not {n}')
+        return x
+
+    up = root.find('asset/up_axis')
+    axis = (up.text or '').strip().upper() if up is not None else 'Y_UP'   # (COLLADA's default)
+    if axis not in ('Y_UP', 'Z_UP'):
+        raise MeshError(f'up axis {axis}')
+    unit = root.find('asset/unit')
+    meter = float(unit.get('meter', '1')) if unit is not None else 1.0
+    scene = root.find('scene/instance_visual_scene')
+    if scene is None:
+        raise MeshError('no <scene><instance_visual_scene>')
+    out = []
+
+    def node_matrix(node):
+        m = np.eye(4)
+        for t in node:
+            if t.tag == 'matrix':
+                step = floats(t, 16).reshape(4, 4)
+            elif t.tag == 'translate':
+                step = np.eye(4)
+                step[:3, 3] = floats(t, 3)
+            elif t.tag == 'scale':
+                step = np.diag(np.append(floats(t, 3), 1.0))
+            elif t.tag == 'rotate':
+                x = floats(t, 4)
+                direction, angle = x[:3], np.radians(x[3])
+                norm = np.linalg.norm(direction)
+                if norm == 0.0:
+                    raise MeshError('<rotate> about a zero axis')
+                k = direction / norm
+                kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+                step = np.eye(4)
+                step[:3, :3] = np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * kx @ kx
+            elif t.tag in ('lookat', 'skew'):
+                raise MeshError(f'a <{t.tag}> node transform')
+            else:
+                continue
+            m = m @ step
+        return m
+
+    def colour(material):
+        effect = target(material.find('instance_effect'))
+        for technique in effect.iter('technique'):
+            for shading in technique:
+                if shading.tag not in ('lambert', 'phong', 'blinn', 'constant'):
+                    continue
+                diffuse = shading.find('diffuse' if shading.tag != 'constant' else 'emission')
+                if diffuse is None:
+                    return np.ones(4)
+                if diffuse.find('texture') is not None:
+                    raise MeshError('a texture')
+                c = diffuse.find('color')
+                return floats(c, 4) if c is not None else np.ones(4)
+        raise MeshError('a material without a common-profile technique')
+
+    def geometry(inst, m):
+        geo = target(inst)
+        mesh = geo.find('mesh')
+        if mesh is None:
+            raise MeshError(f'geometry {geo.get("id")!r} is not a <mesh>')
+        bound = {im.get('symbol'): im for im in inst.iter('instance_material')}
+        for prim in mesh:
+            if prim.tag in ('source', 'vertices', 'extra'):
+                continue
+            if prim.tag not in COLLADA_PRIMITIVES:
+                raise MeshError(f'a <{prim.tag}> primitive')
+            inputs = prim.findall('input')
+            stride = 1 + max(int(i.get('offset', '0')) for i in inputs)
+            vin = next((i for i in inputs if i.get('semantic') == 'VERTEX'), None)
+            if vin is None:
+                raise MeshError(f'a <{prim.tag}> without VERTEX input')
+            vert = target(vin, 'source')
+            pin = next((i for i in vert.findall('input') if i.get('semantic') == 'POSITION'), None)
+            if pin is None:
+                raise MeshError(f'vertices {vert.get("id")!r} without POSITION')
+            src = target(pin, 'source')
+            acc = src.find('technique_common/accessor')
+            step = int(acc.get('stride', '3')) if acc is not None else 3
+            fa = src.find('float_array')
+            if fa is None or step < 3:
+                raise MeshError(f'positions {src.get("id")!r} are not a float array of 3 or more per vertex')
+            pos = floats(fa)
+            pos = pos[:pos.size // step * step].reshape(-1, step)[:, :3]
+            polys = prim.findall('p')
+            if prim.find('ph') is not None:
+                raise MeshError('a polygon with holes (<ph>)')
+            if prim.tag != 'polygons' and len(polys) > 1:
+                raise MeshError(f'a <{prim.tag}> of {len(polys)} <p>')
+            corner = [_numbers(p.text, np.int64).reshape(-1, stride)[:, int(vin.get('offset', '0'))] for p in polys]
+            if prim.tag == 'triangles':
+                counts = [np.full(c.size // 3, 3) for c in corner]
+            elif prim.tag == 'polylist':
+                vc = prim.find('vcount')
+                counts = [_numbers(vc.text if vc is not None else '', np.int64)]
+            else:
+                counts = [np.array([c.size]) for c in corner]
+            idx = np.concatenate(corner) if corner else np.zeros(0, dtype=np.int64)
+            counts = np.concatenate(counts) if counts else np.zeros(0, dtype=np.int64)
+            if counts.sum() != idx.size or (counts < 3).any():
+                raise MeshError(f'a <{prim.tag}> whose corner counts do not match its indices')
+            fan = counts - 2                                  # triangles per polygon
+            first = np.repeat(np.cumsum(counts) - counts, fan)   # each triangle's polygon's first corner
+            k = np.arange(fan.sum()) - np.repeat(np.cumsum(fan) - fan, fan) + 1
+            faces = np.stack([idx[first], idx[first + k], idx[first + k + 1]], axis=1)
+            if faces.size and (faces.min() < 0 or faces.max() >= len(pos)):
+                raise MeshError(f'a <{prim.tag}> index beyond its {len(pos)} positions')
+            sym = prim.get('material')
+            rgba = colour(target(bound[sym], 'target')) if sym in bound else np.ones(4)
+            world = (pos @ m[:3, :3].T + m[:3, 3]) * meter
+            out.append((world, faces, rgba))
+
+    def visit(node, parent, depth=0):
+        if depth > 64:
+            raise MeshError('nodes nested deeper than 64 (a cycle of <instance_node>?)')
+        m = parent @ node_matrix(node)
+        for child in node:
+            if child.tag == 'instance_geometry':
+                geometry(child, m)
+            elif child.tag == 'instance_controller':
+                raise MeshError('a skinned <instance_controller>')
+            elif child.tag == 'instance_node':
+                visit(target(child), m, depth + 1)
+            elif child.tag == 'node':
+                visit(child, m, depth + 1)
+
+    for node in target(scene).findall('node'):
+        visit(node, np.eye(4))
+    if not out or not any(len(f) for _, f, _ in out):
+        raise MeshError('no triangles in the visual scene')
+    return out, axis == 'Z_UP'
 
 
 def bounding_sphere(vertices, scale=(1.0, 1.0, 1.0)):

@@ -56,3 +56,34 @@ def test_a_cache_directory_that_cannot_be_written_changes_nothing(tmp_path, monk
     monkeypatch.setenv('ROBODYN_CHUNK_CACHE', str(blocker / 'cache'))
     _record(tmp_path / 'on.mcap')
     assert (tmp_path / 'on.mcap').read_bytes() == (tmp_path / 'off.mcap').read_bytes()
+
+
+def test_the_gltf_of_a_collada_file_comes_from_the_cache_as_the_same_bytes(tmp_path, monkeypatch):
+    """The A1's COLLADA meshes as glTF (what a recording embeds), converted with the cache off, then into an empty
+    cache and from it: the same bytes; a damaged entry, or one of another file's conversion, is not used and is
+    made again; a file the converter refuses (a texture) is remembered as refused (embedded as it is)."""
+    from robodyn_ros import assets
+    from robodyn_ros.urdf import example_robot_data_dir
+    files = sorted(example_robot_data_dir().glob('a1_description/meshes/*.dae'))
+    assert len(files) == 5
+    data = [f.read_bytes() for f in files]
+    monkeypatch.setenv('ROBODYN_CHUNK_CACHE', '0')
+    off = [assets._cached_glb_of_collada(x) for x in data]
+    assert all(g is not None for g in off) and off == [assets.glb_of_collada(x) for x in data]
+    cache = tmp_path / 'cache'
+    monkeypatch.setenv('ROBODYN_CHUNK_CACHE', str(cache))
+    h0 = assets.GLB_HITS[0]
+    assert [assets._cached_glb_of_collada(x) for x in data] == off and assets.GLB_HITS[0] == h0
+    entries = sorted(cache.iterdir())
+    assert len(entries) == 5
+    assert [assets._cached_glb_of_collada(x) for x in data] == off and assets.GLB_HITS[0] == h0 + 5
+    good = entries[0].read_bytes()
+    entries[0].write_bytes(good[:-1] + bytes([good[-1] ^ 1]))
+    entries[1].write_bytes(entries[2].read_bytes())
+    assert [assets._cached_glb_of_collada(x) for x in data] == off and assets.GLB_HITS[0] == h0 + 8
+    assert entries[0].read_bytes() == good
+    colour = b'<color sid="diffuse">'
+    textured = data[0].replace(colour, b'<texture texture="t" texcoord="uv"/>' + colour, 1)
+    assert b'<texture' in textured
+    assert assets._cached_glb_of_collada(textured) is None and assets.GLB_HITS[0] == h0 + 8
+    assert assets._cached_glb_of_collada(textured) is None and assets.GLB_HITS[0] == h0 + 9

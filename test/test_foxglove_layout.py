@@ -151,12 +151,13 @@ def test_the_layout_of_a_scene_fits_its_recording(runs, name):
     # URDF meshes are Z-up (REP-103, as RViz reads them); Foxglove reads STL and OBJ meshes Y-up unless the
     # 3D panel says otherwise (Studio 1.48's DEFAULT_MESH_UP_AXIS = "y_up", which turned xarm7's links 90°
     # about x: seen in the headless Studio): every layout says Z-up (for meshes a live run serves as files), and
-    # these robots' STL meshes are recorded as glTF (ur5's are COLLADA, whose <up_axis> Foxglove reads)
+    # these robots' STL and COLLADA meshes are recorded as glTF
     assert cfg['scene'].get('meshUpAxis') == 'z_up'
     description = msgs['/robot_description'][0].data
-    assert ('data:model/gltf-binary;base64,' in description) == (name in ('xarm7_trajectory', 'solo12_drop', 'solo12')), \
-        name   # their STL meshes, as glTF (assets.embed_meshes), which Foxglove turns up whatever the setting
-    assert 'data:model/stl;' not in description
+    with_meshes = ('xarm7_trajectory', 'solo12_drop', 'solo12', 'a1_stand', 'ur5_robot')
+    assert ('data:model/gltf-binary;base64,' in description) == (name in with_meshes), \
+        name   # their meshes, as glTF (assets.embed_meshes), which Foxglove turns up whatever the setting
+    assert 'data:model/stl;' not in description and 'data:model/vnd.collada+xml;' not in description
     assert set(cfg['publish']) == PUBLISH_KEYS
     for layer in cfg['layers'].values():
         assert layer['layerId'] == 'foxglove.Grid' and set(layer) <= GRID_KEYS

@@ -4,14 +4,17 @@ Markers (``markers``, visualization_msgs/MarkerArray) of an A1 landing are read 
 recording by rosbags (its own CDR decoder and the recorded schema): a DELETEALL, the touching points
 on the ground plane, one arrow per point whose vectors add up to the ground's total force of the
 ``contact_wrenches`` topics (computed per link by the contact kernel's link sums). Meshes: the
-recorded ``robot_description`` holds each mesh as a ``data:`` URI whose bytes are the file's (STL and
-OBJ: as binary glTF, read back by trimesh); the rest of the URDF is unchanged; a mesh that cannot be
-found, or beyond the size limit, keeps its reference.
+recorded ``robot_description`` holds each mesh as a ``data:`` URI whose bytes are the file's or, as binary
+glTF, its triangles (STL, OBJ and COLLADA; read back by trimesh, COLLADA files by trimesh's own reader of them,
+pycollada, over every COLLADA file of example-robot-data); the rest of the URDF is unchanged; a mesh that cannot
+be found, or beyond the size limit, keeps its reference.
 """
 from __future__ import annotations
 
 import base64
+import json
 import re
+import struct
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -25,7 +28,7 @@ from robodyn_ros.runs import plan_run, resolve_settings
 from robodyn_ros.scene import load_scene
 from robodyn_ros.simulation import Simulator, run_headless
 
-MEDIA = {'.dae': 'model/vnd.collada+xml', '.stl': 'model/stl'}
+MEDIA = {'.dae': 'model/gltf-binary', '.stl': 'model/stl'}
 
 
 def _record(path, name, duration):
@@ -102,10 +105,11 @@ def test_the_recorded_description_carries_the_meshes(a1):
     refs = re.findall(r'<mesh\b[^>]*filename="([^"]*)"', original)
     embedded = re.findall(r'<mesh\b[^>]*filename="([^"]*)"', text)
     assert len(refs) == len(embedded) == 13 and all(r.startswith('package://') for r in refs)
-    for ref, uri in zip(refs, embedded):
+    assert len(text.encode()) < 6_000_000   # 3.5 MB with the COLLADA files as glTF (27 MB as they are)
+    for ref, uri in zip(refs, embedded):   # the A1's COLLADA files, as glTF of their triangles
         head, _, b64 = uri.partition(',')
         assert head == f'data:{MEDIA[Path(ref).suffix]};base64'
-        assert base64.b64decode(b64) == asset_file(ref).read_bytes()
+        _assert_collada_drawn_as_gltf(asset_file(ref), base64.b64decode(b64))
     # nothing else changed: the same XML with the references put back
     a, b = ET.fromstring(original), ET.fromstring(text)
     for m, ref in zip(b.iter('mesh'), refs):
@@ -173,6 +177,132 @@ def test_stl_and_obj_meshes_are_embedded_as_gltf_that_foxglove_turns_back_into_t
         assert (np.einsum('ij,ij->i', per_corner[ok], cross[ok]) > 0).all(), path
 
 
+def _collada_reference(data: bytes):
+    """trimesh's reading of a COLLADA file (through pycollada: its own parser, node transforms and all), as Foxglove
+    draws it: ``(triangles (n, 3, 3), colours)`` times the file's ``<unit meter>``, in ROS's Z-up (a Y-up file
+    turned as Foxglove turns it, ``ModelCache.loadCollada``: rotateX(π/2); a Z-up file as it is), and the set of
+    its primitives' diffuse colours (RGB) as pycollada reads them."""
+    import io
+
+    import collada
+    import trimesh
+    scene = trimesh.load(io.BytesIO(data), file_type='dae', force='scene', process=False)
+    tri = []
+    for name in scene.graph.nodes_geometry:
+        transform, geometry = scene.graph[name]
+        g = scene.geometry[geometry]
+        tri.append(trimesh.transform_points(g.vertices, transform)[g.faces])
+    dae = collada.Collada(io.BytesIO(data))
+    tri = np.concatenate(tri) * (dae.assetInfo.unitmeter or 1.0)   # (three.js scales the scene by it; trimesh not)
+    if b'<up_axis>Z_UP</up_axis>' not in data:
+        tri = _foxglove_turn(tri)
+    colours = {tuple(float(x) for x in (p.material.effect.diffuse if p.material is not None else (1, 1, 1))[:3])
+               for g in dae.scene.objects('geometry') for p in g.primitives()}
+    return tri, colours
+
+
+def _assert_collada_drawn_as_gltf(path, glb):
+    """The GLB of a COLLADA file, turned as Foxglove turns glTF, holds the triangles trimesh reads from the file
+    (float32; compared as sorted vertex rows, since the order of primitives may differ), each in a material of the
+    file's colour made linear (the sRGB transfer function, IEC 61966-2-1, as three.js reads COLLADA colours)."""
+    import io
+
+    import trimesh
+    gl = trimesh.load(io.BytesIO(glb), file_type='glb', force='scene', process=False)
+    got = np.concatenate([_foxglove_turn(g.vertices[g.faces]) for g in gl.geometry.values()])
+    ref, colours = _collada_reference(path.read_bytes())
+    assert got.shape == ref.shape, (path, got.shape, ref.shape)
+    np.testing.assert_allclose(np.sort(got.reshape(-1, 3), axis=0), np.sort(ref.reshape(-1, 3), axis=0),
+                               rtol=0, atol=1e-6 * max(1.0, np.abs(ref).max()), err_msg=str(path))
+    doc = json.loads(glb[20:20 + struct.unpack_from('<I', glb, 12)[0]])    # the GLB's JSON chunk (glTF 2.0)
+    linear = {tuple(np.round(m['pbrMetallicRoughness']['baseColorFactor'][:3], 9)) for m in doc['materials']}
+    srgb = np.array(sorted(colours))
+    expected = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    assert linear == {tuple(np.round(c, 9)) for c in expected}, (path, linear, expected)
+
+
+def test_every_collada_file_of_example_robot_data_is_drawn_as_gltf_or_kept_as_it_is():
+    """Every COLLADA file example-robot-data ships (262 in 6.0.0): converted to glTF (the triangles and colours
+    trimesh reads from the file, placed and scaled as Foxglove places the file) or, for what the converter does not read
+    (a texture, lines), refused with a reason, and then embedded as it is. At most a fifth of the files is
+    refused, every Y-up and Z-up file with nodes placed by transforms is among those read (61 files use
+    ``<translate>``/``<rotate>``), and the glTF is less than a third of the files' bytes."""
+    from robodyn_ros.assets import glb_of_collada
+    from robodyn_ros.meshes import MeshError
+    files = _erd_meshes('**/*.dae')
+    assert len(files) >= 200, len(files)
+    converted, refused, raw, small = 0, {}, 0, 0
+    for path in files:
+        data = path.read_bytes()
+        try:
+            glb = glb_of_collada(data)
+        except MeshError as e:
+            refused[path] = str(e)
+            continue
+        _assert_collada_drawn_as_gltf(path, glb)
+        converted += 1
+        raw += len(data)
+        small += len(glb)
+    print(f'{converted} of {len(files)} COLLADA files as glTF ({raw / 1e6:.1f} -> {small / 1e6:.1f} MB), refused: '
+          + ', '.join(sorted(set(refused.values()))))
+    assert set(refused.values()) <= {'a texture', 'a <lines> primitive'}, set(refused.values())
+    assert len(refused) <= len(files) // 5 and small < raw / 3, (len(refused), small, raw)
+    assert sum(b'<rotate' in p.read_bytes() for p in files if p not in refused) >= 50
+
+
+def test_collada_polygons_nodes_and_what_is_refused():
+    """A hand-written COLLADA file with what example-robot-data does not use: a ``<polygons>`` primitive (a quad:
+    two triangles), a node placed by ``<translate>``, ``<rotate>`` and ``<scale>`` whose geometry comes through
+    ``<instance_node>``, a ``<unit>`` of centimetres: the glTF holds what trimesh reads. A texture, an X-up file,
+    lines and a non-number are refused by name; the caller then embeds the file as it is."""
+    from robodyn_ros.assets import embed_meshes, glb_of_collada
+    from robodyn_ros.meshes import MeshError
+
+    quad = '<polygons count="1" material="m"><input semantic="VERTEX" source="#v" offset="0"/><p>0 1 2 3</p></polygons>'
+
+    def dae(up='Z_UP', prim=quad, diffuse='<color>0.5 0.25 1 1</color>', pos='0 0 0 1 0 0 1 1 0 0 1 0'):
+        return (f'<?xml version="1.0"?><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">'
+                f'<asset><unit meter="0.01"/><up_axis>{up}</up_axis></asset>'
+                f'<library_effects><effect id="e"><profile_COMMON><technique sid="c"><phong>'
+                f'<diffuse>{diffuse}</diffuse></phong></technique></profile_COMMON></effect></library_effects>'
+                f'<library_materials><material id="mat"><instance_effect url="#e"/></material></library_materials>'
+                f'<library_geometries><geometry id="g"><mesh><source id="s"><float_array id="fa" count="12">{pos}'
+                f'</float_array><technique_common><accessor source="#fa" count="4" stride="3">'
+                f'<param name="X" type="float"/><param name="Y" type="float"/><param name="Z" type="float"/>'
+                f'</accessor></technique_common>'
+                f'</source><vertices id="v"><input semantic="POSITION" source="#s"/></vertices>{prim}</mesh></geometry>'
+                f'</library_geometries><library_nodes><node id="n"><instance_geometry url="#g"><bind_material>'
+                f'<technique_common><instance_material symbol="m" target="#mat"/></technique_common></bind_material>'
+                f'</instance_geometry></node></library_nodes>'
+                f'<library_visual_scenes><visual_scene id="vs"><node id="top"><translate>1 2 3</translate>'
+                f'<rotate>0 0 1 90</rotate><scale>2 2 2</scale><instance_node url="#n"/></node></visual_scene>'
+                f'</library_visual_scenes><scene><instance_visual_scene url="#vs"/></scene></COLLADA>').encode()
+
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / 'quad.dae'
+        path.write_bytes(dae())
+        glb = glb_of_collada(path.read_bytes())
+        _assert_collada_drawn_as_gltf(path, glb)
+        ref, _ = _collada_reference(path.read_bytes())
+        assert ref.shape == (2, 3, 3)   # (trimesh read the quad, in the place the nodes put it)
+        np.testing.assert_allclose(ref.reshape(-1, 3).min(0), [0.01 - 0.02, 0.02, 0.03], atol=1e-12)
+        assert glb == glb_of_collada(path.read_bytes())   # deterministic
+        for kw, why in [({'diffuse': '<texture texture="img" texcoord="uv"/>'}, 'a texture'),
+                        ({'up': 'X_UP'}, 'up axis X_UP'),
+                        ({'prim': '<lines count="1"><input semantic="VERTEX" source="#v" offset="0"/>'
+                                  '<p>0 1</p></lines>'},
+                         'a <lines> primitive'),
+                        ({'pos': '0 0 0 1 0 0 1 1 0 0 1 x'}, 'not a list of numbers')]:
+            with pytest.raises(MeshError, match=re.escape(why)):
+                glb_of_collada(dae(**kw))
+        path.write_bytes(dae(diffuse='<texture texture="img" texcoord="uv"/>'))
+        text, notes = embed_meshes(f'<robot name="r"><link name="a"><visual><geometry><mesh filename="file://{path}"/>'
+                                   f'</geometry></visual></link></robot>')
+        as_it_is = base64.b64encode(path.read_bytes()).decode()
+        assert notes == () and f'data:model/vnd.collada+xml;base64,{as_it_is}' in text
+
+
 def test_an_obj_with_polygons_texture_and_negative_indices_becomes_its_triangles():
     """OBJ faces as files write them (``v/vt/vn``, ``v//vn``, negative indices, a quad): the glTF holds the fan of
     each polygon (a unit square and a triangle: area 1.5), as trimesh reads the same file."""
@@ -221,13 +351,14 @@ def test_the_recorded_description_is_joined_once_from_pieces_that_share_each_fil
     as a data URI (built here with re.sub), a file named by several references is one object among the pieces
     (the A1: 13 references to 5 COLLADA files), and the String CDR the recorder makes of the pieces is the
     generic encoder's of that text."""
-    from robodyn_ros.assets import embed_meshes_parts
+    from robodyn_ros.assets import embed_meshes_parts, glb_of_collada
     from robodyn_ros.recording import cdr
     urdf = load_scene('a1_stand').system.urdf()
     parts, notes = embed_meshes_parts(urdf)
     expected = re.sub(r'(<mesh\b[^>]*?\bfilename=")([^"]*)(")',
-                      lambda m: m.group(1) + 'data:model/vnd.collada+xml;base64,'
-                      + base64.b64encode(asset_file(m.group(2)).read_bytes()).decode('ascii') + m.group(3), urdf)
+                      lambda m: m.group(1) + 'data:model/gltf-binary;base64,'
+                      + base64.b64encode(glb_of_collada(asset_file(m.group(2)).read_bytes())).decode('ascii')
+                      + m.group(3), urdf)
     assert notes == () and b''.join(parts) == expected.encode('utf-8')
     big = [p for p in parts if len(p) > 100_000]
     assert len(big) == 13 and len({id(p) for p in big}) == 5
