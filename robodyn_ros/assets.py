@@ -20,7 +20,7 @@ built on :func:`asset_file`, the one place where a mesh reference becomes a file
   and a recording draws right in any Foxglove, with or without our layout. COLLADA files are embedded as
   binary glTF too (:func:`glb_of_collada`: their triangles where Foxglove draws the file, in its colours,
   a seventh of the bytes; kept on disk once converted), except those with what the converter does not
-  read (a texture, lines), which go as they are, as glTF files do.
+  read (a texture), which go as they are, as glTF files do.
 
 A mesh that is not found, or meshes beyond :data:`EMBED_LIMIT` bytes in all, keep their reference
 (with a note saying which and why).
@@ -134,13 +134,14 @@ def srgb_to_linear(c):
 def glb_of_collada(data: bytes) -> bytes:
     """A binary glTF 2.0 file (GLB) of what a viewer draws of a COLLADA file (``meshes.collada_primitives``): per
     primitive its vertices (float32, with their bounds) and indexed triangles (uint16, or uint32 past 65 535
-    vertices), no normals (a glTF viewer then shades each triangle flat), and a non-metallic double-sided
-    material of the primitive's diffuse colour (``baseColorFactor``: the COLLADA colour as sRGB made linear,
-    :func:`srgb_to_linear`, as three.js reads COLLADA colours). Foxglove draws a Z-up COLLADA file as it is and
-    turns a Y-up one, as every glTF file, to Z-up; so a Z-up file's vertices are written Y-up, ``(x, y, z) →
-    (x, z, −y)``, a Y-up file's as they are, and the GLB is drawn where the COLLADA file was. About a seventh of
-    the A1's COLLADA text (its trunk: 4.7 MB → 0.6 MB). Deterministic. Raises ``meshes.MeshError`` for a file
-    it does not read (the caller embeds that one as it is)."""
+    vertices; a ``<lines>`` primitive's segments as glTF lines), no normals (a glTF viewer then shades each
+    triangle flat), and a non-metallic double-sided material of the primitive's diffuse colour
+    (``baseColorFactor``: the COLLADA colour as sRGB made linear, :func:`srgb_to_linear`, as three.js reads
+    COLLADA colours). Foxglove draws a Z-up COLLADA file as it is and turns a Y-up one, as every glTF file, to
+    Z-up; so a Z-up file's vertices are written Y-up, ``(x, y, z) → (x, z, −y)``, a Y-up file's as they are, and
+    the GLB is drawn where the COLLADA file was. About a seventh of the A1's COLLADA text (its trunk: 4.7 MB →
+    0.6 MB). Deterministic. Raises ``meshes.MeshError`` for a file it does not read (the caller embeds that one
+    as it is)."""
     from .meshes import collada_primitives
     prims, z_up = collada_primitives(data)
     binary = bytearray()
@@ -165,7 +166,7 @@ def glb_of_collada(data: bytes) -> bytes:
         colour = tuple(float(x) for x in srgb_to_linear(rgba[:3])) + (float(np.clip(rgba[3], 0.0, 1.0)),)
         material = materials.setdefault(colour, len(materials))
         doc_prims.append({'attributes': {'POSITION': len(accessors) - 2}, 'indices': len(accessors) - 1,
-                          'material': material, 'mode': 4})
+                          'material': material, 'mode': 4 if faces.shape[1] == 3 else 1})   # triangles, lines
     doc = {'asset': {'version': '2.0', 'generator': 'robodyn_ros'}, 'scene': 0, 'scenes': [{'nodes': [0]}],
            'nodes': [{'mesh': 0}], 'meshes': [{'primitives': doc_prims}],
            'materials': [{'pbrMetallicRoughness': {'baseColorFactor': list(c), 'metallicFactor': 0.0,
@@ -217,7 +218,7 @@ def _data_uri(uri: str, data: bytes) -> tuple:
     from .meshes import MeshError
     ext = Path(uri.split('?')[0]).suffix.lower()
     note = None
-    if ext == '.dae':   # as glTF when it reads it; else as it is (a texture, lines: no note, it draws)
+    if ext == '.dae':   # as glTF when it reads it; else as it is (a texture: no note, it draws)
         glb = _cached_glb_of_collada(data)
         if glb is not None:
             return (b'data:model/gltf-binary;base64,', base64.b64encode(glb)), None

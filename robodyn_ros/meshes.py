@@ -209,19 +209,20 @@ def _dae(data: bytes) -> np.ndarray:
 
 
 #: what :func:`collada_primitives` reads of a COLLADA scene (anything else: MeshError, the file is used as it is)
-COLLADA_PRIMITIVES = ('triangles', 'polylist', 'polygons')
+COLLADA_PRIMITIVES = ('triangles', 'polylist', 'polygons', 'lines')
 
 
 def collada_primitives(data: bytes) -> tuple:
     """The surfaces a viewer draws of a COLLADA (``.dae``) file, as ``([(positions (n, 3), faces (m, 3) int64,
     rgba (4,)), ...], z_up)``: per instanced geometry and primitive, its vertices in the file's coordinates (every
     node transform of the visual scene applied, in the order the file lists them, then ``<unit meter>``), its
-    triangles (a polygon of k corners as a fan of k − 2, as three.js' ColladaLoader does) and the diffuse colour
+    triangles (a polygon of k corners as a fan of k − 2, as three.js' ColladaLoader does; a ``<lines>``
+    primitive's segments instead, faces (m, 2)) and the diffuse colour
     its material binds (as the file writes it; white without one), and whether the file is Z-up (else Y-up,
-    COLLADA's default). Reads what robot meshes use: ``<triangles>``, ``<polylist>`` and ``<polygons>`` of
+    COLLADA's default). Reads what robot meshes use: ``<triangles>``, ``<polylist>``, ``<polygons>`` and ``<lines>`` of
     ``<instance_geometry>`` and ``<instance_node>`` under ``<matrix>``, ``<translate>``, ``<rotate>`` and
     ``<scale>``, lambert, phong, blinn and constant materials with a colour. Raises MeshError, naming what it
-    does not read (an X-up file, a texture, a skin, lines), for a file it cannot draw the same way."""
+    does not read (an X-up file, a texture, a skin, line strips), for a file it cannot draw the same way."""
     try:
         return _collada_primitives(data)
     except MeshError:
@@ -350,6 +351,17 @@ def _collada_primitives(data: bytes) -> tuple:
             if prim.tag != 'polygons' and len(polys) > 1:
                 raise MeshError(f'a <{prim.tag}> of {len(polys)} <p>')
             corner = [_numbers(p.text, np.int64).reshape(-1, stride)[:, int(vin.get('offset', '0'))] for p in polys]
+            if prim.tag == 'lines':   # segments: pairs of corners
+                idx = np.concatenate(corner) if corner else np.zeros(0, dtype=np.int64)
+                if idx.size % 2:
+                    raise MeshError(f'a <lines> of {idx.size} corners')
+                segments = idx.reshape(-1, 2)
+                if segments.size and (segments.min() < 0 or segments.max() >= len(pos)):
+                    raise MeshError(f'a <lines> index beyond its {len(pos)} positions')
+                sym = prim.get('material')
+                rgba = colour(target(bound[sym], 'target')) if sym in bound else np.ones(4)
+                out.append(((pos @ m[:3, :3].T + m[:3, 3]) * meter, segments, rgba))
+                continue
             if prim.tag == 'triangles':
                 counts = [np.full(c.size // 3, 3) for c in corner]
             elif prim.tag == 'polylist':
@@ -389,7 +401,7 @@ def _collada_primitives(data: bytes) -> tuple:
     for node in target(scene).findall('node'):
         visit(node, np.eye(4))
     if not out or not any(len(f) for _, f, _ in out):
-        raise MeshError('no triangles in the visual scene')
+        raise MeshError('no triangles or lines in the visual scene')
     return out, axis == 'Z_UP'
 
 

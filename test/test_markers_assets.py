@@ -180,8 +180,9 @@ def test_stl_and_obj_meshes_are_embedded_as_gltf_that_foxglove_turns_back_into_t
 def _collada_reference(data: bytes):
     """trimesh's reading of a COLLADA file (through pycollada: its own parser, node transforms and all), as Foxglove
     draws it: ``(triangles (n, 3, 3), colours)`` times the file's ``<unit meter>``, in ROS's Z-up (a Y-up file
-    turned as Foxglove turns it, ``ModelCache.loadCollada``: rotateX(π/2); a Z-up file as it is), and the set of
-    its primitives' diffuse colours (RGB) as pycollada reads them."""
+    turned as Foxglove turns it, ``ModelCache.loadCollada``: rotateX(π/2); a Z-up file as it is), the set of
+    its primitives' diffuse colours (RGB) as pycollada reads them, and the ends (k, 3) of its ``<lines>``
+    segments (pycollada's, placed the same way)."""
     import io
 
     import collada
@@ -198,19 +199,29 @@ def _collada_reference(data: bytes):
         tri = _foxglove_turn(tri)
     colours = {tuple(float(x) for x in (p.material.effect.diffuse if p.material is not None else (1, 1, 1))[:3])
                for g in dae.scene.objects('geometry') for p in g.primitives()}
-    return tri, colours
+    ends = [line.vertices for g in dae.scene.objects('geometry') for p in g.primitives()
+            if isinstance(p, collada.lineset.BoundLineSet) for line in p]   # (trimesh reads no lines)
+    ends = np.concatenate(ends).astype(float) * (dae.assetInfo.unitmeter or 1.0) if ends else np.zeros((0, 3))
+    if b'<up_axis>Z_UP</up_axis>' not in data:
+        ends = _foxglove_turn(ends)
+    return tri, colours, ends
 
 
 def _assert_collada_drawn_as_gltf(path, glb):
     """The GLB of a COLLADA file, turned as Foxglove turns glTF, holds the triangles trimesh reads from the file
-    (float32; compared as sorted vertex rows, since the order of primitives may differ), each in a material of the
+    (float32; compared as sorted vertex rows, since the order of primitives may differ) and the line segments
+    pycollada reads (their ends), each in a material of the
     file's colour made linear (the sRGB transfer function, IEC 61966-2-1, as three.js reads COLLADA colours)."""
     import io
 
     import trimesh
     gl = trimesh.load(io.BytesIO(glb), file_type='glb', force='scene', process=False)
-    got = np.concatenate([_foxglove_turn(g.vertices[g.faces]) for g in gl.geometry.values()])
-    ref, colours = _collada_reference(path.read_bytes())
+    got = np.concatenate([_foxglove_turn(g.vertices[g.faces]) for g in gl.geometry.values() if hasattr(g, 'faces')])
+    ends = [_foxglove_turn(g.vertices[e.points]) for g in gl.geometry.values() if hasattr(g, 'entities')
+            for e in g.entities]
+    ref, colours, ref_ends = _collada_reference(path.read_bytes())
+    ends = np.unique(np.concatenate(ends).astype(np.float32), axis=0) if ends else np.zeros((0, 3), np.float32)
+    np.testing.assert_allclose(ends, np.unique(ref_ends.astype(np.float32), axis=0), atol=1e-6, err_msg=str(path))
     assert got.shape == ref.shape, (path, got.shape, ref.shape)
     np.testing.assert_allclose(np.sort(got.reshape(-1, 3), axis=0), np.sort(ref.reshape(-1, 3), axis=0),
                                rtol=0, atol=1e-6 * max(1.0, np.abs(ref).max()), err_msg=str(path))
@@ -224,7 +235,7 @@ def _assert_collada_drawn_as_gltf(path, glb):
 def test_every_collada_file_of_example_robot_data_is_drawn_as_gltf_or_kept_as_it_is():
     """Every COLLADA file example-robot-data ships (262 in 6.0.0): converted to glTF (the triangles and colours
     trimesh reads from the file, placed and scaled as Foxglove places the file) or, for what the converter does not read
-    (a texture, lines), refused with a reason, and then embedded as it is. At most a fifth of the files is
+    (a texture), refused with a reason, and then embedded as it is. At most a fifth of the files is
     refused, every Y-up and Z-up file with nodes placed by transforms is among those read (61 files use
     ``<translate>``/``<rotate>``), and the glTF is less than a third of the files' bytes."""
     from robodyn_ros.assets import glb_of_collada
@@ -245,7 +256,8 @@ def test_every_collada_file_of_example_robot_data_is_drawn_as_gltf_or_kept_as_it
         small += len(glb)
     print(f'{converted} of {len(files)} COLLADA files as glTF ({raw / 1e6:.1f} -> {small / 1e6:.1f} MB), refused: '
           + ', '.join(sorted(set(refused.values()))))
-    assert set(refused.values()) <= {'a texture', 'a <lines> primitive'}, set(refused.values())
+    assert set(refused.values()) <= {'a texture'}, set(refused.values())
+    assert sum(b'<lines' in p.read_bytes() for p in files if p not in refused) >= 5   # their segments as glTF lines
     assert len(refused) <= len(files) // 5 and small < raw / 3, (len(refused), small, raw)
     assert sum(b'<rotate' in p.read_bytes() for p in files if p not in refused) >= 50
 
@@ -254,7 +266,7 @@ def test_collada_polygons_nodes_and_what_is_refused():
     """A hand-written COLLADA file with what example-robot-data does not use: a ``<polygons>`` primitive (a quad:
     two triangles), a node placed by ``<translate>``, ``<rotate>`` and ``<scale>`` whose geometry comes through
     ``<instance_node>``, a ``<unit>`` of centimetres: the glTF holds what trimesh reads. A texture, an X-up file,
-    lines and a non-number are refused by name; the caller then embeds the file as it is."""
+    line strips and a non-number are refused by name; the caller then embeds the file as it is."""
     from robodyn_ros.assets import embed_meshes, glb_of_collada
     from robodyn_ros.meshes import MeshError
 
@@ -284,15 +296,15 @@ def test_collada_polygons_nodes_and_what_is_refused():
         path.write_bytes(dae())
         glb = glb_of_collada(path.read_bytes())
         _assert_collada_drawn_as_gltf(path, glb)
-        ref, _ = _collada_reference(path.read_bytes())
+        ref, _, _ = _collada_reference(path.read_bytes())
         assert ref.shape == (2, 3, 3)   # (trimesh read the quad, in the place the nodes put it)
         np.testing.assert_allclose(ref.reshape(-1, 3).min(0), [0.01 - 0.02, 0.02, 0.03], atol=1e-12)
         assert glb == glb_of_collada(path.read_bytes())   # deterministic
         for kw, why in [({'diffuse': '<texture texture="img" texcoord="uv"/>'}, 'a texture'),
                         ({'up': 'X_UP'}, 'up axis X_UP'),
-                        ({'prim': '<lines count="1"><input semantic="VERTEX" source="#v" offset="0"/>'
-                                  '<p>0 1</p></lines>'},
-                         'a <lines> primitive'),
+                        ({'prim': '<linestrips count="1"><input semantic="VERTEX" source="#v" offset="0"/>'
+                                  '<p>0 1 2</p></linestrips>'},
+                         'a <linestrips> primitive'),
                         ({'pos': '0 0 0 1 0 0 1 1 0 0 1 x'}, 'not a list of numbers')]:
             with pytest.raises(MeshError, match=re.escape(why)):
                 glb_of_collada(dae(**kw))
