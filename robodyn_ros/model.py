@@ -148,7 +148,8 @@ class Model:
     in joint frames; Xtree: (nb, 6, 6) parent->joint transforms at q = 0; I: (nb, 6, 6) spatial
     inertias in body frames; q_idx, v_idx: (nb,) first index of each joint in q and v; nq_j,
     nv_j: (nb,) sizes; damping: (nv,) viscous damping; gravity: (3,) in the root frame (m/s²);
-    q_lower, q_upper: (nq,) joint limits (inf when none); specs: the LinkSpecs it was built from.
+    q_lower, q_upper: (nq,) joint limits (inf when none); specs: the LinkSpecs it was built from;
+    root_visuals: ``<visual>`` elements (XML text) of the root frame's link (an imported fixed base's root link).
     """
 
     name: str
@@ -167,6 +168,7 @@ class Model:
     damping: np.ndarray
     gravity: np.ndarray
     specs: tuple
+    root_visuals: tuple = ()
 
     @property
     def nb(self) -> int:
@@ -426,11 +428,12 @@ def mimic_table(model) -> np.ndarray:
 
 
 def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robot',
-                root='base_link') -> Model:
+                root='base_link', root_visuals=()) -> Model:
     """Build a :class:`Model` from link specs, sorting them so that parents come first.
 
     links: the bodies; a parent of ``None`` or ``root`` attaches to the fixed root frame.
-    gravity: (3,) in the root frame (zero allowed). name: robot name; root: root frame name.
+    gravity: (3,) in the root frame (zero allowed). name: robot name; root: root frame name;
+    root_visuals: the root link's ``<visual>`` elements (XML text; :func:`to_urdf` writes them).
     Raises :class:`ModelError` naming the offending link for unknown parents, cycles, duplicate
     names, bad joint types, non-unit axes and non-physical inertias.
     """
@@ -524,7 +527,8 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
         raise ModelError(f'gravity must be a finite 3-vector, got {gravity!r}')
     return Model(name=name, root=root, link_names=tuple(order), joint_names=tuple(by_name[n].joint for n in order),
                  parent=parent, jtype=jtype, axis=axis, Xtree=Xtree, I=I, q_idx=q_idx, v_idx=v_idx,
-                 nq_j=nq_j, nv_j=nv_j, damping=np.asarray(damping), gravity=g, specs=tuple(specs))
+                 nq_j=nq_j, nv_j=nv_j, damping=np.asarray(damping), gravity=g, specs=tuple(specs),
+                 root_visuals=tuple(root_visuals))
 
 
 def planar_links(spec: LinkSpec) -> list:
@@ -800,10 +804,11 @@ def to_urdf(model: Model) -> str:
     for i in range(nb):
         if model.jtype[i] != FREE:
             kids[int(model.parent[i])].append((origins[i][0], sub[i]))
-    drawn = not any(s.visuals for s in model.specs)  # an imported robot shows its own visuals only
+    # an imported robot shows its own visuals only (its root link's too)
+    drawn = not model.root_visuals and not any(s.visuals for s in model.specs)
     root = LinkSpec(name=model.root, joint='', parent=None)
     out = [f'<?xml version="1.0"?>', f'<robot name="{_xa(model.name)}">']
-    root_vis = link_visuals(root, FIXED, kids[-1], root=True) if kids[-1] and drawn else []
+    root_vis = link_visuals(root, FIXED, kids[-1], root=True) if kids[-1] and drawn else list(model.root_visuals)
     out += [f'  <link name="{_xa(model.root)}">', *(f'    {v}' for v in root_vis), '  </link>'] if root_vis \
         else [f'  <link name="{_xa(model.root)}"/>']
     for i, s in enumerate(model.specs):

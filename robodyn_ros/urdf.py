@@ -119,7 +119,9 @@ class UrdfRobot:
     specs: LinkSpecs (one per non-root link; with ``floating`` the root link's spec comes first
     with joint type 'free'); floating: whether the root moves freely; velocity_limits: joint ->
     URDF ``<limit velocity>`` (reported only); text: the URDF text read; notes: the
-    :class:`UrdfWarning` messages issued while reading (one line each).
+    :class:`UrdfWarning` messages issued while reading (one line each); root_visuals: the ``<visual>``
+    elements (XML text) of a fixed base's root link, which is no body of the model but is drawn (a
+    floating root's are its spec's).
     """
 
     name: str
@@ -129,6 +131,7 @@ class UrdfRobot:
     velocity_limits: dict = field(default_factory=dict)
     text: str = ''
     notes: list = field(default_factory=list)
+    root_visuals: tuple = ()
 
 
 # ------------------------------------------------------------------------------------------------
@@ -287,7 +290,8 @@ def _read(data, base_dir, label, floating, locked, notes, opts: _Options) -> Urd
         return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare, opts)
     specs = _with_armature(specs, opts.armature, floating, root, name, notes)
     vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
-    return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text)
+    return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text,
+                     root_visuals=() if floating else tuple(links[root].visuals))
 
 
 def _inferable(links: dict, parent_of: dict, root: str, floating: bool) -> list:

@@ -266,3 +266,42 @@ def test_names_with_xml_special_characters_are_escaped_and_read_back():
     assert r.specs[-1].mimic[0] == odd[1]
     pm = pin.buildModelFromXML(text)
     assert list(pm.names)[1:] == [odd[1], odd[2]]
+
+
+def test_a_fixed_base_urdfs_root_link_keeps_its_visuals_moved_by_the_mount_pose():
+    """The root link of a URDF on a fixed base is no body of the model, but it is drawn: panda_link0's mesh (its
+    base) is in the exported description, as the file has it; with the part's ``origin``, the visual moves with
+    the joints that hang from it: its exported origin is the mount pose times the file's (composed here with
+    scipy's rotations, not the package's). Every other link keeps its visuals too."""
+    from scipy.spatial.transform import Rotation
+    from robodyn_ros.scene import parse_scene
+    from robodyn_ros.urdf import example_robot_data_dir
+    path = example_robot_data_dir() / 'panda_description' / 'urdf' / 'panda.urdf'
+    source = ET.parse(path).getroot()
+    original = {lk.get('name'): lk.findall('visual') for lk in source.iter('link')}
+    assert len(original['panda_link0']) == 1
+    mesh = original['panda_link0'][0].find('geometry/mesh').get('filename')
+
+    def exported(extra=''):
+        text = f'name: p\nparts:\n  - kind: urdf\n    name: panda\n    file: {path}\n{extra}'
+        return {lk.get('name'): lk.findall('visual') for lk in ET.fromstring(parse_scene(text, file='p.yaml')
+                                                                             .system.urdf()).iter('link')}
+
+    plain = exported()
+    for name, visuals in original.items():
+        assert [v.find('geometry/mesh').get('filename') for v in plain[name]] == \
+               [v.find('geometry/mesh').get('filename') for v in visuals], name
+    xyz, rpy = [0.3, -0.2, 0.1], [0.1, -0.2, 0.7]
+    moved = exported(f'    origin: {{xyz: {xyz}, rpy: {rpy}}}\n')
+    (v,) = moved['panda_link0']
+    assert v.find('geometry/mesh').get('filename') == mesh
+    o = original['panda_link0'][0].find('origin')
+    t_file = [float(x) for x in (o.get('xyz') if o is not None else '0 0 0').split()]
+    r_file = Rotation.from_euler('xyz', [float(x) for x in (o.get('rpy') if o is not None else '0 0 0').split()])
+    r0 = Rotation.from_euler('xyz', rpy)
+    want_R = (r0 * r_file).as_matrix()
+    want_t = r0.apply(t_file) + xyz
+    got = v.find('origin')
+    np.testing.assert_allclose([float(x) for x in got.get('xyz').split()], want_t, atol=1e-15)
+    got_R = Rotation.from_euler('xyz', [float(x) for x in got.get('rpy').split()]).as_matrix()
+    np.testing.assert_allclose(got_R, want_R, atol=1e-14)

@@ -203,12 +203,31 @@ def _model_error_path(err: ModelError, specs, paths, fallback: str) -> str:
     return paths[k]
 
 
-def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part:
+def moved_visual(visual: str, T0) -> str:
+    """A ``<visual>`` element (XML text) with its ``<origin>`` moved by the pose T0 (4, 4): ``T0 · T``, written as
+    the shortest text of each double (``repr``); the rest of the element as it was."""
+    import xml.etree.ElementTree as ET
+    el = ET.fromstring(visual)
+    o = el.find('origin')
+    if o is None:
+        o = ET.Element('origin')
+        el.insert(0, o)
+    T = np.eye(4)
+    T[:3, :3] = rpy_to_R([float(x) for x in (o.get('rpy') or '0 0 0').split()])
+    T[:3, 3] = [float(x) for x in (o.get('xyz') or '0 0 0').split()]
+    T = np.asarray(T0, dtype=float) @ T
+    o.set('xyz', ' '.join(repr(float(x)) for x in T[:3, 3]))
+    o.set('rpy', ' '.join(repr(float(x)) for x in R_to_rpy(T[:3, :3])))
+    return ET.tostring(el, encoding='unicode')
+
+
+def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None, root_visuals=()) -> Part:
     """Build an ``arm`` part: a kinematic tree from a DH table or explicit links -> ArmSystem.
 
     spec: the part mapping (see the module docstring for its keys); path: its key path
-    ('parts[0]'); ctx: validation context (file name, gravity). Model errors are re-raised as
-    :class:`SceneError` with the key path of the offending link.
+    ('parts[0]'); ctx: validation context (file name, gravity); root_visuals: ``<visual>`` elements (XML
+    text) of the root link (an imported URDF's), in its frame (moved with the joints by ``origin``). Model
+    errors are re-raised as :class:`SceneError` with the key path of the offending link.
     """
     ctx.mapping(spec, path, required=_ARM_REQUIRED, optional=_ARM_OPTIONAL)
     name = ctx.string(spec['name'], _key(path, 'name'))
@@ -227,6 +246,7 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
         specs, paths = _explicit_specs(ctx, spec, path, root, free)
     if 'origin' in spec:  # the mount pose: compose it into the joints that hang from the root
         T0 = ctx.pose(spec['origin'], _key(path, 'origin'))
+        root_visuals = [moved_visual(v, T0) for v in root_visuals]
         for s in specs:
             if s.parent in (None, root):
                 T = np.eye(4)
@@ -235,7 +255,7 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None) -> Part
                 T = T0 @ T
                 s.origin_R, s.origin_xyz, s.origin_rpy = T[:3, :3], tuple(T[:3, 3]), tuple(R_to_rpy(T[:3, :3]))
     try:
-        model = build_model(specs, gravity=ctx.gravity, name=name, root=root)
+        model = build_model(specs, gravity=ctx.gravity, name=name, root=root, root_visuals=root_visuals)
     except ModelError as e:
         ctx.fail(_model_error_path(e, specs, paths, path), str(e))
     planar = planar_root(model) is not None
