@@ -18,9 +18,10 @@ built on :func:`asset_file`, the one place where a mesh reference becomes a file
   *Mesh up axis* is set to Z-up (its default is Y-up, which scatters a robot's links), but turns glTF,
   Y-up by its specification, to Z-up always. So the triangles are written Y-up, ``(x, y, z) → (x, z, −y)``,
   and a recording draws right in any Foxglove, with or without our layout. COLLADA files are embedded as
-  binary glTF too (:func:`glb_of_collada`: their triangles where Foxglove draws the file, in its colours,
-  a seventh of the bytes; kept on disk once converted), except those with what the converter does not
-  read (a texture), which go as they are, as glTF files do.
+  binary glTF too (:func:`glb_of_collada`: their triangles where Foxglove draws the file, in its colours or
+  with its textures' images inside, a fifth of the bytes; kept on disk once converted), except those with
+  what the converter does not read, which go as they are, as glTF files do (a COLLADA file's textures,
+  files beside it, cannot be loaded from a ``data:`` URI).
 
 A mesh that is not found, or meshes beyond :data:`EMBED_LIMIT` bytes in all, keep their reference
 (with a note saying which and why).
@@ -131,22 +132,38 @@ def srgb_to_linear(c):
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
-def glb_of_collada(data: bytes) -> bytes:
-    """A binary glTF 2.0 file (GLB) of what a viewer draws of a COLLADA file (``meshes.collada_primitives``): per
-    primitive its vertices (float32, with their bounds) and indexed triangles (uint16, or uint32 past 65 535
-    vertices; a ``<lines>`` primitive's segments as glTF lines), no normals (a glTF viewer then shades each
-    triangle flat), and a non-metallic double-sided material of the primitive's diffuse colour
-    (``baseColorFactor``: the COLLADA colour as sRGB made linear, :func:`srgb_to_linear`, as three.js reads
-    COLLADA colours). Foxglove draws a Z-up COLLADA file as it is and turns a Y-up one, as every glTF file, to
-    Z-up; so a Z-up file's vertices are written Y-up, ``(x, y, z) → (x, z, −y)``, a Y-up file's as they are, and
-    the GLB is drawn where the COLLADA file was. About a seventh of the A1's COLLADA text (its trunk: 4.7 MB →
-    0.6 MB). Deterministic. Raises ``meshes.MeshError`` for a file it does not read (the caller embeds that one
-    as it is)."""
+def glb_of_collada(data: bytes, read=None) -> bytes:
+    """A binary glTF 2.0 file (GLB) of what a viewer draws of a COLLADA file (``meshes.collada_primitives``; read:
+    the bytes of a file it names, for its textures): per primitive its vertices (float32, with their bounds) and
+    indexed triangles (uint16, or uint32 past 65 535 vertices; a ``<lines>`` primitive's segments as glTF lines),
+    no normals (a glTF viewer then shades each triangle flat), and a non-metallic double-sided material of the
+    primitive's diffuse colour (``baseColorFactor``: the COLLADA colour as sRGB made linear,
+    :func:`srgb_to_linear`, as three.js reads COLLADA colours) or its texture (the PNG or JPEG file in the GLB,
+    ``TEXCOORD_0`` with v turned, ``(u, 1 − v)``: glTF's images start at the top, COLLADA's at the bottom).
+    Foxglove draws a Z-up COLLADA file as it is and turns a Y-up one, as every glTF file, to Z-up; so a Z-up
+    file's vertices are written Y-up, ``(x, y, z) → (x, z, −y)``, a Y-up file's as they are, and the GLB is drawn
+    where the COLLADA file was. About a seventh of the A1's COLLADA text (its trunk: 4.7 MB → 0.6 MB).
+    Deterministic. Raises ``meshes.MeshError`` for a file it does not read (the caller embeds that one as it
+    is)."""
     from .meshes import collada_primitives
-    prims, z_up = collada_primitives(data)
+    prims, z_up = collada_primitives(data, read)
     binary = bytearray()
-    doc_prims, accessors, views, materials = [], [], [], {}
-    for pos, faces, rgba in prims:
+    doc_prims, accessors, views, materials, images = [], [], [], {}, {}
+
+    def put(chunk: bytes, count: int, target, **accessor) -> int:
+        view = {'buffer': 0, 'byteOffset': len(binary), 'byteLength': len(chunk)}
+        if target is not None:
+            view['target'] = target
+        views.append(view)
+        binary.extend(chunk + b'\0' * (-len(chunk) % 4))
+        if count is None:
+            return len(views) - 1
+        accessors.append({'bufferView': len(views) - 1, 'count': count, **accessor})
+        return len(accessors) - 1
+
+    for pos, faces, rgba, uv, image in prims:
+        if not len(faces):   # (an empty primitive draws nothing)
+            continue
         used, inverse = np.unique(faces.ravel(), return_inverse=True)
         p = pos[used]
         if z_up:
@@ -154,24 +171,34 @@ def glb_of_collada(data: bytes) -> bytes:
         p = p.astype('<f4')
         small = len(used) < 65536
         idx = inverse.astype('<u2' if small else '<u4')
-        for chunk, count, extra in ((p.tobytes(), len(p), {'type': 'VEC3', 'componentType': 5126,
-                                                            'min': [float(x) for x in p.min(axis=0)],
-                                                            'max': [float(x) for x in p.max(axis=0)]}),
-                                    (idx.tobytes(), idx.size, {'type': 'SCALAR',
-                                                               'componentType': 5123 if small else 5125})):
-            views.append({'buffer': 0, 'byteOffset': len(binary), 'byteLength': len(chunk),
-                          'target': 34962 if extra['type'] == 'VEC3' else 34963})
-            binary += chunk + b'\0' * (-len(chunk) % 4)
-            accessors.append({'bufferView': len(views) - 1, 'count': count, **extra})
-        colour = tuple(float(x) for x in srgb_to_linear(rgba[:3])) + (float(np.clip(rgba[3], 0.0, 1.0)),)
-        material = materials.setdefault(colour, len(materials))
-        doc_prims.append({'attributes': {'POSITION': len(accessors) - 2}, 'indices': len(accessors) - 1,
-                          'material': material, 'mode': 4 if faces.shape[1] == 3 else 1})   # triangles, lines
+        attributes = {'POSITION': put(p.tobytes(), len(p), 34962, type='VEC3', componentType=5126,
+                                      min=[float(x) for x in p.min(axis=0)], max=[float(x) for x in p.max(axis=0)])}
+        if image is None:
+            key = tuple(float(x) for x in srgb_to_linear(rgba[:3])) + (float(np.clip(rgba[3], 0.0, 1.0)),)
+        else:
+            t = np.stack([uv[used, 0], 1.0 - uv[used, 1]], axis=1).astype('<f4')
+            attributes['TEXCOORD_0'] = put(t.tobytes(), len(t), 34962, type='VEC2', componentType=5126)
+            if image[0] not in images:
+                images[image[0]] = (put(image[1], None, None), image[2])
+            key = ('image', list(images).index(image[0]))
+        material = materials.setdefault(key, len(materials))
+        indices = put(idx.tobytes(), idx.size, 34963, type='SCALAR', componentType=5123 if small else 5125)
+        doc_prims.append({'attributes': attributes, 'indices': indices, 'material': material,
+                          'mode': 4 if faces.shape[1] == 3 else 1})   # triangles, lines
+
+    def pbr(key):
+        if key[0] == 'image':
+            return {'baseColorTexture': {'index': key[1]}, 'metallicFactor': 0.0, 'roughnessFactor': 1.0}
+        return {'baseColorFactor': list(key), 'metallicFactor': 0.0, 'roughnessFactor': 1.0}
+
     doc = {'asset': {'version': '2.0', 'generator': 'robodyn_ros'}, 'scene': 0, 'scenes': [{'nodes': [0]}],
            'nodes': [{'mesh': 0}], 'meshes': [{'primitives': doc_prims}],
-           'materials': [{'pbrMetallicRoughness': {'baseColorFactor': list(c), 'metallicFactor': 0.0,
-                                                   'roughnessFactor': 1.0}, 'doubleSided': True} for c in materials],
+           'materials': [{'pbrMetallicRoughness': pbr(k), 'doubleSided': True} for k in materials],
            'buffers': [{'byteLength': len(binary)}], 'bufferViews': views, 'accessors': accessors}
+    if images:   # (repeat wrapping, linear mipmaps: glTF's and three.js' defaults, as ColladaLoader's textures)
+        doc['images'] = [{'bufferView': v, 'mimeType': kind} for v, kind in images.values()]
+        doc['samplers'] = [{'wrapS': 10497, 'wrapT': 10497}]
+        doc['textures'] = [{'source': k, 'sampler': 0} for k in range(len(images))]
     return _glb(doc, bytes(binary))
 
 
@@ -181,11 +208,12 @@ _GLB_CACHE_FORMAT = b'robodyn_ros glTF of COLLADA 1: the GLB, empty when refused
 GLB_HITS = [0]
 
 
-def _cached_glb_of_collada(data: bytes) -> bytes | None:
-    """:func:`glb_of_collada` of a COLLADA file's bytes, None where it raises MeshError; kept on disk
-    (:mod:`robodyn_ros.disk_cache`) under the sha256 of the file, of this module's and ``meshes``' source and of
-    numpy's version (all the GLB depends on): reading it and the files costs about a tenth of converting them (the
-    A1's five files: 0.10 s of XML and numbers). The same bytes with or without the cache."""
+def _cached_glb_of_collada(data: bytes, read=None) -> bytes | None:
+    """:func:`glb_of_collada` of a COLLADA file's bytes (read: its texture files), None where it raises MeshError;
+    kept on disk (:mod:`robodyn_ros.disk_cache`) under the sha256 of the file, of every file it names that read
+    gives (its textures), of this module's and ``meshes``' source and of numpy's version (all the GLB depends
+    on): reading it and the files costs about a tenth of converting them (the A1's five files: 0.10 s of XML and
+    numbers). The same bytes with or without the cache."""
     from . import disk_cache
     from . import meshes
     from .meshes import MeshError
@@ -195,7 +223,13 @@ def _cached_glb_of_collada(data: bytes) -> bytes | None:
         for source in (__file__, meshes.__file__):
             with open(source, 'rb') as f:
                 h.update(f.read())
-        h.update(data)
+        h.update(len(data).to_bytes(8, 'little') + data)
+        for name in sorted(set(re.findall(rb'<(?:init_from|ref)>\s*([^<]+?)\s*</', data))) if read else ():
+            try:
+                named = read(name.decode('utf-8', 'replace'))
+            except (OSError, MeshError):
+                named = b''
+            h.update(name + b'\0' + len(named).to_bytes(8, 'little') + named)
         key = h.digest()
         path = os.path.join(d, f'{key.hex()}.glb')
         body = disk_cache.load(path, key, _GLB_CACHE_FORMAT)
@@ -203,12 +237,22 @@ def _cached_glb_of_collada(data: bytes) -> bytes | None:
             GLB_HITS[0] += 1
             return body or None
     try:
-        glb = glb_of_collada(data)
+        glb = glb_of_collada(data, read)
     except MeshError:
         glb = None
     if d is not None:
         disk_cache.store(d, path, key, _GLB_CACHE_FORMAT, glb or b'')
     return glb
+
+
+def _files_beside(uri: str):
+    """read(name): the bytes of a file a mesh names relative to itself (its textures), where the mesh is a file."""
+    base = asset_file(uri).parent
+
+    def read(name: str) -> bytes:
+        from urllib.parse import unquote
+        return (base / unquote(name)).read_bytes()
+    return read
 
 
 def _data_uri(uri: str, data: bytes) -> tuple:
@@ -218,8 +262,8 @@ def _data_uri(uri: str, data: bytes) -> tuple:
     from .meshes import MeshError
     ext = Path(uri.split('?')[0]).suffix.lower()
     note = None
-    if ext == '.dae':   # as glTF when it reads it; else as it is (a texture: no note, it draws)
-        glb = _cached_glb_of_collada(data)
+    if ext == '.dae':   # as glTF when it reads it, its textures from beside it; else as it is (no note)
+        glb = _cached_glb_of_collada(data, _files_beside(uri))
         if glb is not None:
             return (b'data:model/gltf-binary;base64,', base64.b64encode(glb)), None
     if ext in GLB_FORMATS:

@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'mesh_triangles', 'collada_primitives', 'bounding_sphere',
-           'mesh_sphere',
+__all__ = ['MeshError', 'resolve_uri', 'mesh_vertices', 'mesh_triangles', 'collada_primitives', 'ColladaPrimitive',
+           'bounding_sphere', 'mesh_sphere',
            'example_robot_data_dir', 'bundled_robot_data_dir']
 
 
@@ -210,24 +210,38 @@ def _dae(data: bytes) -> np.ndarray:
 
 #: what :func:`collada_primitives` reads of a COLLADA scene (anything else: MeshError, the file is used as it is)
 COLLADA_PRIMITIVES = ('triangles', 'polylist', 'polygons', 'lines')
+#: image files a textured COLLADA primitive may name (the formats glTF holds): extension -> media type
+TEXTURE_TYPES = {'.png': 'image/png', '.jpg': 'image/jpeg', '.jpeg': 'image/jpeg'}
 
 
-def collada_primitives(data: bytes) -> tuple:
-    """The surfaces a viewer draws of a COLLADA (``.dae``) file, as ``([(positions (n, 3), faces (m, 3) int64,
-    rgba (4,)), ...], z_up)``: per instanced geometry and primitive, its vertices in the file's coordinates (every
-    node transform of the visual scene applied, in the order the file lists them, then ``<unit meter>``), its
-    triangles (a polygon of k corners as a fan of k − 2, as three.js' ColladaLoader does; a ``<lines>``
-    primitive's segments instead, faces (m, 2)) and the diffuse colour
-    its material binds (as the file writes it; white without one), and whether the file is Z-up (else Y-up,
-    COLLADA's default). Reads what robot meshes use: ``<triangles>``, ``<polylist>``, ``<polygons>`` and ``<lines>`` of
-    ``<instance_geometry>`` and ``<instance_node>`` under ``<matrix>``, ``<translate>``, ``<rotate>`` and
-    ``<scale>``, lambert, phong, blinn and constant materials with a colour. Raises MeshError, naming what it
-    does not read (an X-up file, a texture, a skin, line strips), for a file it cannot draw the same way."""
+class ColladaPrimitive(tuple):
+    """One primitive of :func:`collada_primitives`: ``(positions (n, 3), faces (m, 3) or segments (m, 2) int64,
+    rgba (4,), uv (n, 2) or None, image (file name, bytes, media type) or None)``."""
+    __slots__ = ()
+
+    def __new__(cls, positions, faces, rgba, uv=None, image=None):
+        return tuple.__new__(cls, (positions, faces, rgba, uv, image))
+
+
+def collada_primitives(data: bytes, read=None) -> tuple:
+    """The surfaces a viewer draws of a COLLADA (``.dae``) file, as ``([ColladaPrimitive, ...], z_up)``: per
+    instanced geometry and primitive, its vertices in the file's coordinates (every node transform of the visual
+    scene applied, in the order the file lists them, then ``<unit meter>``), its triangles (a polygon of k
+    corners as a fan of k − 2, as three.js' ColladaLoader does; a ``<lines>`` primitive's segments instead,
+    faces (m, 2)), the diffuse colour its material binds (as the file writes it; white without one) or, for a
+    textured one, its texture coordinates (as the file writes them, a vertex per distinct position and
+    coordinate pair) and image (``read(name)``: the bytes of a file the COLLADA file names, relative to it;
+    PNG or JPEG), and whether the file is Z-up (else Y-up, COLLADA's default). Reads what robot meshes use:
+    ``<triangles>``, ``<polylist>``, ``<polygons>`` and ``<lines>`` of ``<instance_geometry>`` and
+    ``<instance_node>`` under ``<matrix>``, ``<translate>``, ``<rotate>`` and ``<scale>``, lambert, phong,
+    blinn and constant materials with a colour or a texture. Raises MeshError, naming what it does not read (an
+    X-up file, a texture without read or of another format, a skin, line strips), for a file it cannot draw
+    the same way."""
     try:
-        return _collada_primitives(data)
+        return _collada_primitives(data, read)
     except MeshError:
         raise
-    except (ValueError, IndexError, KeyError, AttributeError) as e:
+    except (ValueError, IndexError, KeyError, AttributeError, OSError) as e:
         raise MeshError(f'cannot read the COLLADA file: {type(e).__name__}: {e}') from None
 
 
@@ -241,7 +255,7 @@ def _numbers(text, dtype) -> np.ndarray:
             raise MeshError(f'not a list of numbers: {(text or "")[:40]!r}...') from None
 
 
-def _collada_primitives(data: bytes) -> tuple:
+def _collada_primitives(data: bytes, read) -> tuple:
     """:func:`collada_primitives` without its error handling."""
     try:
         root = ET.fromstring(data)
@@ -263,6 +277,16 @@ def _collada_primitives(data: bytes) -> tuple:
         if n is not None and x.size != n:
             raise MeshError(f'<{el.tag}> holds {x.size} numbers, not {n}')
         return x
+
+    def columns(src, least):
+        """The values of a <source> as rows of its accessor's stride, the first ``least`` columns."""
+        acc = src.find('technique_common/accessor')
+        step = int(acc.get('stride', str(least))) if acc is not None else least
+        fa = src.find('float_array')
+        if fa is None or step < least:
+            raise MeshError(f'source {src.get("id")!r} is not a float array of {least} or more a row')
+        x = floats(fa)
+        return x[:x.size // step * step].reshape(-1, step)[:, :least]
 
     up = root.find('asset/up_axis')
     axis = (up.text or '').strip().upper() if up is not None else 'Y_UP'   # (COLLADA's default)
@@ -302,19 +326,50 @@ def _collada_primitives(data: bytes) -> tuple:
             m = m @ step
         return m
 
-    def colour(material):
-        effect = target(material.find('instance_effect'))
+    def texture_image(effect, name):
+        """(file name, bytes, media type) of the image a <texture texture=name> of effect samples: its sampler,
+        surface and image, as ColladaLoader follows them (or an image named directly)."""
+        params = {p.get('sid'): p for p in effect.iter('newparam')}
+        for _ in range(4):
+            p = params.get(name)
+            if p is None:
+                break
+            nxt = p.find('sampler2D/source')
+            if nxt is None:
+                nxt = p.find('surface/init_from')
+            if nxt is None:
+                break
+            name = (nxt.text or '').strip()
+        image = ids.get(name)
+        init = image.find('init_from') if image is not None and image.tag == 'image' else None
+        if init is not None and init.find('ref') is not None:   # (COLLADA 1.5)
+            init = init.find('ref')
+        file = (init.text or '').strip() if init is not None else ''
+        if file.startswith('file://'):
+            file = file[len('file://'):]
+        kind = TEXTURE_TYPES.get(Path(file).suffix.lower())
+        if not file or kind is None or read is None:
+            raise MeshError(f'a texture ({file or name!r})' if file or name else 'a texture')
+        try:
+            return file, read(file), kind
+        except (OSError, MeshError) as e:
+            raise MeshError(f'a texture ({file!r}) that cannot be read: {e}') from None
+
+    def material(mat):
+        """(rgba, image or None) of a material."""
+        effect = target(mat.find('instance_effect'))
         for technique in effect.iter('technique'):
             for shading in technique:
                 if shading.tag not in ('lambert', 'phong', 'blinn', 'constant'):
                     continue
                 diffuse = shading.find('diffuse' if shading.tag != 'constant' else 'emission')
                 if diffuse is None:
-                    return np.ones(4)
-                if diffuse.find('texture') is not None:
-                    raise MeshError('a texture')
+                    return np.ones(4), None
+                tex = diffuse.find('texture')
+                if tex is not None:
+                    return np.ones(4), texture_image(effect, tex.get('texture') or '')
                 c = diffuse.find('color')
-                return floats(c, 4) if c is not None else np.ones(4)
+                return (floats(c, 4) if c is not None else np.ones(4)), None
         raise MeshError('a material without a common-profile technique')
 
     def geometry(inst, m):
@@ -337,52 +392,53 @@ def _collada_primitives(data: bytes) -> tuple:
             pin = next((i for i in vert.findall('input') if i.get('semantic') == 'POSITION'), None)
             if pin is None:
                 raise MeshError(f'vertices {vert.get("id")!r} without POSITION')
-            src = target(pin, 'source')
-            acc = src.find('technique_common/accessor')
-            step = int(acc.get('stride', '3')) if acc is not None else 3
-            fa = src.find('float_array')
-            if fa is None or step < 3:
-                raise MeshError(f'positions {src.get("id")!r} are not a float array of 3 or more per vertex')
-            pos = floats(fa)
-            pos = pos[:pos.size // step * step].reshape(-1, step)[:, :3]
+            pos = columns(target(pin, 'source'), 3)
+            sym = prim.get('material')
+            rgba, image = material(target(bound[sym], 'target')) if sym in bound else (np.ones(4), None)
             polys = prim.findall('p')
             if prim.find('ph') is not None:
                 raise MeshError('a polygon with holes (<ph>)')
             if prim.tag != 'polygons' and len(polys) > 1:
                 raise MeshError(f'a <{prim.tag}> of {len(polys)} <p>')
-            corner = [_numbers(p.text, np.int64).reshape(-1, stride)[:, int(vin.get('offset', '0'))] for p in polys]
+            rows = [_numbers(p.text, np.int64).reshape(-1, stride) for p in polys]
+            rows = np.concatenate(rows) if rows else np.zeros((0, stride), dtype=np.int64)
+            idx = rows[:, int(vin.get('offset', '0'))]   # each corner's position
+            world = (pos @ m[:3, :3].T + m[:3, 3]) * meter
             if prim.tag == 'lines':   # segments: pairs of corners
-                idx = np.concatenate(corner) if corner else np.zeros(0, dtype=np.int64)
                 if idx.size % 2:
                     raise MeshError(f'a <lines> of {idx.size} corners')
-                segments = idx.reshape(-1, 2)
-                if segments.size and (segments.min() < 0 or segments.max() >= len(pos)):
+                if idx.size and (idx.min() < 0 or idx.max() >= len(pos)):
                     raise MeshError(f'a <lines> index beyond its {len(pos)} positions')
-                sym = prim.get('material')
-                rgba = colour(target(bound[sym], 'target')) if sym in bound else np.ones(4)
-                out.append(((pos @ m[:3, :3].T + m[:3, 3]) * meter, segments, rgba))
+                out.append(ColladaPrimitive(world, idx.reshape(-1, 2), rgba))
                 continue
             if prim.tag == 'triangles':
-                counts = [np.full(c.size // 3, 3) for c in corner]
+                counts = np.full(idx.size // 3, 3)
             elif prim.tag == 'polylist':
                 vc = prim.find('vcount')
-                counts = [_numbers(vc.text if vc is not None else '', np.int64)]
+                counts = _numbers(vc.text if vc is not None else '', np.int64)
             else:
-                counts = [np.array([c.size]) for c in corner]
-            idx = np.concatenate(corner) if corner else np.zeros(0, dtype=np.int64)
-            counts = np.concatenate(counts) if counts else np.zeros(0, dtype=np.int64)
+                counts = np.array([len(_numbers(p.text, np.int64)) // stride for p in polys], dtype=np.int64)
             if counts.sum() != idx.size or (counts < 3).any():
                 raise MeshError(f'a <{prim.tag}> whose corner counts do not match its indices')
             fan = counts - 2                                  # triangles per polygon
             first = np.repeat(np.cumsum(counts) - counts, fan)   # each triangle's polygon's first corner
             k = np.arange(fan.sum()) - np.repeat(np.cumsum(fan) - fan, fan) + 1
-            faces = np.stack([idx[first], idx[first + k], idx[first + k + 1]], axis=1)
-            if faces.size and (faces.min() < 0 or faces.max() >= len(pos)):
+            corners = np.stack([first, first + k, first + k + 1], axis=1)   # triangles of corner numbers
+            if idx.size and (idx.min() < 0 or idx.max() >= len(pos)):
                 raise MeshError(f'a <{prim.tag}> index beyond its {len(pos)} positions')
-            sym = prim.get('material')
-            rgba = colour(target(bound[sym], 'target')) if sym in bound else np.ones(4)
-            world = (pos @ m[:3, :3].T + m[:3, 3]) * meter
-            out.append((world, faces, rgba))
+            if image is None:
+                out.append(ColladaPrimitive(world, idx[corners], rgba))
+                continue
+            tin = sorted((i for i in inputs if i.get('semantic') == 'TEXCOORD'), key=lambda i: int(i.get('set', '0')))
+            if not tin:
+                raise MeshError(f'a textured <{prim.tag}> without TEXCOORD input')
+            uv = columns(target(tin[0], 'source'), 2)
+            uidx = rows[:, int(tin[0].get('offset', '0'))]
+            if uidx.size and (uidx.min() < 0 or uidx.max() >= len(uv)):
+                raise MeshError(f'a <{prim.tag}> texture coordinate index beyond its {len(uv)}')
+            pairs, vertex = np.unique(np.stack([idx, uidx], axis=1), axis=0, return_inverse=True)
+            vertex = vertex.reshape(-1)
+            out.append(ColladaPrimitive(world[pairs[:, 0]], vertex[corners], rgba, uv[pairs[:, 1]], image))
 
     def visit(node, parent, depth=0):
         if depth > 64:
@@ -400,7 +456,7 @@ def _collada_primitives(data: bytes) -> tuple:
 
     for node in target(scene).findall('node'):
         visit(node, np.eye(4))
-    if not out or not any(len(f) for _, f, _ in out):
+    if not out or not any(len(p[1]) for p in out):
         raise MeshError('no triangles or lines in the visual scene')
     return out, axis == 'Z_UP'
 
