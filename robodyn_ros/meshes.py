@@ -62,11 +62,13 @@ class MeshError(ValueError):
 
 def resolve_uri(name: str, urdf_dir: Path | None = None) -> Path:
     """The file of a URDF mesh reference, or of a scene's ``file: package://...`` (see the module
-    docstring); raises MeshError when not found."""
+    docstring); raises MeshError when not found. ``package:///<package>/<path>`` (a slash too many, as
+    example-robot-data's talos_full_v2 writes it) is read as ``package://<package>/<path>``, as Pinocchio
+    finds it (it appends what follows ``package://`` to each package directory)."""
     if name.startswith('file://'):
         p = Path(name[len('file://'):])
     elif name.startswith('package://'):
-        pkg, _, rest = name[len('package://'):].partition('/')
+        pkg, _, rest = name[len('package://'):].lstrip('/').partition('/')
         p = None
         for base in _package_dirs(pkg, urdf_dir):
             if (base / rest).is_file():
