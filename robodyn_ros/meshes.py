@@ -405,7 +405,8 @@ def _collada_primitives(data: bytes, read) -> tuple:
             rows = [_numbers(p.text, np.int64).reshape(-1, stride) for p in polys]
             rows = np.concatenate(rows) if rows else np.zeros((0, stride), dtype=np.int64)
             idx = rows[:, int(vin.get('offset', '0'))]   # each corner's position
-            world = (pos @ m[:3, :3].T + m[:3, 3]) * meter
+            with np.errstate(all='ignore'):   # (a non-finite vertex is refused below, once)
+                world = (pos @ m[:3, :3].T + m[:3, 3]) * meter
             if prim.tag == 'lines':   # segments: pairs of corners
                 if idx.size % 2:
                     raise MeshError(f'a <lines> of {idx.size} corners')
@@ -460,6 +461,10 @@ def _collada_primitives(data: bytes, read) -> tuple:
         visit(node, np.eye(4))
     if not out or not any(len(p[1]) for p in out):
         raise MeshError('no triangles or lines in the visual scene')
+    for p in out:   # (the vertices and coordinates drawn: a glTF holds finite numbers only)
+        used = np.unique(p[1])
+        if not np.isfinite(p[0][used]).all() or (p[3] is not None and not np.isfinite(p[3][used]).all()):
+            raise MeshError('a vertex or texture coordinate that is not a finite number')
     return out, axis == 'Z_UP'
 
 

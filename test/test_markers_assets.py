@@ -338,6 +338,51 @@ def test_every_mesh_of_every_example_robot_data_urdf_is_recorded_as_gltf():
     assert set(kinds) == {b'model/gltf-binary'} and kinds[b'model/gltf-binary'] >= 1000, kinds
 
 
+def test_a_damaged_collada_file_becomes_gltf_or_is_refused_never_an_error():
+    """400 seeded damages of a textured COLLADA file (ANYmal C's hatch): elements removed, attributes dropped or
+    pointed nowhere, texts made non-numbers, NaN, huge or negative, one number of an array made NaN or infinite:
+    each gives a GLB whose JSON is strict (no
+    NaN or infinity) or a MeshError naming what it could not read -- never another exception (a recording
+    then embeds the file as it is)."""
+    import random
+
+    from robodyn_ros.assets import glb_of_collada
+    from robodyn_ros.meshes import MeshError
+    (src,) = _erd_meshes('anymal_c_simple_description/meshes/hatch.dae')
+    base, rng, made, refused = src.read_bytes(), random.Random(7), 0, 0
+
+    def strict(x):
+        raise ValueError(f'{x} in the glTF JSON')
+    for _ in range(400):
+        root = ET.fromstring(base)
+        parents = {c: p for p in root.iter() for c in p}
+        for _ in range(rng.randint(1, 3)):
+            e = rng.choice(list(root.iter()))
+            r = rng.random()
+            if r < 0.3 and e in parents:
+                parents[e].remove(e)
+            elif r < 0.5 and e.attrib:
+                del e.attrib[rng.choice(sorted(e.attrib))]
+            elif r < 0.65:
+                e.text = rng.choice(['x', '', '-1', '1e999', 'nan', '0 0', '99999999999'])
+            elif r < 0.8:   # one number of a position or texture coordinate array made NaN or infinite
+                arrays = [a for a in root.iter() if a.tag.endswith('float_array') and a.text]
+                a = rng.choice(arrays)
+                words = a.text.split()
+                words[rng.randrange(len(words))] = rng.choice(['nan', '1e999', '-inf'])
+                a.text = ' '.join(words)
+            elif e.attrib:
+                e.set(rng.choice(sorted(e.attrib)), rng.choice(['#nope', '0', '-3', 'x', '']))
+        try:
+            glb = glb_of_collada(ET.tostring(root), lambda name: (src.parent / name).read_bytes())
+        except MeshError:
+            refused += 1
+            continue
+        json.loads(glb[20:20 + struct.unpack_from('<I', glb, 12)[0]], parse_constant=strict)
+        made += 1
+    assert made >= 50 and refused >= 50, (made, refused)
+
+
 def test_collada_polygons_nodes_and_what_is_refused():
     """A hand-written COLLADA file with what example-robot-data does not use: a ``<polygons>`` primitive (a quad:
     two triangles), a node placed by ``<translate>``, ``<rotate>`` and ``<scale>`` whose geometry comes through
