@@ -208,6 +208,17 @@ _GLB_CACHE_FORMAT = b'robodyn_ros glTF of COLLADA 1: the GLB, empty when refused
 GLB_HITS = [0]
 
 
+@functools.lru_cache(maxsize=1)
+def _converter_digest(meshes_file: str) -> bytes:
+    """sha256 of what a cached glTF of a COLLADA file depends on besides the file: the cache layout, numpy's
+    version, this module's and ``meshes``' source (read once a process)."""
+    h = hashlib.sha256(_GLB_CACHE_FORMAT + np.__version__.encode())
+    for source in (__file__, meshes_file):
+        with open(source, 'rb') as f:
+            h.update(f.read())
+    return h.digest()
+
+
 def _cached_glb_of_collada(data: bytes, read=None) -> bytes | None:
     """:func:`glb_of_collada` of a COLLADA file's bytes (read: its texture files), None where it raises MeshError;
     kept on disk (:mod:`robodyn_ros.disk_cache`) under the sha256 of the file, of every file it names that read
@@ -219,10 +230,7 @@ def _cached_glb_of_collada(data: bytes, read=None) -> bytes | None:
     from .meshes import MeshError
     d = disk_cache.directory()
     if d is not None:
-        h = hashlib.sha256(_GLB_CACHE_FORMAT + np.__version__.encode())
-        for source in (__file__, meshes.__file__):
-            with open(source, 'rb') as f:
-                h.update(f.read())
+        h = hashlib.sha256(_converter_digest(meshes.__file__))
         h.update(len(data).to_bytes(8, 'little') + data)
         for name in sorted(set(re.findall(rb'<(?:init_from|ref)>\s*([^<]+?)\s*</', data))) if read else ():
             try:

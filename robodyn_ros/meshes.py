@@ -402,8 +402,8 @@ def _collada_primitives(data: bytes, read) -> tuple:
                 raise MeshError('a polygon with holes (<ph>)')
             if prim.tag != 'polygons' and len(polys) > 1:
                 raise MeshError(f'a <{prim.tag}> of {len(polys)} <p>')
-            rows = [_numbers(p.text, np.int64).reshape(-1, stride) for p in polys]
-            rows = np.concatenate(rows) if rows else np.zeros((0, stride), dtype=np.int64)
+            per_p = [_numbers(p.text, np.int64).reshape(-1, stride) for p in polys]
+            rows = np.concatenate(per_p) if per_p else np.zeros((0, stride), dtype=np.int64)
             idx = rows[:, int(vin.get('offset', '0'))]   # each corner's position
             with np.errstate(all='ignore'):   # (a non-finite vertex is refused below, once)
                 world = (pos @ m[:3, :3].T + m[:3, 3]) * meter
@@ -420,7 +420,7 @@ def _collada_primitives(data: bytes, read) -> tuple:
                 vc = prim.find('vcount')
                 counts = _numbers(vc.text if vc is not None else '', np.int64)
             else:
-                counts = np.array([len(_numbers(p.text, np.int64)) // stride for p in polys], dtype=np.int64)
+                counts = np.array([len(r) for r in per_p], dtype=np.int64)   # (one polygon a <p>)
             if counts.sum() != idx.size or (counts < 3).any():
                 raise MeshError(f'a <{prim.tag}> whose corner counts do not match its indices')
             fan = counts - 2                                  # triangles per polygon

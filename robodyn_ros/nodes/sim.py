@@ -715,10 +715,9 @@ def main(args=None) -> int:
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from ..kernels import jit
+    from ..kernels import jit, start_compiler_if_cold
     from ..scene import SceneError
     jit.set_mode('interpret')   # a cold cache: run the kernels as Python while a child compiles them
-    from ..kernels import start_compiler_if_cold
     start_compiler_if_cold()   # (an empty cache: the child gets ready while ROS and the scene start)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     # warnings (a URDF read leniently, a marginal step) as one log line each; the default filter
