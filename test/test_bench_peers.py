@@ -38,7 +38,7 @@ def test_every_row_reports_its_figures(measured):
         assert f['rss_before'] <= 1.01 * f['rss'] and f['mujoco_rss_before'] <= 1.01 * f['mujoco_rss']
         assert f'| `{name}`, {DURATION:g} s |' in text and f'| `{name}` |' in text
     assert rows['a1_stand']['method'] == 'rosenbrock2' and rows['stanford_arm']['method'] == 'rk4'
-    assert rows['a1_stand']['kernels'] == ['generic']     # a tree on a ground stays on the generic kernels
+    assert rows['a1_stand']['kernels'] == ['generated']   # its contact path's code, compiled first as every row's
 
 
 def test_the_split_is_a_partition_of_the_whole(measured):

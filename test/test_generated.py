@@ -51,16 +51,26 @@ def _specialised(scene) -> bool:
     return type(s) is ArmSystem and s.contact is None and not s._coupled and codegen.trace(s.model) is not None
 
 
+def _on_ground(scene) -> bool:
+    """True when the scene's system is a tree on a ground whose contact path would take its generated code."""
+    s = scene.system
+    return type(s) is ArmSystem and s.contact is not None and codegen.trace(s.model, ground=True) is not None
+
+
 #: the bundled scenes whose arm takes generated code (found, then checked to be the expected ones)
 ARM_SCENES = [n for n, _ in list_scenes() if _specialised(_load(n))]
+#: the bundled scenes of a tree on a ground whose contact path takes generated code
+GROUND_SCENES = [n for n, _ in list_scenes() if _on_ground(_load(n))]
 
 
-def test_the_specialised_scenes_are_the_fixed_base_arms():
-    """The list the recordings below run over is not empty, and the free, spherical and ground scenes are
-    not in it (their trees branch on the state, or their loop takes the contact path)."""
+def test_the_specialised_scenes_are_the_arms_and_the_legged_robots():
+    """The lists the recordings below run over are the expected ones: the fixed-base arms off a ground, the
+    floating-base robots on one; not the spherical human (its kernels branch on the state) nor the free flyers
+    (other systems)."""
     assert {'stanford_arm', 'betancur_pendulum', 'huston_p19_2_3', 'huston_p19_4_1',
             'xarm7_trajectory'} <= set(ARM_SCENES)   # (xarm7_trajectory: a joint servo's feed-forward)
     assert not {'huston_human17', 'a1_stand', 'unfried_free_flyer'} & set(ARM_SCENES)
+    assert set(GROUND_SCENES) == {'a1_stand', 'solo12_drop'}   # (not huston_human17_fall: spherical joints)
     for p in ROBOTS:
         assert _specialised(_load(_robot(p))), p
 
@@ -91,9 +101,11 @@ def test_traced_code_is_the_generic_arithmetic(name):
     traced from (the kernels' own code, run by the interpreter with the same double arithmetic), bit for
     bit but for the sign of zeros; the DH residue cos(π/2) = 6.1e-17 is multiplied as the generic kernels do."""
     model = _load(name if name in ARM_SCENES else _robot(name)).system.model
-    fd_src, bm_src, id_src = codegen.trace(model)
+    src = codegen.trace(model)
+    assert set(src) == {'fd', 'bm', 'rnea'}
+    fd_src = src['fd']
     ns = {'math': math}
-    exec(fd_src + '\n' + bm_src + '\n' + id_src, ns)
+    exec('\n'.join(src.values()), ns)
     mi, mf = kernels.pack_model(model, merge=True)
     gfd, gbm = codegen.python_kernel(treefn.generic_fd), codegen.python_kernel(treefn.generic_bm)
     gid = codegen.python_kernel(treefn.generic_id)
@@ -118,6 +130,89 @@ def test_traced_code_is_the_generic_arithmetic(name):
     if name == 'stanford_arm':   # the residue kept, not snapped; at most one cos per revolute joint (the first
         # joint's turns only gravity, along its axis: its cos meets zeros)
         assert 'e-17' in fd_src and fd_src.count('math.cos(') == 4
+
+
+def _same_or_both_nan(x, y) -> bool:
+    """:func:`_same_up_to_zero_signs`, NaN (an entry neither wrote) equal to NaN."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    nx, ny = np.isnan(x), np.isnan(y)
+    return bool(np.array_equal(nx, ny)) and _same_up_to_zero_signs(x[~nx], y[~ny])
+
+
+@pytest.mark.parametrize('name', ['a1_stand', 'solo12_drop'])
+def test_traced_contact_path_is_the_generic_arithmetic(name):
+    """On a ground (free root: its quaternion, its 6x6 Cholesky solve), the generated kin, fdx, bmx and rnea, run
+    as Python, against the generic Python they are traced from: kin's work array entry by entry (what the
+    contacts' code reads), fdx and bmx after it under seeded body forces, bit for bit but for the sign of zeros.
+    Also at a state whose base inertia is not positive definite (a pivot's root is NaN, as in the generic code)."""
+    model = _load(name).system.model
+    src = codegen.trace(model, ground=True)
+    assert set(src) == {'rnea', 'kin', 'fdx', 'bmx'}
+    assert '> 0.0 else math.nan' in src['fdx']   # the Cholesky pivot's root keeps its branch
+    ns = {'math': math}
+    exec('\n'.join(src.values()), ns)
+    mi, mf = kernels.pack_model(model, merge=True)
+    g = {k: codegen.python_kernel(f) for k, f in zip(treefn.NAMES, treefn.GENERIC)}
+    nb, nv = mi.shape[0], model.nv
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
+    states = _states(model, rng, 8)
+    for q, v, tau in states:
+        fext = rng.normal(size=(nb, 6)) * 10.0
+        fext[rng.random(nb) < 0.5] = 0.0
+        Wa, Wb = np.full((nb + 1, tree.NW), np.nan), np.full((nb + 1, tree.NW), np.nan)
+        g['kin'](mi, mf, q, v, Wa)
+        ns['kin'](None, None, q, v, Wb)
+        assert _same_or_both_nan(Wa, Wb)
+        a, b = np.empty(nv), np.empty(nv)
+        g['fdx'](mi, mf, q, v, tau, fext, a, Wa.copy())
+        ns['fdx'](None, None, q, v, tau, fext, b, Wb.copy())
+        assert _same_up_to_zero_signs(a, b)
+        ref = [np.empty(nv), np.empty((nv, nv)), np.empty((nv, nv))]
+        out = [np.empty(nv), np.empty((nv, nv)), np.empty((nv, nv))]
+        g['bmx'](mi, mf, q, v, np.zeros(nv), fext, *ref, Wa.copy())
+        ns['bmx'](None, None, q, v, np.zeros(nv), fext, *out, Wb.copy())
+        for x, y in zip(ref, out):
+            assert _same_up_to_zero_signs(x, y)
+        g['rnea'](mi, mf, q, v, tau, a, Wa)      # tau as the acceleration: RNEA(q, v, qdd)
+        ns['rnea'](None, None, q, v, tau, b, None)
+        assert _same_up_to_zero_signs(a, b)
+
+
+def test_a_traced_cholesky_solve_keeps_the_pivot_branch():
+    """The one comparison on the state the tracer writes into the code (tree.pivot_sqrt: a pivot's root, NaN when
+    it is not positive): the 6x6 solve of a free root's ABA traced on symbols and run, against the generic Python,
+    on seeded positive definite matrices and on indefinite, singular and negative ones (NaN results, as there)."""
+    tr = codegen.Tracer()
+    Ws = np.full((2, tree.NW), codegen.UNSET, dtype=object)
+    for k in range(36):
+        Ws[0, tree.IA_ + k] = tr.symbol(f'W[0, {tree.IA_ + k}]')
+    for k in range(6):
+        Ws[0, tree.UV_ + k] = tr.symbol(f'W[0, {tree.UV_ + k}]')
+    codegen._traced(tree.chol6_solve, tr)(Ws, 0, tree.IA_, 0, tree.UV_, 1, tree.S4_)
+    src = '\n'.join(codegen._render(tr, 'solve', 'W, x', [(f'x[{k}]', Ws[1, tree.S4_ + k]) for k in range(6)], 'x'))
+    assert src.count('> 0.0 else math.nan') == 6
+    ns = {'math': math}
+    exec(src, ns)
+    generic = codegen.python_kernel(tree.chol6_solve)
+    rng = np.random.default_rng(61)
+    nans = 0
+    for k in range(40):
+        B = rng.normal(size=(6, 6))
+        A = B @ B.T + (0.1 if k % 4 else -3.0) * np.eye(6)     # every fourth: indefinite (most of them)
+        if k == 1:
+            A[:, 0] = A[0, :] = 0.0                              # a zero pivot
+        W = np.zeros((2, tree.NW))
+        W[0, tree.IA_:tree.IA_ + 36] = A.ravel()
+        W[0, tree.UV_:tree.UV_ + 6] = rng.normal(size=6)
+        x = np.empty(6)
+        ns['solve'](W, x)
+        generic(W, 0, tree.IA_, 0, tree.UV_, 1, tree.S4_)
+        ref = W[1, tree.S4_:tree.S4_ + 6]
+        assert _same_or_both_nan(ref, x)
+        nans += bool(np.isnan(x).any())
+        if not np.isnan(x).any():
+            assert np.allclose(A @ x, W[0, tree.UV_:tree.UV_ + 6], rtol=1e-8, atol=1e-8)
+    assert 5 <= nans <= 15
 
 
 def test_compiled_generated_code_is_the_compiled_generic_code():
@@ -162,6 +257,18 @@ def test_recordings_are_the_same_bytes_on_generic_and_generated_kernels(tmp_path
     a, sa = _record(tmp_path, src, 'numba', tag, 1.0)
     b, sb = _record(tmp_path, src, 'generated', tag, 1.0)
     assert sa._km.gen is None and sb._km.gen is not None   # each ran what it says
+    assert len(a) > 10000 and a == b
+
+
+@pytest.mark.parametrize('source,duration', [('a1_stand', 1.0), ('solo12_drop', 0.3)])
+def test_ground_recordings_are_the_same_bytes_on_generic_and_generated_kernels(tmp_path, source, duration):
+    """The legged robots on their ground (rosenbrock2: the contact path's kin, fdx and bmx between the contacts'
+    code; solo12_drop under error control), recorded through the block path: the same file on numba and generated,
+    the contact wrenches and markers included."""
+    a, sa = _record(tmp_path, source, 'numba', source, duration)
+    b, sb = _record(tmp_path, source, 'generated', source, duration)
+    assert sa._km.gen is None and sb._km.gen is not None and sb._km.con is not None
+    assert sb._km.dynamics(np.ones(3))[0][3:] == tuple(f.address for f in sb._km.gen[3:])   # its own kin, fdx, bmx
     assert len(a) > 10000 and a == b
 
 
@@ -232,7 +339,7 @@ def test_a_negative_zero_in_the_state_keeps_the_generic_kernels():
     km = kernels.CompiledModel(model, specialize=True)
     generic = tuple(f.address for f in treefn.generic_pointers())
     z = np.concatenate([np.linspace(0.1, 0.6, model.nq), np.zeros(model.nv), [0.0]])
-    assert km.dynamics(z) == (tuple(f.address for f in km.gen), False) and len(km.gen) == 3
+    assert km.dynamics(z) == (tuple(f.address for f in km.gen), False) and len(km.gen) == 6
     z[model.nq + 2] = -0.0
     assert km.dynamics(z) == (generic, False)
 
@@ -252,11 +359,12 @@ def test_the_negative_zero_check_is_the_sign_bit_of_a_zero():
 
 
 def test_trees_that_branch_on_the_state_keep_the_generic_kernels():
-    """Free and spherical joints (their kernels compare state values), mimic joints and ground contacts:
-    no generated code, the generic kernels run."""
-    for name in ('huston_human17', 'unfried_air_bearing', 'a1_stand'):
+    """Spherical joints (their kernels compare state values): no generated code, on a ground or not, the generic
+    kernels run; a free root (its one comparison, a Cholesky pivot's sign, is written into the code) is traced."""
+    for name in ('huston_human17', 'huston_human17_fall'):
         model = _load(name).system.model
-        assert np.any(model.jtype == FREE) or np.any(model.jtype == SPHERICAL)
-        assert codegen.trace(model) is None, name
-    a1 = _load('a1_stand', 'generated').system
-    assert a1.contact is not None and a1._km.gen is None
+        assert np.any(model.jtype == SPHERICAL)
+        assert codegen.trace(model) is None and codegen.trace(model, ground=True) is None, name
+        assert _load(name, 'generated').system._km.gen is None
+    model = _load('a1_stand').system.model
+    assert np.any(model.jtype == FREE) and codegen.trace(model) is not None

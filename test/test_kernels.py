@@ -252,9 +252,8 @@ def test_fused_loop_equals_simulator_reference_path(label, model, actuated, y0, 
     else:
         ref_sys = ArmSystem(model, actuated=actuated, backend='numpy')
     fast_sys = ArmSystem(model, actuated=actuated, backend=backend)
-    from robodyn_ros.model import FREE
-    assert (fast_sys._km.gen is not None) == (backend == 'generated' and not np.any(model.jtype == FREE)
-                                              and not model.has_spherical)   # FREE and SPHERICAL: generic kernels
+    assert (fast_sys._km.gen is not None) == (backend == 'generated'
+                                              and not model.has_spherical)   # SPHERICAL: generic kernels
     calls = []
     fused = fast_sys.fused_advance
 
@@ -390,7 +389,7 @@ def test_bench_cli_smoke(tmp_path):
 # scene-specialised code (method of Zs)
 # ------------------------------------------------------------------------------------------
 GEN_MODELS = [(n, None) for n in ('stanford_arm', 'betancur_pendulum', 'huston_p19_2_3')] + \
-    [(label, m) for label, m in TREES if label in ('fixed1', 'seed7005-nb2-tree', 'seed7007-nb12-tree')]
+    [(label, m) for label, m in TREES if label in ('fixed1', 'seed7005-nb2-tree', 'seed7007-nb12-tree', 'free3')]
 
 
 @pytest.mark.parametrize('label,model', GEN_MODELS, ids=[g[0] for g in GEN_MODELS])
@@ -408,10 +407,12 @@ def test_generated_forward_dynamics_equals_reference(label, model):
         assert close(km.aba(q, v, tau, fe), dyn.aba(model, q, v, tau, fe))  # f_ext: generic path
 
 
-def test_generated_models_are_covered_and_free_joints_decline():
+def test_generated_models_are_covered_and_spherical_joints_decline():
     from robodyn_ros.kernels import codegen
     labels = {g[0] for g in GEN_MODELS}
-    assert len(labels) == len(GEN_MODELS) == 6  # the chosen random trees exist
+    assert len(labels) == len(GEN_MODELS) == 7  # the chosen random trees exist
     assert any(FIXED in m.jtype for _, m in GEN_MODELS if m is not None)
-    assert codegen.specialize(TREES[-1][1]) is None  # FREE root
-    assert kernels.CompiledModel(TREES[-1][1], specialize=True).gen is None
+    assert any(FREE in m.jtype for _, m in GEN_MODELS if m is not None)   # a floating base (free3, with a weld)
+    sph = random_tree(4, np.random.default_rng(5), spherical_fraction=0.7)
+    assert sph.has_spherical and codegen.trace(sph) is None and codegen.trace(sph, ground=True) is None
+    assert kernels.CompiledModel(sph, specialize=True).gen is None

@@ -397,7 +397,7 @@ def test_gravity_stiffness_is_the_derivative_of_the_gravity_torques(scene_name):
     from robodyn_ros.kernels import codegen
     assert km.gen is not None
     ns = {'math': __import__('math')}
-    exec(codegen.trace(model)[1], ns)
+    exec(codegen.trace(model)['bm'], ns)
     bm = ns['bm']
     zero = np.zeros(nv)
     for q in np.random.default_rng(3).uniform(-1.5, 1.5, size=(3, km.nq)):

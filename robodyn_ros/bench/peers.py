@@ -24,10 +24,10 @@ scene, the run). Figures are medians of ``--repeat`` interleaved runs.
 The split of robodyn's recorded run per integration step (µs), derived by subtraction from whole runs:
 ``dynamics`` the tree dynamics evaluations the run did, timed alone in a compiled loop at the run's
 final state on the kernels it ended on (rk4: four forward dynamics per step; rosenbrock2: the bias/mass
-pass and one forward dynamics per step; on a ground the contact path's ABA and RNEA with external forces
-are timed as the generic fd and bm without them); ``contact`` (a1_stand) the ground's kinematics, forces
-and Jacobian of a step (twice the points' world kinematics and forces, their Jacobian, the touching count),
-timed alone the same way; ``integrator`` the rest of the compiled integration: CPU time inside the
+pass and one forward dynamics per step; on a ground the contact path's: the kinematics ``kin``, then ABA
+``fdx`` or the bias/mass pass ``bmx`` under the contacts' forces); ``contact`` (a1_stand) the ground's forces
+and Jacobian of a step (the points' forces twice, their Jacobian, the touching count: the kinematics they
+read taken off), timed alone the same way; ``integrator`` the rest of the compiled integration: CPU time inside the
 integration calls (``Simulator.advance``, the block path's ``fused_periods``) of the run without a
 recorder, minus dynamics and contact; ``other`` that run's remaining CPU (the loop's Python, the outputs);
 ``recording`` the recorded run minus the run without a recorder (the sink, and the outputs only it asks
@@ -130,12 +130,13 @@ def row_scene(row: str):
 
 def _prime(row: str) -> dict:
     """Compile (or find) the row's generated code in the kernels' cache, as backend auto's child would."""
-    from .. import kernels
+    from ..kernels import codegen
     scene, _ = row_scene(row)
     km = scene.system._km
-    if km is None or km.coupled is not None or getattr(scene.system, 'contact', None) is not None:
+    if km is None or km.coupled is not None:
         return {'generated': False}
-    return {'generated': kernels.CompiledModel(km.model, specialize=True).gen is not None}
+    ground = getattr(scene.system, 'contact', None) is not None   # (a tree on a ground: its contact path's code)
+    return {'generated': codegen.specialize(km.model, ground=ground) is not None}
 
 
 class _Clock:
@@ -224,37 +225,45 @@ _LOOPS = []
 
 def _loops():
     """``(fd_loop, bm_loop, contact_loop)``: compiled loops that call the dynamics at their addresses
-    (:mod:`robodyn_ros.kernels.treefn`) n times, and a ground's per-step contact kinematics n times
-    (``on`` False: the transforms alone, which the dynamics also compute, to be taken off)."""
+    (:mod:`robodyn_ros.kernels.treefn`) n times (on a ground, ``kin`` then ``fdx`` or ``bmx``: the contact path's),
+    and a ground's per-step contact code n times (``on`` False: the kinematics alone, which the dynamics
+    also compute, to be taken off)."""
     if _LOOPS:
         return _LOOPS
     from numba import njit
 
     from ..kernels.contact import contact_jacobian_add, ground_fext_ws, touching_points
     from ..kernels.tree import transforms, world_kinematics_ws
-    from ..kernels.treefn import bm_at, fd_at
+    from ..kernels.treefn import bm_at, bmx_at, fd_at, fdx_at, kin_at
 
     @njit(cache=True, error_model='numpy')
-    def fd_loop(fd, mi, mf, q, v, tau, qdd, W, n):
-        f = fd_at(fd)
+    def fd_loop(dyn, ground, mi, mf, q, v, tau, fx, qdd, W, n):
         for _ in range(n):
-            f(mi, mf, q, v, tau, qdd, W)
+            if ground:
+                kin_at(dyn[3])(mi, mf, q, v, W)
+                fdx_at(dyn[4])(mi, mf, q, v, tau, fx, qdd, W)
+            else:
+                fd_at(dyn[0])(mi, mf, q, v, tau, qdd, W)
 
     @njit(cache=True, error_model='numpy')
-    def bm_loop(bm, mi, mf, q, v, zero, bias, H, G, W, n):
-        f = bm_at(bm)
+    def bm_loop(dyn, ground, mi, mf, q, v, zero, fx, bias, H, G, W, n):
         for _ in range(n):
-            f(mi, mf, q, v, zero, bias, H, G, W)
+            if ground:
+                kin_at(dyn[3])(mi, mf, q, v, W)
+                bmx_at(dyn[5])(mi, mf, q, v, zero, fx, bias, H, G, W)
+            else:
+                bm_at(dyn[1])(mi, mf, q, v, zero, bias, H, G, W)
 
     @njit(cache=True, error_model='numpy')
     def contact_loop(con, mi, mf, q, v, fx, Dc, Kc, J, cols, W, n, on):
-        for _ in range(n):
+        for _ in range(n):   # arm_rosenbrock_step on a ground: contact_bias_mass, arm_rhs, contact_stage_jacobian
             transforms(mi, mf, q, W)
-            if on:   # arm_rosenbrock_step on a ground: contact_bias_mass, arm_rhs, contact_stage_jacobian
-                world_kinematics_ws(mi, mf, v, W)
+            world_kinematics_ws(mi, mf, v, W)
+            if on:
                 ground_fext_ws(con, W, fx)
                 contact_jacobian_add(con, mi, mf, W, Dc, Kc, J, cols)
-                world_kinematics_ws(mi, mf, v, W)
+            world_kinematics_ws(mi, mf, v, W)
+            if on:
                 ground_fext_ws(con, W, fx)
                 touching_points(con, W)
     _LOOPS.extend((fd_loop, bm_loop, contact_loop))
@@ -282,12 +291,14 @@ def split_timings(sim) -> dict:
     fd_loop, bm_loop, contact_loop = _loops()
     q = np.ascontiguousarray(sim.y[:s.nq])
     v = np.ascontiguousarray(sim.y[s.nq:s.nq + nv])
-    (fd, bm, _), _ = km.dynamics(sim.y)
+    dyn, _ = km.dynamics(sim.y)
+    ground = km.con is not None
     W = tree.workspace(km.mi_r.shape[0])
     tau, zero, out = np.zeros(nv), np.zeros(nv), np.empty(nv)
     H, G = np.empty((nv, nv)), np.empty((nv, nv))
-    t_fd = _per_eval(lambda n: fd_loop(fd, km.mi_r, km.mf_r, q, v, tau, out, W, n))
-    t_bm = _per_eval(lambda n: bm_loop(bm, km.mi_r, km.mf_r, q, v, zero, out, H, G, W, n))
+    fx = np.zeros((km.mi_r.shape[0], 6))
+    t_fd = _per_eval(lambda n: fd_loop(dyn, ground, km.mi_r, km.mf_r, q, v, tau, fx, out, W, n))
+    t_bm = _per_eval(lambda n: bm_loop(dyn, ground, km.mi_r, km.mf_r, q, v, zero, fx, out, H, G, W, n))
     steps = max(sim.diag.steps, 1)
     method = sim.settings['integrator']
     if method == 'rosenbrock2':   # per step: the bias/mass pass at z_n, one ABA at the stage point
@@ -295,8 +306,7 @@ def split_timings(sim) -> dict:
     else:
         dyn = sim.diag.rhs_evals * t_fd / steps
     contact = 0.0
-    if km.con is not None:
-        fx = np.zeros((km.mi_r.shape[0], 6))
+    if ground:
         Dc, Kc = np.zeros((nv, nv)), np.zeros((nv, nv))
         J, cols = np.empty((3, nv)), np.empty(nv, dtype=np.int64)
 
@@ -469,10 +479,10 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
         'Derived by subtraction from whole runs, not instrumented inside the compiled loop: *dynamics* is the '
         'tree dynamics evaluations the run did (rk4: 4 forward dynamics per step; rosenbrock2: the bias/mass '
         'pass and one forward dynamics per step), each timed alone in a compiled loop at the run\'s final state '
-        'on the kernels the run ended on (on a ground, the contact path\'s ABA and RNEA with external forces '
-        'timed as the generic ones without); *contact* the ground\'s per-step kinematics, forces and Jacobian '
-        'timed alone the same way (twice the points\' world kinematics and forces, their Jacobian, the '
-        'touching count; minus the transforms the dynamics compute); *integrator* the CPU time inside the '
+        'on the kernels the run ended on (on a ground, the contact path\'s: the kinematics, then ABA or the '
+        'bias/mass pass under the contacts\' forces); *contact* the ground\'s per-step forces and Jacobian '
+        'timed alone the same way (the points\' forces twice, their Jacobian, the touching count; minus the '
+        'kinematics they read, which the dynamics compute); *integrator* the CPU time inside the '
         'integration calls of a run without a recorder (`Simulator.advance`, the block path\'s compiled '
         '`fused_periods`) minus dynamics and contact; *other* the rest of that run (the loop\'s Python, the '
         'outputs); *recording* the recorded run minus the run without a recorder (the sink, and the outputs '

@@ -207,8 +207,9 @@ class CompiledModel:
     use the full tree (``mi, mf``). specialize: False (the generic kernels), True (the model's own
     code for the fused loops' dynamics, :mod:`robodyn_ros.kernels.codegen`, loaded or compiled now) or
     ``'auto'`` (generic, and the model's own code taken up once a child process has compiled it:
-    :meth:`poll_generated`). Both compute the same bits; trees the generator declines (free and
-    spherical joints, mimic joints, ground contacts) stay generic (``gen`` None).
+    :meth:`poll_generated`). Both compute the same bits; trees the generator declines (spherical joints,
+    mimic joints) stay generic (``gen`` None). A tree put on a ground (:meth:`on_ground`) takes its contact path's
+    generated functions.
     """
 
     def __init__(self, model: Model, specialize: bool = False):
@@ -244,15 +245,23 @@ class CompiledModel:
         self._pygen = False       # interpreting: the generated code's Python tokens (None: none), once asked
         self._gen_dyn = (None, None)   # (gen, the addresses of its cfuncs)
         self._looked = False      # backend 'auto': whether the first poll has looked for compiled code on disk
-        if specialize is True and self.coupled is None:   # a coupled tree stays on the generic kernels
+        self._eager = specialize is True and self.coupled is None   # a coupled tree stays on the generic kernels
+        if self._eager:
             from . import codegen
             self.gen = codegen.specialize(model)
 
-    def no_generated(self):
-        """Stay on the generic kernels (a tree put on a ground: its loop takes the contact path)."""
+    def on_ground(self):
+        """The tree was put on a ground (``con`` set): its loop takes the contact path, whose generated functions
+        (``kin``, ``fdx``, ``bmx``: :mod:`.treefn`) are another module's; what was taken up or asked for is
+        forgotten."""
         self.gen = None
-        self._auto = False
-        self._pygen = None
+        self._pygen = False
+        self._looked = False
+        self._requested = None
+        self._gen_dyn = (None, None)
+        if self._eager:
+            from . import codegen
+            self.gen = codegen.specialize(self.model, ground=True)
 
     def poll_generated(self):
         """Backend 'auto': take up the model's generated code at the first call when an earlier run left it
@@ -264,7 +273,7 @@ class CompiledModel:
         from . import codegen, jit
         if not self._looked:   # code an earlier run had compiled: taken up at the first period boundary
             self._looked = True
-            path = codegen.written_path(self.model) if jit.LOADED else None   # (a deferred run is short)
+            path = codegen.written_path(self.model, self.con is not None) if jit.LOADED else None   # (a deferred run is short)
             if path is not None and codegen.is_compiled(path):
                 self._requested = path
                 self.gen = codegen.load(path)
@@ -272,7 +281,7 @@ class CompiledModel:
         if self._requested is None:
             if self._spent < GENERATE_AFTER:
                 return
-            self._requested = codegen.module_path(self.model)
+            self._requested = codegen.module_path(self.model, self.con is not None)
             if self._requested is None:
                 self._auto = False
                 return
@@ -312,10 +321,10 @@ class CompiledModel:
 
     def _python_tokens(self):
         """The model's generated code as Python tokens (:func:`.codegen.python_dynamics`), or None (no generated
-        code: a tree with mimic joints or on a ground, or one that branches on the state)."""
+        code: a tree with mimic joints, or one that branches on the state)."""
         if self._pygen is False:
             from . import codegen
-            self._pygen = codegen.python_dynamics(self.model) if self.coupled is None and self.con is None else None
+            self._pygen = codegen.python_dynamics(self.model, self.con is not None) if self.coupled is None else None
         return self._pygen
 
     def aba(self, q, v, tau, f_ext=None):

@@ -31,7 +31,7 @@ from .tree import (_JIT, _LEAF, _limit_frame, aba_ws, crba_ws, gravity_stiffness
                    limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
                    rnea_ws, tangent_rate_into, tangent_velocity_into, transforms, workspace,
                    world_kinematics_ws)
-from .treefn import bm_at, fd_at
+from .treefn import bm_at, bmx_at, fd_at, fdx_at, kin_at
 
 
 # ----------------------------------------------------------------------------------------------
@@ -84,7 +84,8 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
     ``z`` ends with the contact work ``W_c`` (``[q, v, W(, W_lim), W_c]``), whose rate is their power
     (also part of W's). srv: None, or the joint servo (:mod:`.servo`), whose torques at time t (s) join
     τ and whose power joins W's. Without cpl and con, ABA is the ``fd`` at the address ``dyn[0]``
-    (:mod:`.treefn`). (ArmSystem.rhs, .input_power and .work_component_powers of the reference path.)
+    (:mod:`.treefn`); with con, the kinematics the contacts read are ``kin`` (``dyn[3]``) and ABA under their
+    forces ``fdx`` (``dyn[4]``). (ArmSystem.rhs, .input_power and .work_component_powers of the reference path.)
     """
     q = z[:nq]
     v = z[nq:nq + nv]
@@ -100,10 +101,9 @@ def arm_rhs(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z, dz, tauv, W
         coupled_fd_ws(mi, mf, cpl[1], cpl[2], q, v, tauv, dz[nq:nq + nv], W, cs[0], cs[1], cs[2], cs[3], cs[4], cs[5])
         dz[nq + nv] = P
     elif con is not None:
-        transforms(mi, mf, q, W)
-        world_kinematics_ws(mi, mf, v, W)
+        kin_at(dyn[3])(mi, mf, q, v, W)
         Pc = ground_fext_ws(con, W, fx)
-        aba_ws(mi, mf, q, v, tauv, fx, True, dz[nq:nq + nv], W)
+        fdx_at(dyn[4])(mi, mf, q, v, tauv, fx, dz[nq:nq + nv], W)
         dz[nq + nv] = P + Pc
         dz[z.shape[0] - 1] = Pc
     else:
@@ -465,26 +465,22 @@ def _spherical_limit_event(lim, r, q, v, h, qs, H):
 
 
 @njit(**_LEAF)
-def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W):
+def contact_bias_mass(mi, mf, con, q, v, zero, bias, H, G, Dc, Kc, fx, cj, W, dyn):
     """The bias/mass pass (:func:`.treefn.generic_bm`) on a ground (con: :func:`arm_rhs`): ``bias = C + g − τ_c`` with the contacts'
     generalised force ``τ_c = Σ J_iᵀ F_i`` (their body forces fx (nb, 6), :func:`.contact.ground_fext_ws`,
     given to :func:`rnea_ws`), H, G as there, and the contacts' damping and stiffness ``Dc, Kc`` (nv, nv) =
     ``Σ J_iᵀ D_i J_i``, ``Σ J_iᵀ K_i J_i`` (:func:`.contact.contact_jacobian_add`, (C4)-(C5); cj: its
-    scratch) at one transform and world-kinematics pass. Returns the contacts' power ``Σ F_i·u_i`` (W) and
-    the number of touching points."""
-    transforms(mi, mf, q, W)
-    world_kinematics_ws(mi, mf, v, W)
+    scratch) at one transform and world-kinematics pass (``kin``, then ``bmx``: the addresses ``dyn[3]``, ``dyn[5]``
+    of :mod:`.treefn`). Returns the contacts' power ``Σ F_i·u_i`` (W) and the number of touching points."""
+    kin_at(dyn[3])(mi, mf, q, v, W)
     Pc = ground_fext_ws(con, W, fx)
     nv = H.shape[0]
     for a in range(nv):
         for b in range(nv):
             Dc[a, b] = 0.0
             Kc[a, b] = 0.0
-            H[a, b] = 0.0
     touching = contact_jacobian_add(con, mi, mf, W, Dc, Kc, cj[0], cj[1])
-    rnea_ws(mi, mf, q, v, zero, fx, True, bias, W)
-    crba_ws(mi, mf, H, W)
-    gravity_stiffness_ws(mi, mf, W, G)
+    bmx_at(dyn[5])(mi, mf, q, v, zero, fx, bias, H, G, W)
     return Pc, touching
 
 
@@ -696,7 +692,7 @@ def arm_rosenbrock_step(mi, mf, damping, friction, v_s, lim, tau_app, nq, nv, z,
     if con is None:
         bm_at(dyn[1])(mi, mf, q, v, zero, y, H, mat[5], W)
     else:
-        Pc, touching = contact_bias_mass(mi, mf, con, q, v, zero, y, H, mat[5], mat[6], mat[7], fx, cj, W)
+        Pc, touching = contact_bias_mass(mi, mf, con, q, v, zero, y, H, mat[5], mat[6], mat[7], fx, cj, W, dyn)
         k1[nq + nv] = P + Pc
         k1[n - 1] = Pc
     for a in range(nv):

@@ -22,7 +22,9 @@ common sub-expressions are evaluated once (the same operation on the same operan
 bits; ``a + b = b + a`` and ``a · b = b · a`` exactly). So every value the generated code returns is
 ≈ the generic one, on every state whose generic intermediates are finite; a division is folded only
 for a zero numerator, never by a divisor, and a comparison on a symbol stops the trace (the model
-keeps the generic kernels: free and spherical joints branch on the state).
+keeps the generic kernels: spherical joints branch on the state). One comparison is written into the code
+instead: a Cholesky pivot's root (:func:`~robodyn_ros.kernels.tree.pivot_sqrt`, NaN unless the pivot is
+positive), in the 6x6 solve of a free root's ABA.
 
 Why ≈ is enough for the same bytes: the loop adds each result (times the step) to a state entry, and
 ``x + (±0) = x`` for every x except ``x = −0``; a state entry is −0 only when it starts at −0 and
@@ -38,8 +40,18 @@ numba caches its machine code beside it. :func:`specialize` loads (or compiles) 
 on backend auto the compiler child of :mod:`.jit` compiles it while a run goes on, and the run takes it at
 the next period boundary (:mod:`robodyn_ros.kernels`, ``CompiledModel.poll_generated``); an interpreted
 run (a cold cache) runs its Python text meanwhile (:func:`python_dynamics`). Trees with mimic
-joints or ground contacts are not specialised (their loop takes other paths); trees whose generated
-code would exceed :data:`MAX_LINES` keep the generic kernels (numba's compile time grows with it).
+joints are not specialised (their loop takes another path); trees whose generated code would exceed
+:data:`MAX_LINES` keep the generic kernels (numba's compile time grows with it).
+
+On a ground the loop takes the contact path: ``kin`` (every body's transforms and velocity into W), the
+contacts' forces from W (generic code), then ABA (``fdx``) or the bias/mass pass (``bmx``) under those
+forces. A tree on a ground has its own module (``trace(model, ground=True)``: ``kin``, ``fdx``, ``bmx`` and
+``rnea``; ``fd`` and ``bm`` stay generic, the contact path does not call them). ``fdx`` and ``bmx`` are traced
+on the work array ``kin`` leaves (its numbers kept, its symbols loaded from W), so a constant of the
+kinematics is folded there too. What the contacts' code reads of W is ≈ the generic kernels' (``kin``'s
+outputs), and that code adds, multiplies, compares and divides by norms and positive depths only, which
+keep ≈, so their forces, and every value after them, are ≈ too: the recordings of ``a1_stand`` and
+``solo12_drop`` are compared byte for byte (``test/test_generated.py``).
 """
 from __future__ import annotations
 
@@ -56,7 +68,7 @@ from .jit import python_kernel
 #: generated lines (the three functions) above which a model keeps the generic kernels: stanford_arm has
 #: 4 100, xarm7 6 700; numba compiles about 900 lines per CPU second here
 MAX_LINES = 40000
-VERSION = '4'
+VERSION = '5'
 
 
 def _generated_dir() -> str:
@@ -284,8 +296,16 @@ class Tracer:
     def call(self, fn: str, a):
         a = _num(a)
         if _known(a):
-            return getattr(math, fn)(a)
+            return _NUMERIC[fn](a)
         return self._emit(fn, a)
+
+
+#: the one-argument functions the traced code may call, on numbers (what the compiled code computes)
+_NUMERIC = {'cos': math.cos, 'sin': math.sin, 'sqrt': math.sqrt,
+            'psqrt': lambda s: math.sqrt(s) if s > 0.0 else math.nan}   # (tree.pivot_sqrt)
+#: how the generated code writes each of them (a Cholesky pivot's root keeps its branch: tree.pivot_sqrt)
+_WRITTEN = {'cos': 'math.cos({})', 'sin': 'math.sin({})', 'sqrt': 'math.sqrt({})',
+            'psqrt': '(math.sqrt({0}) if {0} > 0.0 else math.nan)'}
 
 
 class _SymMath:
@@ -328,19 +348,37 @@ def _render(tr, name, args, outputs, doc) -> list:
             continue
         if op == 'neg':
             body.append(f'    {s.name} = -{fmt(a)}')
-        elif op in ('cos', 'sin', 'sqrt'):
-            body.append(f'    {s.name} = math.{op}({fmt(a)})')
+        elif op in _WRITTEN:
+            body.append(f'    {s.name} = ' + _WRITTEN[op].format(fmt(a)))
         else:
             body.append(f'    {s.name} = {fmt(a)} {op} {fmt(b)}')
     body += [f'    {t} = {fmt(v)}' for t, v in outputs]
     return body
 
 
-def trace(model):
-    """``(source of fd, source of bm, source of rnea)`` of ``model`` (plain functions with the arguments of
-    :data:`~robodyn_ros.kernels.treefn.FD_SIG`, ``BM_SIG`` and ``ID_SIG``), or None when the generic code
-    branches on the state (free and spherical joints) or divides by a constant zero (a joint with no inertia about
-    its axis in any configuration: the generic kernels' caller reports it)."""
+def _traced(generic, tr):
+    """The generic kernel as Python on the tracer's symbols: ``math`` and the Cholesky pivot's root written down."""
+    return python_kernel(generic, _SymMath(tr), overrides={'pivot_sqrt': lambda s: tr.call('psqrt', s)})
+
+
+def _kin_inputs(tr, Wk):
+    """The work array ``kin`` left (Wk, traced) as another function's inputs: its numbers as they are, its
+    symbols as loads of W (named ``W[r, c]``), what it did not write unset."""
+    out = np.full(Wk.shape, UNSET, dtype=object)
+    for (r, c), x in np.ndenumerate(Wk):
+        if isinstance(x, Sym):
+            out[r, c] = tr.symbol(f'W[{r}, {c}]')
+        elif x is not UNSET:
+            out[r, c] = x
+    return out
+
+
+def trace(model, ground: bool = False):
+    """The generated functions of ``model``: ``{name: source}`` of plain functions with the arguments of
+    :mod:`~robodyn_ros.kernels.treefn`'s signatures, off a ground ``fd``, ``bm`` and ``rnea``, on one (ground:
+    its loop takes the contact path) ``rnea``, ``kin``, ``fdx`` and ``bmx``; or None when the generic code
+    branches on the state (spherical joints) or divides by a constant zero (a joint with no inertia about its
+    axis in any configuration: the generic kernels' caller reports it)."""
     from . import pack_model, tree, treefn
     mi, mf = pack_model(model, merge=True)
     mfo = mf.astype(object)
@@ -351,78 +389,113 @@ def trace(model):
 
     def work():
         return np.full((nb + 1, tree.NW), UNSET, dtype=object)
+
+    def forces(tr):
+        return np.array([[tr.symbol(f'fext[{i}, {a}]') for a in range(6)] for i in range(nb)], dtype=object)
+
     def vector_function(generic, fname, given, out, doc):
         """The traced function of (q, v, given (nv,)) with one output (nv,): fd (tau -> qdd), rnea (qdd -> tau)."""
         tr = Tracer()
         res = np.full(nv, UNSET, dtype=object)
-        python_kernel(generic, _SymMath(tr))(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv),
-                                             inputs(tr, given, nv), res, work())
+        _traced(generic, tr)(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv), inputs(tr, given, nv), res, work())
         return _render(tr, fname, f'mi, mf, q, v, {given}, {out}, W', [(f'{out}[{k}]', res[k]) for k in range(nv)],
                        doc)
-    name = model.name
-    try:
-        fd = vector_function(treefn.generic_fd, 'fd', 'tau', 'qdd',
-                             f'Forward dynamics of {name!r} (treefn.generic_fd, traced).')
-        tr = Tracer()
+
+    def matrices(bias, H, G):
+        outs = [(f'bias[{k}]', bias[k]) for k in range(nv)]
+        return outs + [(f'{m}[{a}, {b}]', X[a, b]) for m, X in (('H', H), ('G', G)) for a in range(nv)
+                       for b in range(nv)]
+
+    def bias_mass(tr, generic, W, fext):
         bias = np.full(nv, UNSET, dtype=object)
         H = np.full((nv, nv), UNSET, dtype=object)
         G = np.full((nv, nv), UNSET, dtype=object)
-        python_kernel(treefn.generic_bm, _SymMath(tr))(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv),
-                                                       np.zeros(nv, dtype=object) + 0.0, bias, H, G, work())
-        outs = [(f'bias[{k}]', bias[k]) for k in range(nv)]
-        outs += [(f'{m}[{a}, {b}]', X[a, b]) for m, X in (('H', H), ('G', G)) for a in range(nv) for b in range(nv)]
-        bm = _render(tr, 'bm', 'mi, mf, q, v, zero, bias, H, G, W', outs,
-                     f'Bias, mass matrix and gravity stiffness of {name!r} (treefn.generic_bm, traced).')
-        rnea = vector_function(treefn.generic_id, 'rnea', 'qdd', 'tau',
-                               f'Inverse dynamics of {name!r} (treefn.generic_id, traced).')
+        zero = np.zeros(nv, dtype=object) + 0.0
+        args = (zero, bias, H, G, W) if fext is None else (zero, fext, bias, H, G, W)
+        _traced(generic, tr)(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv), *args)
+        return matrices(bias, H, G)
+
+    name = model.name
+    out = {}
+    try:
+        out['rnea'] = vector_function(treefn.generic_id, 'rnea', 'qdd', 'tau',
+                                      f'Inverse dynamics of {name!r} (treefn.generic_id, traced).')
+        if not ground:
+            out['fd'] = vector_function(treefn.generic_fd, 'fd', 'tau', 'qdd',
+                                        f'Forward dynamics of {name!r} (treefn.generic_fd, traced).')
+            tr = Tracer()
+            out['bm'] = _render(tr, 'bm', 'mi, mf, q, v, zero, bias, H, G, W', bias_mass(tr, treefn.generic_bm, work(), None),
+                                f'Bias, mass matrix and gravity stiffness of {name!r} (treefn.generic_bm, traced).')
+        else:
+            tr = Tracer()
+            Wk = work()
+            _traced(treefn.generic_kin, tr)(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv), Wk)
+            out['kin'] = _render(tr, 'kin', 'mi, mf, q, v, W',
+                                 [(f'W[{r}, {c}]', x) for (r, c), x in np.ndenumerate(Wk) if x is not UNSET],
+                                 f'Transforms, root-to-body transforms and velocities of {name!r} (treefn.generic_kin, '
+                                 'traced).')
+            tr = Tracer()
+            qdd = np.full(nv, UNSET, dtype=object)
+            _traced(treefn.generic_fdx, tr)(mi, mfo, inputs(tr, 'q', nq), inputs(tr, 'v', nv), inputs(tr, 'tau', nv),
+                                            forces(tr), qdd, _kin_inputs(tr, Wk))
+            out['fdx'] = _render(tr, 'fdx', 'mi, mf, q, v, tau, fext, qdd, W', [(f'qdd[{k}]', qdd[k]) for k in range(nv)],
+                                 f'Forward dynamics of {name!r} under body forces, after kin (treefn.generic_fdx, traced).')
+            tr = Tracer()
+            outs = bias_mass(tr, treefn.generic_bmx, _kin_inputs(tr, Wk), forces(tr))
+            out['bmx'] = _render(tr, 'bmx', 'mi, mf, q, v, zero, fext, bias, H, G, W', outs,
+                                 f'Bias under body forces, mass matrix and gravity stiffness of {name!r}, after kin '
+                                 '(treefn.generic_bmx, traced).')
     except (StateBranch, ZeroDivisionError):
         return None
-    return '\n'.join(fd) + '\n', '\n'.join(bm) + '\n', '\n'.join(rnea) + '\n'
+    return {k: '\n'.join(v) + '\n' for k, v in out.items()}
 
 
-def module_source(model) -> str | None:
-    """The generated module of ``model``, or None (see :func:`trace`, :data:`MAX_LINES`)."""
-    src = trace(model)
-    if src is None or sum(s.count('\n') for s in src) > MAX_LINES:
+def module_source(model, ground: bool = False) -> str | None:
+    """The generated module of ``model`` (on a ground: its functions for the contact path), or None (see
+    :func:`trace`, :data:`MAX_LINES`)."""
+    src = trace(model, ground)
+    if src is None or sum(s.count('\n') for s in src.values()) > MAX_LINES:
         return None
-    head = (f'"""Generated by robodyn_ros.kernels.codegen {VERSION} for {model.name!r}: the operations of\n'
-            'robodyn_ros.kernels.treefn.generic_fd, generic_bm and generic_id on this model, in their order. Do not '
-            'edit."""\n'
+    head = (f'"""Generated by robodyn_ros.kernels.codegen {VERSION} for {model.name!r}{" on a ground" if ground else ""}: '
+            'the operations of\nrobodyn_ros.kernels.treefn\'s generic ' + ', '.join(src) + ' on this model, in '
+            'their order. Do not edit."""\n'
             'import math\n\n\n')
-    return head + '\n\n'.join(src)
+    return head + '\n\n'.join(src.values())
 
 
-def _key(model) -> str:
-    """Hash of what the generated code depends on: the packed model, this generator, the kernels' fingerprint."""
+def _key(model, ground: bool) -> str:
+    """Hash of what the generated code depends on: the packed model, on a ground or not, this generator, the
+    kernels' fingerprint."""
     from . import cache, pack_model
     mi, mf = pack_model(model, merge=True)
     h = hashlib.sha256()
     with open(__file__, 'rb') as f:
         generator = f.read()
-    for part in (mi.tobytes(), mf.tobytes(), VERSION.encode(), cache.FINGERPRINT.encode(), generator):
+    for part in (mi.tobytes(), mf.tobytes(), VERSION.encode(), cache.FINGERPRINT.encode(), generator,
+                 b'ground' if ground else b''):
         h.update(part)
     return h.hexdigest()[:20]
 
 
-def _file(model) -> str:
+def _file(model, ground: bool) -> str:
     """Where the generated module of ``model`` is (or goes)."""
-    return os.path.join(GENERATED_DIR, f'robodyn_gen_{_key(model)}.py')
+    return os.path.join(GENERATED_DIR, f'robodyn_gen_{_key(model, ground)}.py')
 
 
-def written_path(model) -> str | None:
+def written_path(model, ground: bool = False) -> str | None:
     """Path of the generated module of ``model`` when an earlier run has written it, else None (nothing
     generated here)."""
-    path = _file(model)
+    path = _file(model, ground)
     return path if os.path.exists(path) else None
 
 
-def module_path(model) -> str | None:
-    """Path of the generated module of ``model`` (written if needed), or None when the model keeps the
-    generic kernels or the directory is not writable."""
-    path = _file(model)
+def module_path(model, ground: bool = False) -> str | None:
+    """Path of the generated module of ``model`` (on a ground: its contact path's; written if needed), or None
+    when the model keeps the generic kernels or the directory is not writable."""
+    path = _file(model, ground)
     if os.path.exists(path):
         return path
-    src = module_source(model)
+    src = module_source(model, ground)
     if src is None:
         return None
     try:
@@ -451,56 +524,63 @@ def _import(path):
     return mod
 
 
+def _functions(mod) -> list:
+    """``[(index in treefn.NAMES, function)]`` of the generated module mod."""
+    from . import treefn
+    return [(i, getattr(mod, n)) for i, n in enumerate(treefn.NAMES) if hasattr(mod, n)]
+
+
 def is_compiled(path) -> bool:
-    """True when numba's cache holds the machine code of the three functions of the module at path."""
+    """True when numba's cache holds the machine code of the functions of the module at path."""
     from . import jit, treefn
     jit.load_numba()   # (treefn's signatures exist once numba is loaded)
-    mod = _import(path)
-    return treefn.cached((mod.fd, treefn.FD_SIG), (mod.bm, treefn.BM_SIG), (mod.rnea, treefn.ID_SIG))
+    sigs = treefn.signatures()
+    return treefn.cached(*[(f, sigs[i]) for i, f in _functions(_import(path))])
 
 
 _LOADED: dict = {}
 
 
 def load(path):
-    """``(fd, bm, rnea)``: the cfuncs of the generated module at path (compiled here if numba's cache lacks them)."""
+    """The six cfuncs of :mod:`.treefn` (``fd, bm, rnea, kin, fdx, bmx``): those of the generated module at path
+    (compiled here if numba's cache lacks them), the generic ones for the functions it does not hold."""
     path = os.path.abspath(path)
     got = _LOADED.get(path)
     if got is None:
-        from . import jit
+        from . import jit, treefn
         jit.load_numba()
         from numba import cfunc
-
-        from .treefn import BM_SIG, CFUNC_OPTIONS, FD_SIG, ID_SIG, register
-        mod = _import(path)
-        got = _LOADED[path] = (cfunc(FD_SIG, **CFUNC_OPTIONS)(mod.fd), cfunc(BM_SIG, **CFUNC_OPTIONS)(mod.bm),
-                               cfunc(ID_SIG, **CFUNC_OPTIONS)(mod.rnea))
-        register(got[0].address, mod.fd)   # what interpreted code runs behind these addresses
-        register(got[1].address, mod.bm)
-        register(got[2].address, mod.rnea)
+        got = list(treefn.generic_pointers())
+        sigs = treefn.signatures()
+        for i, f in _functions(_import(path)):
+            got[i] = cfunc(sigs[i], **treefn.CFUNC_OPTIONS)(f)
+            treefn.register(got[i].address, f)   # what interpreted code runs behind this address
+        got = _LOADED[path] = tuple(got)
     return got
 
 
 _PYTHON: dict = {}
 
 
-def python_dynamics(model):
-    """``(fd, bm, rnea)`` tokens (:func:`robodyn_ros.kernels.treefn.register`) of ``model``'s generated code run as
-    Python, for an interpreted loop before it is compiled (about 4x faster there than the generic kernels'
-    Python), or None when the model keeps the generic kernels."""
-    path = module_path(model)
+def python_dynamics(model, ground: bool = False):
+    """The six tokens (:func:`robodyn_ros.kernels.treefn.register`) of ``model``'s generated code run as Python (the
+    generic kernels' Python for the functions it does not hold), for an interpreted loop before it is compiled
+    (about 4x faster there than the generic kernels' Python), or None when the model keeps the generic kernels."""
+    path = module_path(model, ground)
     if path is None:
         return None
     got = _PYTHON.get(path)
     if got is None:
-        from .treefn import register
-        mod = _import(path)
-        got = _PYTHON[path] = (register(None, mod.fd), register(None, mod.bm), register(None, mod.rnea))
+        from .treefn import GENERIC_TOKENS, register
+        got = list(GENERIC_TOKENS)
+        for i, f in _functions(_import(path)):
+            got[i] = register(None, f)
+        got = _PYTHON[path] = tuple(got)
     return got
 
 
-def specialize(model):
-    """``(fd, bm, rnea)`` cfuncs of ``model``'s generated code, compiled in this process if not cached, or None
+def specialize(model, ground: bool = False):
+    """The six cfuncs of ``model``'s generated code (:func:`load`), compiled in this process if not cached, or None
     (see :func:`module_path`)."""
-    path = module_path(model)
+    path = module_path(model, ground)
     return None if path is None else load(path)

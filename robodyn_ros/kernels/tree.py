@@ -418,6 +418,13 @@ def base_acceleration(mf, W, dr, dc):
 
 
 @njit(**_LEAF)
+def pivot_sqrt(s):
+    """``√s`` of a Cholesky pivot s, NaN when s is not positive (the matrix is not positive definite). The
+    generated code (:mod:`.codegen`) writes it as this expression: the one branch on the state it keeps."""
+    return math.sqrt(s) if s > 0.0 else math.nan
+
+
+@njit(**_LEAF)
 def chol6_solve(W, ar, ac, br, bc, xr, xc):
     """Solve ``A x = b`` for a symmetric positive definite A (6, 6) at ``W[ar, ac:ac+36]`` by Cholesky.
 
@@ -427,8 +434,9 @@ def chol6_solve(W, ar, ac, br, bc, xr, xc):
     for j in range(6):
         s = W[ar, ac + 7 * j]
         for k in range(j):
-            s -= W[s_, L_ + 6 * j + k] ** 2
-        d = math.sqrt(s) if s > 0.0 else math.nan
+            ljk = W[s_, L_ + 6 * j + k]
+            s -= ljk * ljk
+        d = pivot_sqrt(s)
         W[s_, L_ + 7 * j] = d
         for i in range(j + 1, 6):
             s = W[ar, ac + 6 * i + j]

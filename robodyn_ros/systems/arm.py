@@ -202,8 +202,8 @@ class ArmSystem(System):
         """Put the tree on a ground: contact: a :class:`robodyn_ros.systems.contact.GroundContact` of this
         model. Its body forces enter the dynamics (compiled kernels only; not on a tree with mimic
         joints), its power the work (``work_components`` gains ``'contact'``), its wrenches and
-        diagnostics the outputs. A tree on the ground runs on the generic compiled kernels (the
-        generated ones know no contact)."""
+        diagnostics the outputs. On a backend that takes generated code, the tree's contact path has its own
+        (:meth:`robodyn_ros.kernels.CompiledModel.on_ground`)."""
         if self._km is None:
             raise ValueError(f'{self.model.name}: ground contact is computed by the compiled kernels only; '
                              "backend 'numpy' cannot simulate it (use 'numba')")
@@ -213,7 +213,7 @@ class ArmSystem(System):
         self.contact = contact
         self._km.con = contact.con
         self._km.cpo = contact.point_rows
-        self._km.no_generated()
+        self._km.on_ground()
         self._grids = {}
 
     def split(self, y):
