@@ -3,12 +3,12 @@
 A ground part replaces a ``<collision>`` mesh by a sphere that encloses it (with a warning): the
 centre of the mesh's axis-aligned bounding box and the largest distance of a vertex from it (not the
 smallest enclosing sphere, which is at most that much smaller). Read here with numpy and the standard
-library: STL (binary and ASCII), Wavefront OBJ (``v`` lines) and COLLADA ``.dae`` (the
-``<float_array>`` of every ``<source>`` whose id names positions, times its ``<unit meter>``; the
-scene graph's node transforms are not applied, so a ``.dae`` whose geometry is placed by them gets a
-sphere around its untransformed vertices: stated, not corrected). For a viewer, :func:`collada_primitives`
-reads a COLLADA file's drawn surfaces whole (node transforms, polygons, colours), which a recording embeds as
-glTF (:func:`robodyn_ros.assets.glb_of_collada`).
+library: STL (binary and ASCII), Wavefront OBJ (``v`` lines) and COLLADA ``.dae`` (the vertices of its
+triangles as :func:`collada_primitives` places them: the visual scene's node transforms, then ``<unit meter>``;
+the up axis is not applied, as RViz and coal, which read COLLADA through assimp, do not; a file that reader
+refuses: the ``<float_array>`` of every ``<source>`` whose id names positions, times its unit, with a
+warning). For a viewer, :func:`collada_primitives` reads a COLLADA file's drawn surfaces whole (node
+transforms, polygons, colours), which a recording embeds as glTF (:func:`robodyn_ros.assets.glb_of_collada`).
 
 Where: an absolute path, ``file://`` URI, or ``package://<package>/<path>``, found through the ament
 index (a sourced ROS install), the example-robot-data wheel (its package name), the copy of two of
@@ -126,7 +126,7 @@ def mesh_vertices(path) -> np.ndarray:
             v = np.array([[float(x) for x in line.split()[1:4]] for line in data.decode('utf-8', 'replace').splitlines()
                           if line.startswith('v ')], dtype=float).reshape(-1, 3)
         elif ext == '.dae':
-            v = _dae(data)
+            v = _dae(data, path)
         else:
             raise MeshError(f'{path}: unknown mesh format {ext!r} (STL, OBJ and DAE are read)')
     except (ValueError, struct.error, ET.ParseError) as e:
@@ -193,8 +193,19 @@ def _obj_triangles(text: str) -> np.ndarray:
     return v[np.array(faces, dtype=np.int64).reshape(-1, 3)]
 
 
-def _dae(data: bytes) -> np.ndarray:
-    """Vertices of a COLLADA file: its position sources' float arrays (node transforms not applied)."""
+def _dae(data: bytes, path) -> np.ndarray:
+    """Vertices of a COLLADA file's triangles as :func:`collada_primitives` places them (the visual scene's node
+    transforms and ``<unit meter>`` applied, the up axis not: as assimp-based ROS tools, RViz and coal, read
+    them); a file it refuses: its position sources' float arrays times the unit, with a warning."""
+    try:
+        prims, _ = collada_primitives(data, materials=False)
+        used = [p[0][np.unique(p[1])] for p in prims if len(p[1]) and p[1].shape[1] == 3]
+        if used:
+            return np.vstack(used)
+        why = 'no triangles in its visual scene'
+    except MeshError as e:
+        why = str(e)
+    warnings.warn(f'{path}: {why}; its vertices are read without the scene\'s node transforms', stacklevel=3)
     root = ET.fromstring(data)
     out = []
     for src in root.iter():
@@ -225,7 +236,7 @@ class ColladaPrimitive(tuple):
         return tuple.__new__(cls, (positions, faces, rgba, uv, image))
 
 
-def collada_primitives(data: bytes, read=None) -> tuple:
+def collada_primitives(data: bytes, read=None, materials: bool = True) -> tuple:
     """The surfaces a viewer draws of a COLLADA (``.dae``) file, as ``([ColladaPrimitive, ...], z_up)``: per
     instanced geometry and primitive, its vertices in the file's coordinates (every node transform of the visual
     scene applied, in the order the file lists them, then ``<unit meter>``), its triangles (a polygon of k
@@ -238,9 +249,9 @@ def collada_primitives(data: bytes, read=None) -> tuple:
     ``<instance_node>`` under ``<matrix>``, ``<translate>``, ``<rotate>`` and ``<scale>``, lambert, phong,
     blinn and constant materials with a colour or a texture. Raises MeshError, naming what it does not read (an
     X-up file, a texture without read or of another format, a skin, line strips), for a file it cannot draw
-    the same way."""
+    the same way. ``materials=False``: the geometry alone (every primitive white, untextured; no material read)."""
     try:
-        return _collada_primitives(data, read)
+        return _collada_primitives(data, read, materials)
     except MeshError:
         raise
     except (ValueError, IndexError, KeyError, AttributeError, OSError) as e:
@@ -257,7 +268,7 @@ def _numbers(text, dtype) -> np.ndarray:
             raise MeshError(f'not a list of numbers: {(text or "")[:40]!r}...') from None
 
 
-def _collada_primitives(data: bytes, read) -> tuple:
+def _collada_primitives(data: bytes, read, materials: bool) -> tuple:
     """:func:`collada_primitives` without its error handling."""
     try:
         root = ET.fromstring(data)
@@ -396,7 +407,7 @@ def _collada_primitives(data: bytes, read) -> tuple:
                 raise MeshError(f'vertices {vert.get("id")!r} without POSITION')
             pos = columns(target(pin, 'source'), 3)
             sym = prim.get('material')
-            rgba, image = material(target(bound[sym], 'target')) if sym in bound else (np.ones(4), None)
+            rgba, image = material(target(bound[sym], 'target')) if sym in bound and materials else (np.ones(4), None)
             polys = prim.findall('p')
             if prim.find('ph') is not None:
                 raise MeshError('a polygon with holes (<ph>)')
