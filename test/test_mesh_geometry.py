@@ -28,8 +28,9 @@ def _unit(path) -> float:
 
 def test_every_collada_file_of_example_robot_data_is_read_as_coal_reads_it():
     """All 262 COLLADA files: the vertices physics reads are coal's (times the unit), nearest neighbour both
-    ways to 1e-6 of the mesh's size (assimp reads and transforms in single precision: 1.9e-7 at worst); 55 of them place their geometry by node transforms (scale, rotation:
-    b1's and HyQ's trunk, every Romeo link), which the earlier reader left out."""
+    ways to 1e-6 of the mesh's size (assimp reads and transforms in single precision: 1.9e-7 at worst). 98 of
+    them place their geometry by node transforms (scale, rotation: HyQ's trunk, Romeo's links, Tiago's torso),
+    which the earlier reader left out."""
     files = sorted(glob.glob(str(example_robot_data_dir() / '**' / '*.dae'), recursive=True))
     assert len(files) >= 262
     loader = coal.MeshLoader()
@@ -49,7 +50,7 @@ def test_every_collada_file_of_example_robot_data_is_read_as_coal_reads_it():
                          for fa in src if isinstance(fa.tag, str) and fa.tag.endswith('float_array') and fa.text]) * _unit(f)
         moved += not np.allclose(np.sort(raw.min(0)), np.sort(ours.min(0)), rtol=1e-6, atol=1e-9 * size)
     assert worst < 1e-6, worst
-    assert moved >= 40, moved   # (the node transforms matter: without them most of these would differ)
+    assert moved >= 40, moved   # (the node transforms matter: without them these would differ)
 
 
 DAE = """<?xml version="1.0"?>
