@@ -54,6 +54,8 @@ CFUNC_OPTIONS = dict(cache=True, error_model='numpy', _nrt=False)
 #: as numba signatures, and their first-class function types (made by :func:`_numba_types` when numba is loaded)
 FD_SIG = BM_SIG = ID_SIG = KIN_SIG = FDX_SIG = BMX_SIG = None
 FD_TYPE = BM_TYPE = ID_TYPE = KIN_TYPE = FDX_TYPE = BMX_TYPE = None
+#: the function types by the name of their ``<name>_at`` intrinsic (:func:`_typer`)
+_TYPES: dict = {}
 #: the six functions' names (a generated module's, and :func:`generic_pointers`' order)
 NAMES = ('fd', 'bm', 'rnea', 'kin', 'fdx', 'bmx')
 
@@ -70,6 +72,7 @@ def _numba_types():
     BMX_SIG = types.void(i2, f2, f1, f1, f1, f2, f1, f2, f2, f2)
     FD_TYPE, BM_TYPE, ID_TYPE = types.FunctionType(FD_SIG), types.FunctionType(BM_SIG), types.FunctionType(ID_SIG)
     KIN_TYPE, FDX_TYPE, BMX_TYPE = types.FunctionType(KIN_SIG), types.FunctionType(FDX_SIG), types.FunctionType(BMX_SIG)
+    _TYPES.update(fd=FD_TYPE, bm=BM_TYPE, id=ID_TYPE, kin=KIN_TYPE, fdx=FDX_TYPE, bmx=BMX_TYPE)
 
 
 def signatures() -> tuple:
@@ -156,25 +159,16 @@ def jit_types():
     return types
 
 
-def fd_at(typingctx, addr):
-    """``fd_at(addr)``: the ``fd`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, jit_types().Integer):
-        return FD_TYPE(addr), lambda context, builder, sig, args: _function_at(FD_TYPE, context, builder, args[0])
-    return None
-
-
-def bm_at(typingctx, addr):
-    """``bm_at(addr)``: the ``bm`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, jit_types().Integer):
-        return BM_TYPE(addr), lambda context, builder, sig, args: _function_at(BM_TYPE, context, builder, args[0])
-    return None
-
-
-def id_at(typingctx, addr):
-    """``id_at(addr)``: the ``id`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, jit_types().Integer):
-        return ID_TYPE(addr), lambda context, builder, sig, args: _function_at(ID_TYPE, context, builder, args[0])
-    return None
+def _typer(name: str):
+    """The typer of ``<name>_at(addr)``: the ``name`` function (``fd``, ``bm``, ``id``, ``kin``, ``fdx``, ``bmx``) at
+    that address (int64), callable in compiled code."""
+    def typer(typingctx, addr):
+        if isinstance(addr, jit_types().Integer):
+            ftype = _TYPES[name]
+            return ftype(addr), lambda context, builder, sig, args: _function_at(ftype, context, builder, args[0])
+        return None
+    typer.__name__ = typer.__qualname__ = f'{name}_at'
+    return typer
 
 
 def _intrinsic(typer):
@@ -187,35 +181,9 @@ def _intrinsic(typer):
     return make() if jit.LOADED else jit.Deferred(typer, make)
 
 
-def kin_at(typingctx, addr):
-    """``kin_at(addr)``: the ``kin`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, jit_types().Integer):
-        return KIN_TYPE(addr), lambda context, builder, sig, args: _function_at(KIN_TYPE, context, builder, args[0])
-    return None
-
-
-def fdx_at(typingctx, addr):
-    """``fdx_at(addr)``: the ``fdx`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, jit_types().Integer):
-        return FDX_TYPE(addr), lambda context, builder, sig, args: _function_at(FDX_TYPE, context, builder, args[0])
-    return None
-
-
-def bmx_at(typingctx, addr):
-    """``bmx_at(addr)``: the ``bmx`` at that address (int64), callable in compiled code."""
-    if isinstance(addr, jit_types().Integer):
-        return BMX_TYPE(addr), lambda context, builder, sig, args: _function_at(BMX_TYPE, context, builder, args[0])
-    return None
-
-
 #: ``fd_at(addr)`` / ``bm_at`` / ``id_at`` / ``kin_at`` / ``fdx_at`` / ``bmx_at`` (intrinsics): the function at that
 #: address, in compiled code
-fd_at = _intrinsic(fd_at)
-bm_at = _intrinsic(bm_at)
-id_at = _intrinsic(id_at)
-kin_at = _intrinsic(kin_at)
-fdx_at = _intrinsic(fdx_at)
-bmx_at = _intrinsic(bmx_at)
+fd_at, bm_at, id_at, kin_at, fdx_at, bmx_at = (_intrinsic(_typer(n)) for n in ('fd', 'bm', 'id', 'kin', 'fdx', 'bmx'))
 
 
 @njit(**_JIT)
