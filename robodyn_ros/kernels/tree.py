@@ -777,6 +777,20 @@ def crba_ws(mi, mf, H, W):
 
 
 @njit(**_LEAF)
+def bias_mass_ws(mi, mf, q, v, zero, fext, has_fext, bias, H, G, W):
+    """The bias/mass pass on the ``Xup`` in W: ``bias (nv,) = RNEA(q, v, 0)`` under the external body forces fext
+    (used if has_fext), ``H (nv, nv) = M(q)`` (:func:`crba_ws`) and the gravity stiffness ``G = ∂g/∂q``
+    (:func:`gravity_stiffness_ws`, from the CRBA's composite inertias); zero (nv,): zeros."""
+    rnea_ws(mi, mf, q, v, zero, fext, has_fext, bias, W)
+    nv = H.shape[0]
+    for a in range(nv):
+        for b in range(nv):
+            H[a, b] = 0.0
+    crba_ws(mi, mf, H, W)
+    gravity_stiffness_ws(mi, mf, W, G)
+
+
+@njit(**_LEAF)
 def world_kinematics_ws(mi, mf, v, W):
     """Every body's root-to-body transform and velocity into W (Xup already there: :func:`transforms`).
 

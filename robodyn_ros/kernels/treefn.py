@@ -45,7 +45,7 @@ import time
 
 from . import jit
 from .jit import njit
-from .tree import _JIT, aba_ws, crba_ws, gravity_stiffness_ws, rnea_ws, transforms, workspace, world_kinematics_ws
+from .tree import _JIT, aba_ws, bias_mass_ws, rnea_ws, transforms, workspace, world_kinematics_ws
 
 #: options of every cfunc behind an address (generic and generated): numba's numpy error model, as the kernels
 CFUNC_OPTIONS = dict(cache=True, error_model='numpy', _nrt=False)
@@ -95,13 +95,7 @@ def generic_bm(mi, mf, q, v, zero, bias, H, G, W):
     ``G (nv, nv) = ∂g/∂q`` (:func:`~robodyn_ros.kernels.tree.gravity_stiffness_ws`, from the CRBA's
     composite inertias) at one transform pass; zero (nv,): zeros. What a generated ``bm`` computes."""
     transforms(mi, mf, q, W)
-    rnea_ws(mi, mf, q, v, zero, W, False, bias, W)
-    nv = H.shape[0]
-    for a in range(nv):
-        for b in range(nv):
-            H[a, b] = 0.0
-    crba_ws(mi, mf, H, W)
-    gravity_stiffness_ws(mi, mf, W, G)
+    bias_mass_ws(mi, mf, q, v, zero, W, False, bias, H, G, W)
 
 
 def generic_id(mi, mf, q, v, qdd, tau, W):
@@ -129,13 +123,7 @@ def generic_fdx(mi, mf, q, v, tau, fext, qdd, W):
 def generic_bmx(mi, mf, q, v, zero, fext, bias, H, G, W):
     """:func:`generic_bm` under the external body forces fext (nb, 6) (``bias = C + g`` minus their generalised
     force), on the ``Xup`` of :func:`generic_kin` in W. What a generated ``bmx`` computes."""
-    rnea_ws(mi, mf, q, v, zero, fext, True, bias, W)
-    nv = H.shape[0]
-    for a in range(nv):
-        for b in range(nv):
-            H[a, b] = 0.0
-    crba_ws(mi, mf, H, W)
-    gravity_stiffness_ws(mi, mf, W, G)
+    bias_mass_ws(mi, mf, q, v, zero, fext, True, bias, H, G, W)
 
 
 #: the generic implementations, in :data:`NAMES`' order
