@@ -27,10 +27,8 @@ from .rosenbrock import B1, B2, C21, GAMMA, GAMMA_STOP, factor_iteration_matrix,
 from .servo import SW_SAT, servo_forces_add, servo_jacobian_add, servo_side, servo_state, servo_time_rate
 from ..integrators import GROW_MAX, H_MIN, SAFETY, SHRINK_MAX   # the controller's constants (in the fingerprint)
 from ..model import SPHERICAL
-from .tree import (_JIT, _LEAF, _limit_frame, aba_ws, crba_ws, gravity_stiffness_ws, joint_wrenches,
-                   limit_forces_add, limit_jacobian_add, limit_slopes, normalize_into, qdot_into, retract_into, rnea_into,
-                   rnea_ws, tangent_rate_into, tangent_velocity_into, transforms, workspace,
-                   world_kinematics_ws)
+from .tree import (_JIT, _LEAF, _limit_frame, joint_wrenches, limit_forces_add, limit_jacobian_add, normalize_into,
+                   qdot_into, retract_into, rnea_into, tangent_rate_into, tangent_velocity_into, transforms, workspace)
 from .treefn import bm_at, bmx_at, fd_at, fdx_at, kin_at
 
 
