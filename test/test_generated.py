@@ -368,3 +368,32 @@ def test_trees_that_branch_on_the_state_keep_the_generic_kernels():
         assert _load(name, 'generated').system._km.gen is None
     model = _load('a1_stand').system.model
     assert np.any(model.jtype == FREE) and codegen.trace(model) is not None
+
+
+def test_auto_interpreting_waits_for_the_generic_cfuncs_instead_of_compiling_them(monkeypatch):
+    """Backend auto in an interpreting run (a cold cache): a generated module is taken up with the generic cfuncs
+    for the functions it leaves out (a tree off a ground: kin, fdx, bmx). While those are not compiled the run does
+    not compile them itself (a live run would stop answering for the minute it takes): it stays on the generic
+    kernels and takes the module up at a later period, once the child has them."""
+    model = _load('betancur_pendulum').system.model
+    codegen.specialize(model)                       # the module compiled, as an earlier run leaves it
+    path = codegen.written_path(model)
+    real = treefn.generic_pointers
+
+    def missing(block=True):
+        assert not block, 'the generic cfuncs compiled in the run'
+        return None
+    monkeypatch.setattr(treefn, 'generic_pointers', missing)
+    monkeypatch.setattr(codegen, '_LOADED', {})
+    monkeypatch.setattr(jit, 'MODE', 'interpret')
+    assert codegen.load(path, block=False) is None
+    km = kernels.CompiledModel(model, specialize='auto')
+    km.poll_generated()
+    assert km.gen is None and km._requested == path
+    km.poll_generated()                              # the child has finished nothing since: not looked again
+    assert km.gen is None
+    monkeypatch.setattr(treefn, 'generic_pointers', real)
+    monkeypatch.setattr(jit.COMPILER, 'generation', jit.COMPILER.generation + 1)   # the child finished a request
+    monkeypatch.setattr(jit.COMPILER, 'poll', lambda: None)
+    km.poll_generated()
+    assert km.gen is not None and km.gen[0].address != real()[0].address

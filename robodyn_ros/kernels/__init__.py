@@ -267,16 +267,19 @@ class CompiledModel:
         """Backend 'auto': take up the model's generated code at the first call when an earlier run left it
         compiled in the cache, else once the compiler child (:mod:`.jit`) has it there; ask the child for it once
         :data:`GENERATE_AFTER` seconds were integrated here (called between loop calls, so the code changes at a
-        period boundary)."""
+        period boundary). Interpreting, the generic cfuncs a module leaves to the generic kernels are not compiled
+        here: until the child has them (it is asked), the run stays on the generic kernels."""
         if not self._auto or self.gen is not None:
             return
         from . import codegen, jit
+        block = jit.MODE == 'compile'
         if not self._looked:   # code an earlier run had compiled: taken up at the first period boundary
             self._looked = True
             path = codegen.written_path(self.model, self.con is not None) if jit.LOADED else None   # (a deferred run is short)
             if path is not None and codegen.is_compiled(path):
                 self._requested = path
-                self.gen = codegen.load(path)
+                self._seen = jit.COMPILER.generation
+                self.gen = codegen.load(path, block)
                 return
         if self._requested is None:
             if self._spent < GENERATE_AFTER:
@@ -296,7 +299,7 @@ class CompiledModel:
             self._seen = jit.COMPILER.generation
             if not codegen.is_compiled(self._requested):
                 return
-        self.gen = codegen.load(self._requested)
+        self.gen = codegen.load(self._requested, block)
 
     def dynamics(self, z):
         """``(dyn, tokens)``: the addresses of the forward dynamics, bias/mass pass and inverse dynamics the loop

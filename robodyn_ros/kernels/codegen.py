@@ -541,16 +541,21 @@ def is_compiled(path) -> bool:
 _LOADED: dict = {}
 
 
-def load(path):
+def load(path, block: bool = True):
     """The six cfuncs of :mod:`.treefn` (``fd, bm, rnea, kin, fdx, bmx``): those of the generated module at path
-    (compiled here if numba's cache lacks them), the generic ones for the functions it does not hold."""
+    (compiled here if numba's cache lacks them), the generic ones for the functions it does not hold; with
+    ``block=False``, None while the generic ones are not compiled (:func:`.treefn.generic_pointers`: the compiler
+    child is asked for them)."""
     path = os.path.abspath(path)
     got = _LOADED.get(path)
     if got is None:
         from . import jit, treefn
         jit.load_numba()
         from numba import cfunc
-        got = list(treefn.generic_pointers())
+        generic = treefn.generic_pointers(block)
+        if generic is None:
+            return None
+        got = list(generic)
         sigs = treefn.signatures()
         for i, f in _functions(_import(path)):
             got[i] = cfunc(sigs[i], **treefn.CFUNC_OPTIONS)(f)
