@@ -55,6 +55,7 @@ keep ≈, so their forces, and every value after them, are ≈ too: the recordin
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import math
@@ -296,13 +297,20 @@ class Tracer:
     def call(self, fn: str, a):
         a = _num(a)
         if _known(a):
-            return _NUMERIC[fn](a)
+            return _numeric(fn)(a)
         return self._emit(fn, a)
 
 
-#: the one-argument functions the traced code may call, on numbers (what the compiled code computes)
-_NUMERIC = {'cos': math.cos, 'sin': math.sin, 'sqrt': math.sqrt,
-            'psqrt': lambda s: math.sqrt(s) if s > 0.0 else math.nan}   # (tree.pivot_sqrt)
+@functools.lru_cache(maxsize=None)
+def _numeric(fn: str):
+    """The one-argument function ``fn`` the traced code may call, on numbers: ``math``'s, and for ``psqrt`` the
+    Python source of :func:`~robodyn_ros.kernels.tree.pivot_sqrt` (what the compiled code computes)."""
+    if fn == 'psqrt':
+        from . import tree
+        return python_kernel(tree.pivot_sqrt)
+    return getattr(math, fn)
+
+
 #: how the generated code writes each of them (a Cholesky pivot's root keeps its branch: tree.pivot_sqrt)
 _WRITTEN = {'cos': 'math.cos({})', 'sin': 'math.sin({})', 'sqrt': 'math.sqrt({})',
             'psqrt': '(math.sqrt({0}) if {0} > 0.0 else math.nan)'}
