@@ -397,3 +397,63 @@ def test_auto_interpreting_waits_for_the_generic_cfuncs_instead_of_compiling_the
     monkeypatch.setattr(jit.COMPILER, 'poll', lambda: None)
     km.poll_generated()
     assert km.gen is not None and km.gen[0].address != real()[0].address
+
+
+_LOAD_CHILD = r'''
+import json, sys, warnings
+from robodyn_ros.kernels import codegen, treefn
+from robodyn_ros.scene import load_scene
+from robodyn_ros.systems.base import backend_scope
+with backend_scope('numba'), warnings.catch_warnings():
+    warnings.simplefilter('ignore')
+    scene = load_scene(sys.argv[1])
+path = codegen.module_path(scene.system.model)
+got = codegen.load(path)
+mine = [i for i, _ in codegen._functions(codegen._import(path))]
+print(json.dumps({'hits': [got[i].cache_hits for i in mine], 'waited': len(codegen.WAITED)}))
+'''
+
+
+def _lock_waiters(lock_path) -> int:
+    """How many flock requests wait on the file at lock_path (Linux's /proc/locks: blocked ones are marked ``->``)."""
+    ino = f':{os.stat(lock_path).st_ino} '
+    with open('/proc/locks') as f:
+        return sum('->' in line and ino in line for line in f)
+
+
+@pytest.mark.processes
+def test_processes_that_start_the_same_robot_at_once_compile_its_code_once(tmp_path):
+    """Two processes load the same model's generated code into an empty cache while a third holds its compile
+    lock: both wait (the test sees both requests blocked in /proc/locks before it lets go), then one compiles
+    and the other loads that machine code from numba's cache (its cfuncs' cache hits: all of them)."""
+    import json
+    import subprocess
+    import sys
+    import time
+    gen_dir = tmp_path / 'generated'
+    source = _robot('double_pendulum_description/urdf/double_pendulum.urdf')
+    env = dict(os.environ, ROBODYN_GENERATED_DIR=str(gen_dir))
+    old = codegen.GENERATED_DIR
+    codegen.GENERATED_DIR = str(gen_dir)
+    try:
+        path = codegen.module_path(_load(source).system.model)   # the file the children compile
+    finally:
+        codegen.GENERATED_DIR = old
+    assert path is not None and not os.path.exists(path + '.lock')
+    import fcntl
+    with open(path + '.lock', 'a+b') as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        kids = [subprocess.Popen([sys.executable, '-c', _LOAD_CHILD, source], env=env, cwd=str(tmp_path),
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+        deadline = time.monotonic() + 300
+        while _lock_waiters(path + '.lock') < 2 and all(k.poll() is None for k in kids) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        waiting = _lock_waiters(path + '.lock')
+        fcntl.flock(held, fcntl.LOCK_UN)
+    outs = [k.communicate(timeout=600) for k in kids]
+    assert all(k.returncode == 0 for k in kids), [e[-2000:] for _, e in outs]
+    assert waiting == 2, (waiting, outs)
+    res = sorted((json.loads(o.strip().splitlines()[-1]) for o, _ in outs), key=lambda r: sum(r['hits']))
+    assert [r['waited'] for r in res] == [1, 1]
+    assert sum(res[0]['hits']) == 0 and len(res[0]['hits']) >= 2   # the first compiled every function ...
+    assert all(h == 1 for h in res[1]['hits']) and len(res[1]['hits']) == len(res[0]['hits'])   # ... the other loaded them

@@ -55,12 +55,14 @@ keep ≈, so their forces, and every value after them, are ≈ too: the recordin
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib.util
 import math
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -565,11 +567,42 @@ def load(path, block: bool = True):
             return None
         got = list(generic)
         sigs = treefn.signatures()
-        for i, f in _functions(_import(path)):
-            got[i] = cfunc(sigs[i], **treefn.CFUNC_OPTIONS)(f)
-            treefn.register(got[i].address, f)   # what interpreted code runs behind this address
+        with _compile_lock(path):   # (one process compiles a module; the others then load its machine code)
+            for i, f in _functions(_import(path)):
+                got[i] = cfunc(sigs[i], **treefn.CFUNC_OPTIONS)(f)
+                treefn.register(got[i].address, f)   # what interpreted code runs behind this address
         got = _LOADED[path] = tuple(got)
     return got
+
+
+#: compiles this process waited for another process to finish (``(path, seconds waited)``; tests)
+WAITED: list = []
+
+
+@contextlib.contextmanager
+def _compile_lock(path):
+    """Hold an exclusive lock on ``path``'s lock file (beside it) while its functions are compiled or loaded:
+    processes that start the same robot at once (a sweep's workers, the compiler children of several runs,
+    a test suite's workers) compile its module once; the others wait, then load the machine code from numba's
+    cache (A1 on a ground: about a minute of CPU each otherwise). No lock where the directory refuses one
+    (then each compiles, as before); the kernel itself releases it when a holder dies."""
+    try:
+        import fcntl
+        f = open(f'{path}.lock', 'a+b')
+    except (ImportError, OSError):
+        yield
+        return
+    with f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:   # another process holds it: wait for its compile
+            t0 = time.monotonic()
+            fcntl.flock(f, fcntl.LOCK_EX)
+            WAITED.append((path, time.monotonic() - t0))
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 _PYTHON: dict = {}
