@@ -110,8 +110,9 @@ def pytest_sessionfinish(session, exitstatus):
 #: (in alphabetical order test_sweep.py and test_urdf_fuzz.py came last, one worker running them alone).
 #: On an empty cache the files that compile models' generated code come first (minutes each: on a fresh clone
 #: test_generated.py's ground recordings took 2 min, test_armature.py's generated trees 2 min)
-LONG_FILES = ('test_generated.py', 'test_kernels.py', 'test_armature.py', 'test_cold_start.py', 'test_sweep.py', 'test_startup.py', 'test_live.py', 'test_determinism.py',
-              'test_bench_peers.py', 'test_urdf_fuzz.py', 'test_node_urdf.py', 'test_step_budget.py')
+LONG_FILES = ('test_generated.py', 'test_kernels.py', 'test_armature.py', 'test_cold_start.py', 'test_sweep.py',
+              'test_startup.py', 'test_live.py', 'test_determinism.py', 'test_bench_peers.py', 'test_urdf_fuzz.py',
+              'test_node_urdf.py', 'test_step_budget.py')
 
 
 def pytest_collection_modifyitems(config, items):

@@ -69,7 +69,7 @@ def test_armature_in_the_kernels_and_the_reference_agrees_with_pinocchio():
                          free_root=k % 4 == 3)
         m = with_armature(m0, rng)
         km = kernels.CompiledModel(m)
-        # generated code on the trees of up to 4 bodies (4 of them): random trees trace to dense code (no axis
+        # generated code on the trees of up to 4 bodies (5 of them): random trees trace to dense code (no axis
         # along a frame's), whose compile grows with the tree (random8: 14 000 lines, a minute of the suite's CPU)
         gen = kernels.CompiledModel(m, specialize=True) \
             if m.nb <= 4 and not (m.has_spherical or (m.jtype == FREE).any()) else None
