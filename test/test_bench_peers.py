@@ -29,13 +29,14 @@ def test_every_row_reports_its_figures(measured):
     assert list(rows) == list(peers.ROWS)
     for name, f in rows.items():
         for key in ('cpu', 'wall', 'rss', 'rss_before', 'mujoco_cpu', 'mujoco_wall', 'mujoco_rss', 'mujoco_rss_before',
-                    'ratio_cpu', 'ratio_wall'):
+                    'ratio_cpu', 'ratio_wall', 'none_cpu'):
             assert f[key] is not None and math.isfinite(f[key]) and f[key] > 0, (name, key, f[key])
         assert abs(f['duration'] - DURATION) < 1e-9 and f['steps'] > 0
         assert set(f['kernels']) <= {'generic', 'generated'} and f['kernels']
         assert f['messages'] > 0
         # the resident set before the run within the peak (1 %: the kernel's RSS counters are approximate)
         assert f['rss_before'] <= 1.01 * f['rss'] and f['mujoco_rss_before'] <= 1.01 * f['mujoco_rss']
+        assert len(f['ratio_pairs_none']) == 1 and f['ratio_pairs_none'][0] == f['mujoco_cpu'] / f['none_cpu']
         assert f'| `{name}`, {DURATION:g} s |' in text and f'| `{name}` |' in text
     assert rows['a1_stand']['method'] == 'rosenbrock2' and rows['stanford_arm']['method'] == 'rk4'
     assert rows['a1_stand']['kernels'] == ['generated']   # its contact path's code, compiled first as every row's
@@ -88,5 +89,6 @@ def test_the_ratio_of_each_repeat_cancels_the_machines_drift():
     f = peers.row_figures(runs)
     assert f['ratio_pairs'] == [2.0, 4.0, 2.0] and f['ratio_cpu'] == 4.0 / 1.5
     assert f['ratio_pairs_wall'] == [2.0, 2.0, 2.0]   # (its wall time did not change)
+    assert f['ratio_pairs_none'] == [6.0, 8.0, 12.0]   # the runs without a recorder: 0.5 s against 3, 4, 6
     text = peers.report({'x': f}, 3)
-    assert '| ×2.00 (×2.00–4.00) | ×2.00 (×2.00–2.00) |' in text
+    assert '| ×2.00 (×2.00–4.00) | ×2.00 (×2.00–2.00) | ×8.00 (×6.00–12.00) |' in text

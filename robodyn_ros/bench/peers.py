@@ -403,6 +403,8 @@ def row_figures(runs: dict, recording=None) -> dict:
     # between repeats, which moves both medians, cancels in it
     pairs = [m['cpu'] / f['cpu'] for f, m in zip(full, runs['mujoco']) if m.get('cpu') and f.get('cpu')]
     pairs_wall = [m['wall'] / f['wall'] for f, m in zip(full, runs['mujoco']) if m.get('wall') and f.get('wall')]
+    # the simulation alone: the same repeat's run without a recorder (MuJoCo's side records nothing either)
+    pairs_none = [m['cpu'] / n['cpu'] for n, m in zip(none, runs['mujoco']) if m.get('cpu') and n.get('cpu')]
     return {'duration': full[0]['t'], 'method': full[0]['method'], 'dt': full[0]['dt'], 'rate': full[0]['rate'],
             'steps': steps, 'kernels': [x['kernels'] for x in full], 'generic_s': med('full', 'generic_s'),
             'cpu': cpu, 'wall': wall, 'rss': med('full', 'peak_rss'), 'rss_before': med('full', 'rss_before'),
@@ -413,7 +415,7 @@ def row_figures(runs: dict, recording=None) -> dict:
             'mujoco_rss_before': med('mujoco', 'rss_before'),
             'mujoco_what': runs['mujoco'][0].get('what', runs['mujoco'][0].get('why')),
             'ratio_cpu': mj_cpu / cpu if mj_cpu else None, 'ratio_wall': mj_wall / wall if mj_wall else None,
-            'ratio_pairs': pairs, 'ratio_pairs_wall': pairs_wall,
+            'ratio_pairs': pairs, 'ratio_pairs_wall': pairs_wall, 'ratio_pairs_none': pairs_none,
             'split': split, 'whole': whole * 1e6, 'fd': statistics.median(x['fd'] for x in none),
             'bm': statistics.median(x['bm'] for x in none), 'recording': recording}
 
@@ -436,7 +438,7 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
     head = ['row', 'robodyn (kernels at the end)', 'robodyn CPU / wall s', 'RTF (CPU)', 'peak RSS (before the run)',
             'MuJoCo', 'MuJoCo CPU / wall s', 'RTF (CPU)', 'peak RSS (before the run)',
             'ratio robodyn / MuJoCo (CPU; wall)', 'ratio of each repeat (CPU): median (range)',
-            'ratio of each repeat (wall): median (range)']
+            'ratio of each repeat (wall): median (range)', 'without the recording (CPU), each repeat']
     main_rows, split_rows = [], []
     for name, f in rows.items():
         kernels = ', '.join(sorted(set(f['kernels'])))
@@ -449,7 +451,7 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
             '—' if f['mujoco_cpu'] is None else f'{f["duration"] / f["mujoco_cpu"]:.0f}',
             '—' if f['mujoco_rss'] is None else f'{f["mujoco_rss"] / mb:.0f} MiB ({f["mujoco_rss_before"] / mb:.0f})',
             '—' if f['ratio_cpu'] is None else f'×{f["ratio_cpu"]:.2f}; ×{f["ratio_wall"]:.2f}',
-            _pairs(f['ratio_pairs']), _pairs(f.get('ratio_pairs_wall'))])
+            _pairs(f['ratio_pairs']), _pairs(f.get('ratio_pairs_wall')), _pairs(f.get('ratio_pairs_none'))])
         sp = f['split']
         split_rows.append([f'`{name}`', f'{f["whole"]:.2f}'] + [f'{sp[k]:.2f}' for k in PARTS]
                           + [f'{sum(sp.values()):.2f}', f'{f["fd"] * 1e6:.2f} / {f["bm"] * 1e6:.2f}',
@@ -466,7 +468,9 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
         '/ CPU seconds. Ratio: robodyn\'s real-time factor over MuJoCo\'s (> 1: robodyn faster), from the medians '
         'of each side; the last column takes the ratio within each repeat (its robodyn and MuJoCo children run '
         'seconds apart), so that the machine\'s speed drifting between repeats cancels, and gives their median '
-        'and range. ' + (
+        'and range. The last column compares the simulation alone: the same repeat\'s robodyn run without a '
+        'recorder (its CPU seconds: the same steps, no sink, one thread) against the MuJoCo run, '
+        'which records nothing either. ' + (
             'The recorded run computes its next blocks of periods on a second thread while the recorder writes '
             '(the block path computing ahead): its CPU time counts both threads, and its wall time is less.'
             if _computes_ahead() else
