@@ -456,4 +456,5 @@ def test_processes_that_start_the_same_robot_at_once_compile_its_code_once(tmp_p
     res = sorted((json.loads(o.strip().splitlines()[-1]) for o, _ in outs), key=lambda r: sum(r['hits']))
     assert [r['waited'] for r in res] == [1, 1]
     assert sum(res[0]['hits']) == 0 and len(res[0]['hits']) >= 2   # the first compiled every function ...
-    assert all(h == 1 for h in res[1]['hits']) and len(res[1]['hits']) == len(res[0]['hits'])   # ... the other loaded them
+    # ... and the other loaded them
+    assert all(h == 1 for h in res[1]['hits']) and len(res[1]['hits']) == len(res[0]['hits'])

@@ -466,11 +466,11 @@ def report(rows: dict, repeat: int, start: str | None = None) -> str:
         'robodyn\'s scene too (the URDF, initial state and PD gains it is set up from), so its RSS includes '
         'robodyn\'s imports (numba): MuJoCo\'s own share is roughly the peak minus the bracket. RTF: simulated '
         '/ CPU seconds. Ratio: robodyn\'s real-time factor over MuJoCo\'s (> 1: robodyn faster), from the medians '
-        'of each side; the two columns after it take the ratio within each repeat (its robodyn and MuJoCo children run '
-        'seconds apart), so that the machine\'s speed drifting between repeats cancels, and gives their median '
-        'and range. The last column compares the simulation alone, the same way: the same repeat\'s robodyn run without a '
-        'recorder (its CPU seconds: the same steps, no sink, one thread) against the MuJoCo run, '
-        'which records nothing either. ' + (
+        'of each side; the two columns after it take the ratio within each repeat (its robodyn and MuJoCo '
+        'children run seconds apart), so that the machine\'s speed drifting between repeats cancels, and give '
+        'their median and range. The last column compares the simulation alone, the same way: the same repeat\'s '
+        'robodyn run without a recorder (its CPU seconds: the same steps, no sink, one thread) against the MuJoCo '
+        'run, which records nothing either. ' + (
             'The recorded run computes its next blocks of periods on a second thread while the recorder writes '
             '(the block path computing ahead): its CPU time counts both threads, and its wall time is less.'
             if _computes_ahead() else
