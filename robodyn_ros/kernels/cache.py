@@ -50,6 +50,7 @@ import hashlib
 import os
 import re
 import sys
+import time
 
 #: the directory of the kernel modules
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -192,19 +193,34 @@ _OURS: set = set()
 
 
 @contextlib.contextmanager
-def _dir_lock(path: str, exclusive: bool):
-    """Hold ``path/.lock`` (flock) while the block runs: exclusive to write, shared to read."""
+def file_lock(lock_path: str, exclusive: bool = True, waits=None):
+    """Hold an ``flock`` on the file lock_path (created if missing) while the block runs: exclusive to write,
+    shared to read. waits: a list to which ``(lock_path, seconds waited)`` is appended when another process held
+    it. Opening the file may raise OSError (a directory removed or not writable): the caller decides what no
+    lock means. The kernel releases the lock of a process that dies."""
     try:
         import fcntl
     except ImportError:   # no flock (Windows): one process at a time is the user's to keep
         yield
         return
-    with open(os.path.join(path, '.lock'), 'a+b') as f:
-        fcntl.flock(f, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+    mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
+    with open(lock_path, 'a+b') as f:
+        try:
+            fcntl.flock(f, mode | fcntl.LOCK_NB)
+        except OSError:   # held by another process: wait for it
+            t0 = time.monotonic()
+            fcntl.flock(f, mode)
+            if waits is not None:
+                waits.append((lock_path, time.monotonic() - t0))
         try:
             yield
         finally:
             fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _dir_lock(path: str, exclusive: bool):
+    """Hold ``path/.lock`` (:func:`file_lock`) while the block runs: exclusive to write, shared to read."""
+    return file_lock(os.path.join(path, '.lock'), exclusive)
 
 
 def _locked_cache_file():

@@ -62,7 +62,6 @@ import importlib.util
 import math
 import os
 import sys
-import time
 
 import numpy as np
 
@@ -559,7 +558,7 @@ def load(path, block: bool = True):
     path = os.path.abspath(path)
     got = _LOADED.get(path)
     if got is None:
-        from . import jit, treefn
+        from . import cache, jit, treefn
         jit.load_numba()
         from numba import cfunc
         generic = treefn.generic_pointers(block)
@@ -567,7 +566,11 @@ def load(path, block: bool = True):
             return None
         got = list(generic)
         sigs = treefn.signatures()
-        with _compile_lock(path):   # (one process compiles a module; the others then load its machine code)
+        with contextlib.ExitStack() as held:   # one process compiles a module; the others wait, then load it
+            try:
+                held.enter_context(cache.file_lock(f'{path}.lock', waits=WAITED))
+            except OSError:   # a directory that takes no lock: each process compiles, as before
+                pass
             for i, f in _functions(_import(path)):
                 got[i] = cfunc(sigs[i], **treefn.CFUNC_OPTIONS)(f)
                 treefn.register(got[i].address, f)   # what interpreted code runs behind this address
@@ -575,34 +578,11 @@ def load(path, block: bool = True):
     return got
 
 
-#: compiles this process waited for another process to finish (``(path, seconds waited)``; tests)
+#: compiles this process waited for another process to finish (``(lock file, seconds waited)``; tests): a
+#: module is compiled under an exclusive lock beside it (:func:`.cache.file_lock`), so that processes that start
+#: the same robot at once (a sweep's workers, several runs' compiler children, a test suite's workers) compile it
+#: once and the others load its machine code from numba's cache (A1 on a ground: a minute of CPU each otherwise)
 WAITED: list = []
-
-
-@contextlib.contextmanager
-def _compile_lock(path):
-    """Hold an exclusive lock on ``path``'s lock file (beside it) while its functions are compiled or loaded:
-    processes that start the same robot at once (a sweep's workers, the compiler children of several runs,
-    a test suite's workers) compile its module once; the others wait, then load the machine code from numba's
-    cache (A1 on a ground: about a minute of CPU each otherwise). No lock where the directory refuses one
-    (then each compiles, as before); the kernel itself releases it when a holder dies."""
-    try:
-        import fcntl
-        f = open(f'{path}.lock', 'a+b')
-    except (ImportError, OSError):
-        yield
-        return
-    with f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:   # another process holds it: wait for its compile
-            t0 = time.monotonic()
-            fcntl.flock(f, fcntl.LOCK_EX)
-            WAITED.append((path, time.monotonic() - t0))
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 _PYTHON: dict = {}
