@@ -101,7 +101,8 @@ class LinkSpec:
     clamped); velocity_limit: optional largest |q̇| (rad/s or m/s, URDF ``<limit velocity>``),
     reported only: publications above it are counted (:class:`robodyn_ros.simulation.Simulator`,
     diagnostics ``velocity_limit_exceeded``); visuals: URDF ``<visual>`` elements (XML text)
-    exported as given (imported URDFs), else :func:`to_urdf` draws shapes (:func:`link_visuals`);
+    exported as given (an imported URDF's, none for a link the file draws nothing on), or None:
+    :func:`to_urdf` draws shapes (:func:`link_visuals`);
     inertia_as_given: the importer accepted a positive-definite inertia that breaks the triangle
     inequality (and warned, :mod:`robodyn_ros.urdf`): :func:`build_model` then does not refuse it;
     mimic: ``(joint, multiplier, offset)``: this 1-DOF joint follows another 1-DOF joint,
@@ -128,7 +129,7 @@ class LinkSpec:
     origin_R: np.ndarray | None = None  # exact rotation, overrides origin_rpy when given
     friction: float = 0.0
     effort_limit: float | None = None
-    visuals: tuple = ()
+    visuals: tuple | None = None
     limit_stiffness: float = 0.0
     limit_damping: float = 0.0
     limit_return: str = 'spring'
@@ -149,7 +150,10 @@ class Model:
     inertias in body frames; q_idx, v_idx: (nb,) first index of each joint in q and v; nq_j,
     nv_j: (nb,) sizes; damping: (nv,) viscous damping; gravity: (3,) in the root frame (m/s²);
     q_lower, q_upper: (nq,) joint limits (inf when none); specs: the LinkSpecs it was built from;
-    root_visuals: ``<visual>`` elements (XML text) of the root frame's link (an imported fixed base's root link).
+    root_visuals: ``<visual>`` elements (XML text) of the root frame's link (an imported fixed base's root
+    link), or None: :func:`to_urdf` draws shapes; mounted_visuals: ``((link, visuals), ...)``, the root link's
+    visuals of an imported robot mounted on that link (a platform's, a free base's; in its frame), drawn there
+    besides the link's own.
     """
 
     name: str
@@ -168,7 +172,8 @@ class Model:
     damping: np.ndarray
     gravity: np.ndarray
     specs: tuple
-    root_visuals: tuple = ()
+    root_visuals: tuple | None = None
+    mounted_visuals: tuple = ()
 
     @property
     def nb(self) -> int:
@@ -428,12 +433,13 @@ def mimic_table(model) -> np.ndarray:
 
 
 def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robot',
-                root='base_link', root_visuals=()) -> Model:
+                root='base_link', root_visuals=None, mounted_visuals=()) -> Model:
     """Build a :class:`Model` from link specs, sorting them so that parents come first.
 
     links: the bodies; a parent of ``None`` or ``root`` attaches to the fixed root frame.
     gravity: (3,) in the root frame (zero allowed). name: robot name; root: root frame name;
-    root_visuals: the root link's ``<visual>`` elements (XML text; :func:`to_urdf` writes them).
+    root_visuals: the root link's ``<visual>`` elements (XML text; :func:`to_urdf` writes them), None to have
+    shapes drawn; mounted_visuals: ``((link, visuals), ...)`` drawn besides a link's own (:class:`Model`).
     Raises :class:`ModelError` naming the offending link for unknown parents, cycles, duplicate
     names, bad joint types, non-unit axes and non-physical inertias.
     """
@@ -525,10 +531,14 @@ def build_model(links: Sequence[LinkSpec], gravity=(0.0, 0.0, -9.81), name='robo
     g = np.asarray(gravity, dtype=float)
     if g.shape != (3,) or not np.all(np.isfinite(g)):
         raise ModelError(f'gravity must be a finite 3-vector, got {gravity!r}')
+    for link, _ in mounted_visuals:
+        if link != root and link not in by_name:
+            raise ModelError(f'visuals mounted on {link!r}: no such link')
     return Model(name=name, root=root, link_names=tuple(order), joint_names=tuple(by_name[n].joint for n in order),
                  parent=parent, jtype=jtype, axis=axis, Xtree=Xtree, I=I, q_idx=q_idx, v_idx=v_idx,
                  nq_j=nq_j, nv_j=nv_j, damping=np.asarray(damping), gravity=g, specs=tuple(specs),
-                 root_visuals=tuple(root_visuals))
+                 root_visuals=None if root_visuals is None else tuple(root_visuals),
+                 mounted_visuals=tuple((str(k), tuple(v)) for k, v in mounted_visuals))
 
 
 def planar_links(spec: LinkSpec) -> list:
@@ -784,10 +794,12 @@ def to_urdf(model: Model) -> str:
 
     Revolute joints without limits are exported as ``revolute`` with wide limits (not
     ``continuous``, which some parsers turn into a 2-coordinate joint). A free root joint is
-    written as ``floating``. Effort and velocity limits, damping, friction and mimics are written. A
-    model imported with ``<visual>`` elements keeps exactly those (meshes passed through); a
-    model without any gets shapes drawn from each link's inertia and joints
-    (:func:`link_visuals`) so that a 3D viewer shows bodies. Every number is written as Python's ``repr`` of the double (the shortest text
+    written as ``floating``. Effort and velocity limits, damping, friction and mimics are written. The
+    links of a URDF imported with ``<visual>`` elements keep exactly those (meshes passed through; none
+    where the file has none); every other link (a link of a scene's part, of a platform, of a URDF
+    without any ``<visual>``) gets shapes drawn from its inertia and joints (:func:`link_visuals`) so
+    that a 3D viewer shows bodies, and a link a URDF robot is mounted on gets that robot's root-link
+    visuals as well (``Model.mounted_visuals``). Every number is written as Python's ``repr`` of the double (the shortest text
     that parses back to the same bits), so a tool that rebuilds the model from this text gets
     the simulator's numbers exactly.
     """
@@ -804,11 +816,14 @@ def to_urdf(model: Model) -> str:
     for i in range(nb):
         if model.jtype[i] != FREE:
             kids[int(model.parent[i])].append((origins[i][0], sub[i]))
-    # an imported robot shows its own visuals only (its root link's too)
-    drawn = not model.root_visuals and not any(s.visuals for s in model.specs)
+    mounted = {}
+    for link, vis in model.mounted_visuals:
+        mounted[link] = mounted.get(link, ()) + tuple(vis)
     root = LinkSpec(name=model.root, joint='', parent=None)
     out = [f'<?xml version="1.0"?>', f'<robot name="{_xa(model.name)}">']
-    root_vis = link_visuals(root, FIXED, kids[-1], root=True) if kids[-1] and drawn else list(model.root_visuals)
+    root_vis = list(model.root_visuals) if model.root_visuals is not None else \
+        link_visuals(root, FIXED, kids[-1], root=True) if kids[-1] else []
+    root_vis += mounted.get(model.root, ())
     out += [f'  <link name="{_xa(model.root)}">', *(f'    {v}' for v in root_vis), '  </link>'] if root_vis \
         else [f'  <link name="{_xa(model.root)}"/>']
     for i, s in enumerate(model.specs):
@@ -821,7 +836,8 @@ def to_urdf(model: Model) -> str:
             out.append('      <inertia ixx="{!r}" ixy="{!r}" ixz="{!r}" iyy="{!r}" iyz="{!r}" izz="{!r}"/>'.format(
                 *(float(Ic[j, k]) for j, k in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))))
             out.append('    </inertial>')
-        for v in (s.visuals or (link_visuals(s, int(model.jtype[i]), kids[i]) if drawn else ())):
+        own = s.visuals if s.visuals is not None else link_visuals(s, int(model.jtype[i]), kids[i])
+        for v in (*own, *mounted.get(s.name, ())):
             out.append(f'    {v}')
         out.append('  </link>')
         jt = int(model.jtype[i])

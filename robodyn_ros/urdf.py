@@ -121,7 +121,8 @@ class UrdfRobot:
     URDF ``<limit velocity>`` (reported only); text: the URDF text read; notes: the
     :class:`UrdfWarning` messages issued while reading (one line each); root_visuals: the ``<visual>``
     elements (XML text) of a fixed base's root link, which is no body of the model but is drawn (a
-    floating root's are its spec's).
+    floating root's are its spec's); None, and every spec's ``visuals`` None, when the file has no
+    ``<visual>`` at all (:func:`robodyn_ros.model.to_urdf` then draws shapes).
     """
 
     name: str
@@ -131,7 +132,7 @@ class UrdfRobot:
     velocity_limits: dict = field(default_factory=dict)
     text: str = ''
     notes: list = field(default_factory=list)
-    root_visuals: tuple = ()
+    root_visuals: tuple | None = ()
 
 
 # ------------------------------------------------------------------------------------------------
@@ -290,8 +291,13 @@ def _read(data, base_dir, label, floating, locked, notes, opts: _Options) -> Urd
         return _lock_massless(data, base_dir, label, floating, locked, notes, specs, bare, opts)
     specs = _with_armature(specs, opts.armature, floating, root, name, notes)
     vel = {s.joint: s.velocity_limit for s in specs if s.velocity_limit is not None}
+    if not any(lk.visuals for lk in links.values()):   # a file that draws nothing: shapes are drawn for it
+        specs = [replace(s, visuals=None) for s in specs]
+        root_visuals = None
+    else:
+        root_visuals = () if floating else tuple(links[root].visuals)
     return UrdfRobot(name=name, root=root, specs=specs, floating=floating, velocity_limits=vel, text=text,
-                     root_visuals=() if floating else tuple(links[root].visuals))
+                     root_visuals=root_visuals)
 
 
 def _inferable(links: dict, parent_of: dict, root: str, floating: bool) -> list:

@@ -305,3 +305,69 @@ def test_a_fixed_base_urdfs_root_link_keeps_its_visuals_moved_by_the_mount_pose(
     np.testing.assert_allclose([float(x) for x in got.get('xyz').split()], want_t, atol=1e-15)
     got_R = Rotation.from_euler('xyz', [float(x) for x in got.get('rpy').split()]).as_matrix()
     np.testing.assert_allclose(got_R, want_R, atol=1e-14)
+
+
+_PLATFORM = """  - kind: diff_drive
+    name: host
+    chassis: {mass: 3.3, yaw_inertia: 0.18965, com: [0.0, 0.0, 0.28]}
+    wheels: {radius: 0.28, half_track: 0.35, mass: 0.3, spin_inertia: 0.0037}
+    motor: {kind: dc_motor, torque_constant: 0.061, resistance: 1.7, inductance: 0.0, supply_voltage: 12.0}
+"""
+_FREE_BASE = """  - kind: free_base
+    name: host
+    environment: orbit
+    link: base_link
+    joint: base_joint
+    mass: 25.0
+    com: [0.0, 0.0, 0.12]
+    inertia: [0.5208, 0.5208, 0.6667, 0.0, 0.0, 0.0]
+"""
+
+
+@pytest.mark.parametrize('host', ['platform', 'free_base'])
+def test_a_urdf_arm_on_a_platform_or_a_free_base_is_drawn_whole_with_its_host(host):
+    """A URDF arm mounted on a diff_drive platform or a free base: its links keep the file's visuals, its root
+    link's (panda_link0, the Panda's base) are drawn on the host's base_link at the mount pose (composed with
+    scipy's rotations), and the host keeps its drawn shapes: the platform's chassis and wheels, the free base's
+    solid, the same as the host alone draws them. (The host was drawn with nothing, the root link was left out.)"""
+    from scipy.spatial.transform import Rotation
+    from robodyn_ros.scene import parse_scene
+    from robodyn_ros.urdf import example_robot_data_dir
+    path = example_robot_data_dir() / 'panda_description' / 'urdf' / 'panda.urdf'
+    source = {lk.get('name'): lk.findall('visual') for lk in ET.parse(path).getroot().iter('link')}
+    xyz, rpy = [0.05, -0.1, 0.3], [0.0, 0.0, 0.4]
+    head = 'name: p\n' + ('gravity: [0, 0, 0]\n' if host == 'free_base' else '') + 'parts:\n'
+    host_text = _PLATFORM if host == 'platform' else _FREE_BASE
+    arm = (f'  - kind: urdf\n    name: panda\n    file: {path}\n    mount: host\n'
+           f'    origin: {{xyz: {xyz}, rpy: {rpy}}}\n'
+           '    locked: {panda_finger_joint1: 0.02, panda_finger_joint2: 0.02}\n')
+
+    def links(text):
+        return _links_and_joints(parse_scene(text, file='p.yaml').system.urdf())[0]
+
+    alone, both = links(head + host_text), links(head + host_text + arm)
+    for name in alone:   # the host's links: drawn as alone (base_link: besides the arm's base, below)
+        if name != 'base_link':
+            assert [ET.tostring(v).strip() for v in both[name].findall('visual')] == \
+                   [ET.tostring(v).strip() for v in alone[name].findall('visual')], name
+        assert alone[name].findall('visual') or name.endswith('_contact'), name
+    for name, visuals in source.items():
+        if name != 'panda_link0':
+            assert [v.find('geometry/mesh').get('filename') for v in both[name].findall('visual')] == \
+                   [v.find('geometry/mesh').get('filename') for v in visuals], name
+    assert 'panda_link0' not in both
+    base = both['base_link'].findall('visual')
+    meshes = [v for v in base if v.find('geometry/mesh') is not None]
+    assert len(meshes) == 1 and len(base) > 1   # the Panda's base, and the host's own shapes
+    (v,), (f,) = meshes, source['panda_link0']
+    assert v.find('geometry/mesh').get('filename') == f.find('geometry/mesh').get('filename')
+    o = f.find('origin')
+    t_file = _vec(o.get('xyz') if o is not None else '')
+    r_file = Rotation.from_euler('xyz', _vec(o.get('rpy') if o is not None else ''))
+    r0 = Rotation.from_euler('xyz', rpy)
+    np.testing.assert_allclose(_vec(v.find('origin').get('xyz')), r0.apply(t_file) + xyz, atol=1e-15)
+    np.testing.assert_allclose(Rotation.from_euler('xyz', _vec(v.find('origin').get('rpy'))).as_matrix(),
+                               (r0 * r_file).as_matrix(), atol=1e-14)
+    if host == 'free_base':   # a floating base's own solid does not depend on what hangs from it
+        assert [ET.tostring(x).strip() for x in base if x is not v] == \
+               [ET.tostring(x).strip() for x in alone['base_link'].findall('visual')]

@@ -119,7 +119,7 @@ def test_materials_without_names_and_shared_materials_make_a_description_urdfdom
     assert notes == []
     b = next(s for s in r.specs if s.name == 'b')
     assert '<color rgba="0 0 1 1"' in b.visuals[0] and 'name="b_visual1"' in b.visuals[1]
-    exported = to_urdf(build_model(r.specs, root=r.root, name=r.name))
+    exported = to_urdf(build_model(r.specs, root=r.root, name=r.name, root_visuals=r.root_visuals))
     pm = pin.buildModelFromXML(exported)
 
     def visuals(text):  # urdfdom drops the link's visuals (robot_state_publisher: the whole model) on an error

@@ -221,13 +221,14 @@ def moved_visual(visual: str, T0) -> str:
     return ET.tostring(el, encoding='unicode')
 
 
-def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None, root_visuals=()) -> Part:
+def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None, root_visuals=None) -> Part:
     """Build an ``arm`` part: a kinematic tree from a DH table or explicit links -> ArmSystem.
 
     spec: the part mapping (see the module docstring for its keys); path: its key path
     ('parts[0]'); ctx: validation context (file name, gravity); root_visuals: ``<visual>`` elements (XML
-    text) of the root link (an imported URDF's), in its frame (moved with the joints by ``origin``). Model
-    errors are re-raised as :class:`SceneError` with the key path of the offending link.
+    text) of the root link (an imported URDF's), in its frame (moved with the joints by ``origin``; on a
+    platform or a free base they are drawn on its link), or None (shapes drawn). Model errors are re-raised
+    as :class:`SceneError` with the key path of the offending link.
     """
     ctx.mapping(spec, path, required=_ARM_REQUIRED, optional=_ARM_OPTIONAL)
     name = ctx.string(spec['name'], _key(path, 'name'))
@@ -246,7 +247,7 @@ def build_arm_part(spec: dict, path: str, ctx: SceneContext, specs=None, root_vi
         specs, paths = _explicit_specs(ctx, spec, path, root, free)
     if 'origin' in spec:  # the mount pose: compose it into the joints that hang from the root
         T0 = ctx.pose(spec['origin'], _key(path, 'origin'))
-        root_visuals = [moved_visual(v, T0) for v in root_visuals]
+        root_visuals = None if root_visuals is None else [moved_visual(v, T0) for v in root_visuals]
         for s in specs:
             if s.parent in (None, root):
                 T = np.eye(4)

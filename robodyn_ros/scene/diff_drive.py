@@ -106,6 +106,7 @@ def _assemble_diff_drive(ctx: SceneContext, parts: list):
     am = arm.system.model
     try:
         return DiffDriveSystem(drive.system.params, arm_specs=list(am.specs), arm_root=am.root,
-                               arm_actuated=arm.system.actuated, gravity=ctx.gravity, name=drive.name)
+                               arm_actuated=arm.system.actuated, gravity=ctx.gravity, name=drive.name,
+                               arm_root_visuals=am.root_visuals or ())
     except (ModelError, ValueError) as e:
         ctx.fail(arm.path, f'cannot mount it on {drive.name!r}: {e}')

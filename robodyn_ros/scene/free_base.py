@@ -71,7 +71,7 @@ def _assemble_free_base(ctx: SceneContext, parts: list):
     fb = bases[0]
     arms = [p for p in parts if p is not fb]
     link = fb.system.base_link
-    specs, actuated = [], []
+    specs, actuated, mounted = [], [], []
     for p in arms:
         if p.kind != 'arm' or p.mount != fb.name:
             ctx.fail(_key(p.path, 'mount'), f"with a free_base part every other part must be an 'arm' with "
@@ -82,7 +82,9 @@ def _assemble_free_base(ctx: SceneContext, parts: list):
         _refuse_limit_moments(ctx, p, 'free_base')
         specs += list(p.system.model.specs)
         actuated += list(p.system.actuated)
+        if p.system.model.root_visuals:   # an imported arm's root link, drawn on the base's
+            mounted.append((link, p.system.model.root_visuals))
     try:
-        return fb.system.with_arm(specs, actuated=actuated) if arms else fb.system
+        return fb.system.with_arm(specs, actuated=actuated, mounted_visuals=mounted) if arms else fb.system
     except (ModelError, ValueError) as e:
         ctx.fail(fb.path, str(e))

@@ -177,5 +177,4 @@ def build_urdf_part(spec: dict, path: str, ctx: SceneContext) -> Part:
         root = host.system.base_link
     arm_spec = {'kind': 'arm', 'name': name, 'mount': mount, 'root': root,
                 **{k: spec[k] for k in ('origin', 'actuated', 'command_interfaces', 'servo') if k in spec}}
-    return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)),
-                          root_visuals=robot.root_visuals if host is None else ())   # (on a free base: not drawn)
+    return build_arm_part(arm_spec, path, ctx, specs=(specs, [where] * len(specs)), root_visuals=robot.root_visuals)

@@ -215,9 +215,10 @@ class DiffDriveSystem(System):
     params: :class:`PlatformParams`; arm_specs: LinkSpecs of an arm whose root-attached links
     hang from ``base_link`` (their origins already in base_link coordinates; ``None`` = no arm);
     arm_root: the name those specs use for their base frame; arm_actuated: arm joints driven by
-    the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom; backend:
-    ``'numpy'`` (the methods below, the reference) or ``'numba'`` (``'generated'`` is taken as
-    numba): :mod:`robodyn_ros.kernels.diffdrive` evaluates the right-hand side, projection and
+    the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom; arm_root_visuals:
+    the ``<visual>`` elements of an imported arm's root link, in base_link's frame (drawn on base_link by
+    :meth:`urdf`); backend: ``'numpy'`` (the methods below, the reference) or ``'numba'``
+    (``'generated'`` is taken as numba): :mod:`robodyn_ros.kernels.diffdrive` evaluates the right-hand side, projection and
     constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
     in one call and :meth:`outputs` is one call of ``dd_outputs`` (the numbers of the numpy
     method to round-off); default
@@ -232,20 +233,23 @@ class DiffDriveSystem(System):
         """The same platform (and arm) built again on another ``backend``."""
         return DiffDriveSystem(self.params, arm_specs=self.arm_specs or None, arm_root=self.arm_root,
                                arm_actuated=self.actuated, gravity=tuple(self.model.gravity), name=self.model.name,
-                               backend=backend)
+                               backend=backend, arm_root_visuals=self.arm_root_visuals)
 
     def __init__(self, params: PlatformParams | None = None, arm_specs=None, arm_root='base_link',
-                 arm_actuated=None, gravity=(0.0, 0.0, -9.81), name='diff_drive', backend=None):
+                 arm_actuated=None, gravity=(0.0, 0.0, -9.81), name='diff_drive', backend=None,
+                 arm_root_visuals=()):
         self.backend = resolve_backend(backend)
         self.params = p = params or PlatformParams()
         self.motors = tuple(p.motors)
         self.has_arm = bool(arm_specs)
         self.arm_specs, self.arm_root = list(arm_specs or []), arm_root  # as given (rebuild with another backend)
+        self.arm_root_visuals = tuple(arm_root_visuals)   # an imported arm's root link, drawn on base_link
         specs = self._platform_specs(p, dynamic=True)
         arm = self._rehome_arm(arm_specs or [], arm_root)
         self.model = build_model(specs + arm, gravity=gravity, name=name, root='odom')
         self.urdf_model = build_model(self._platform_specs(p, dynamic=False) + arm, gravity=gravity, name=name,
-                                      root='base_link')
+                                      root='base_link', mounted_visuals=(('base_link', self.arm_root_visuals),)
+                                      if self.arm_root_visuals else ())
         m = self.model
         self.nv = m.nv
         self.nq = m.nv

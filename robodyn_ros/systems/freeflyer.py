@@ -65,20 +65,21 @@ def _cross(a, b):
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
-def free_flyer_model(base: LinkSpec, arm_specs, gravity=(0.0, 0.0, 0.0), name='free_flyer', world='odom') -> Model:
+def free_flyer_model(base: LinkSpec, arm_specs, gravity=(0.0, 0.0, 0.0), name='free_flyer', world='odom',
+                     mounted_visuals=()) -> Model:
     """A model whose body 0 is the platform on a FREE joint from ``world`` and the arm hangs from it.
 
     base: the platform's LinkSpec (name = base link, joint = the free joint's name, mass, com,
     inertia; its joint_type is forced to 'free'); arm_specs: LinkSpecs of the arm whose root
     parent is ``base.name`` (or None); gravity: (3,) in the world frame; world: name of the
-    fixed world frame (``odom``).
+    fixed world frame (``odom``); mounted_visuals: drawn besides a link's own (``Model.mounted_visuals``).
     """
     from dataclasses import replace
     specs = [replace(base, joint_type='free', parent=None, origin_xyz=(0.0, 0.0, 0.0), origin_rpy=(0.0, 0.0, 0.0),
                      origin_R=None)]
     for s in arm_specs:
         specs.append(replace(s, parent=base.name if s.parent in (None, base.name) else s.parent))
-    model = build_model(specs, gravity=gravity, name=name, root=world)
+    model = build_model(specs, gravity=gravity, name=name, root=world, mounted_visuals=mounted_visuals)
     if model.jtype[0] != FREE or any(model.jtype[i] == FREE for i in range(1, model.nb)):
         raise ModelError(f'{name}: exactly one free joint, at the platform, is allowed')
     return model
@@ -235,14 +236,17 @@ class _FreeBaseCommon(System):
         return {'environment': self.environment, 'table_height': self._height0, 'stabilisation': self.stabilisation,
                 'alpha': self._gains[0], 'beta': self._gains[1]}
 
-    def with_arm(self, arm_specs, actuated=None, name=None):
+    def with_arm(self, arm_specs, actuated=None, name=None, mounted_visuals=()):
         """The same free base (class, environment, options) carrying the arm ``arm_specs``.
 
         arm_specs: LinkSpecs whose root parent is this system's base link (or None); actuated:
-        driven joints (default all); name: model name (default this model's).
+        driven joints (default all); name: model name (default this model's); mounted_visuals:
+        ``((link, visuals), ...)``, an imported arm's root-link visuals drawn on the base link
+        (``Model.mounted_visuals``).
         """
         model = free_flyer_model(self.model.specs[0], arm_specs, gravity=self.model.gravity,
-                                 name=name or self.model.name, world=self.model.root)
+                                 name=name or self.model.name, world=self.model.root,
+                                 mounted_visuals=mounted_visuals)
         return type(self)(model, actuated=actuated, backend=self.backend, **self.options)
 
     def rebuilt(self, backend, cls=None, **changes):
