@@ -458,3 +458,31 @@ def test_processes_that_start_the_same_robot_at_once_compile_its_code_once(tmp_p
     assert sum(res[0]['hits']) == 0 and len(res[0]['hits']) >= 2   # the first compiled every function ...
     # ... and the other loaded them
     assert all(h == 1 for h in res[1]['hits']) and len(res[1]['hits']) == len(res[0]['hits'])
+
+
+def test_a_generated_module_is_compiled_to_bytecode_once_where_python_writes_no_bytecode(tmp_path, monkeypatch):
+    """With ``PYTHONDONTWRITEBYTECODE`` (``sys.dont_write_bytecode``), Python compiles an imported module's source
+    in every process; a generated module's bytecode is written into its ``__pycache__`` at its first import, and
+    an import in a later process (here: the module dropped from ``sys.modules``) reads it: importlib compiles the
+    module's source once over both imports (``SourceFileLoader.source_to_code``, counted), not twice."""
+    import importlib.machinery
+    import importlib.util
+    import sys
+    monkeypatch.setattr(sys, 'dont_write_bytecode', True)
+    monkeypatch.setattr(codegen, 'GENERATED_DIR', str(tmp_path))
+    path = codegen.module_path(_load(_robot('double_pendulum_description/urdf/double_pendulum.urdf')).system.model)
+    name = os.path.splitext(os.path.basename(path))[0]
+    monkeypatch.delitem(sys.modules, name, raising=False)
+    compiled = []
+    real = importlib.machinery.SourceFileLoader.source_to_code
+
+    def counted(self, data, where, *args, **kw):
+        compiled.append(where)
+        return real(self, data, where, *args, **kw)
+    monkeypatch.setattr(importlib.machinery.SourceFileLoader, 'source_to_code', counted)
+    first = codegen._import(path)
+    assert os.path.exists(importlib.util.cache_from_source(path))
+    del sys.modules[name]
+    second = codegen._import(path)
+    assert second is not first and second.__file__ == path
+    assert compiled == [path]
