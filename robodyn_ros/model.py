@@ -799,9 +799,9 @@ def to_urdf(model: Model) -> str:
     where the file has none); every other link (a link of a scene's part, of a platform, of a URDF
     without any ``<visual>``) gets shapes drawn from its inertia and joints (:func:`link_visuals`) so
     that a 3D viewer shows bodies, and a link a URDF robot is mounted on gets that robot's root-link
-    visuals as well (``Model.mounted_visuals``). Every number is written as Python's ``repr`` of the double (the shortest text
-    that parses back to the same bits), so a tool that rebuilds the model from this text gets
-    the simulator's numbers exactly.
+    visuals as well (``Model.mounted_visuals``). Every number is written as Python's ``repr`` of the
+    double (the shortest text that parses back to the same bits), so a tool that rebuilds the model from
+    this text gets the simulator's numbers exactly.
     """
     def f(x):
         return ' '.join(repr(float(v)) for v in x)

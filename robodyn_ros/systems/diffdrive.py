@@ -218,8 +218,8 @@ class DiffDriveSystem(System):
     the ``effort`` port (default every 1-DOF arm joint); gravity: (3,) m/s² in odom; arm_root_visuals:
     the ``<visual>`` elements of an imported arm's root link, in base_link's frame (drawn on base_link by
     :meth:`urdf`); backend: ``'numpy'`` (the methods below, the reference) or ``'numba'``
-    (``'generated'`` is taken as numba): :mod:`robodyn_ros.kernels.diffdrive` evaluates the right-hand side, projection and
-    constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
+    (``'generated'`` is taken as numba): :mod:`robodyn_ros.kernels.diffdrive` evaluates the right-hand
+    side, projection and constrained solve (equal to 1e-12), :meth:`fused_advance` runs whole periods of fixed steps
     in one call and :meth:`outputs` is one call of ``dd_outputs`` (the numbers of the numpy
     method to round-off); default
     :func:`robodyn_ros.systems.base.default_backend`.
