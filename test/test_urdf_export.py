@@ -273,7 +273,6 @@ def test_a_fixed_base_urdfs_root_link_keeps_its_visuals_moved_by_the_mount_pose(
     base) is in the exported description, as the file has it; with the part's ``origin``, the visual moves with
     the joints that hang from it: its exported origin is the mount pose times the file's (composed here with
     scipy's rotations, not the package's). Every other link keeps its visuals too."""
-    from scipy.spatial.transform import Rotation
     from robodyn_ros.scene import parse_scene
     from robodyn_ros.urdf import example_robot_data_dir
     path = example_robot_data_dir() / 'panda_description' / 'urdf' / 'panda.urdf'
@@ -295,16 +294,20 @@ def test_a_fixed_base_urdfs_root_link_keeps_its_visuals_moved_by_the_mount_pose(
     moved = exported(f'    origin: {{xyz: {xyz}, rpy: {rpy}}}\n')
     (v,) = moved['panda_link0']
     assert v.find('geometry/mesh').get('filename') == mesh
-    o = original['panda_link0'][0].find('origin')
-    t_file = [float(x) for x in (o.get('xyz') if o is not None else '0 0 0').split()]
-    r_file = Rotation.from_euler('xyz', [float(x) for x in (o.get('rpy') if o is not None else '0 0 0').split()])
+    _assert_at_mount_pose(v, original['panda_link0'][0], xyz, rpy)
+
+
+def _assert_at_mount_pose(got, given, xyz, rpy):
+    """The exported visual got is the file's visual given moved by the mount pose (xyz, rpy): its origin is the
+    pose times the file's, composed with scipy's rotations (not the package's)."""
+    from scipy.spatial.transform import Rotation
+    o = given.find('origin')
+    t_file = _vec(o.get('xyz') if o is not None else '')
+    r_file = Rotation.from_euler('xyz', _vec(o.get('rpy') if o is not None else ''))
     r0 = Rotation.from_euler('xyz', rpy)
-    want_R = (r0 * r_file).as_matrix()
-    want_t = r0.apply(t_file) + xyz
-    got = v.find('origin')
-    np.testing.assert_allclose([float(x) for x in got.get('xyz').split()], want_t, atol=1e-15)
-    got_R = Rotation.from_euler('xyz', [float(x) for x in got.get('rpy').split()]).as_matrix()
-    np.testing.assert_allclose(got_R, want_R, atol=1e-14)
+    np.testing.assert_allclose(_vec(got.find('origin').get('xyz')), r0.apply(t_file) + xyz, atol=1e-15)
+    np.testing.assert_allclose(Rotation.from_euler('xyz', _vec(got.find('origin').get('rpy'))).as_matrix(),
+                               (r0 * r_file).as_matrix(), atol=1e-14)
 
 
 _PLATFORM = """  - kind: diff_drive
@@ -330,7 +333,6 @@ def test_a_urdf_arm_on_a_platform_or_a_free_base_is_drawn_whole_with_its_host(ho
     link's (panda_link0, the Panda's base) are drawn on the host's base_link at the mount pose (composed with
     scipy's rotations), and the host keeps its drawn shapes: the platform's chassis and wheels, the free base's
     solid, the same as the host alone draws them. (The host was drawn with nothing, the root link was left out.)"""
-    from scipy.spatial.transform import Rotation
     from robodyn_ros.scene import parse_scene
     from robodyn_ros.urdf import example_robot_data_dir
     path = example_robot_data_dir() / 'panda_description' / 'urdf' / 'panda.urdf'
@@ -361,13 +363,7 @@ def test_a_urdf_arm_on_a_platform_or_a_free_base_is_drawn_whole_with_its_host(ho
     assert len(meshes) == 1 and len(base) > 1   # the Panda's base, and the host's own shapes
     (v,), (f,) = meshes, source['panda_link0']
     assert v.find('geometry/mesh').get('filename') == f.find('geometry/mesh').get('filename')
-    o = f.find('origin')
-    t_file = _vec(o.get('xyz') if o is not None else '')
-    r_file = Rotation.from_euler('xyz', _vec(o.get('rpy') if o is not None else ''))
-    r0 = Rotation.from_euler('xyz', rpy)
-    np.testing.assert_allclose(_vec(v.find('origin').get('xyz')), r0.apply(t_file) + xyz, atol=1e-15)
-    np.testing.assert_allclose(Rotation.from_euler('xyz', _vec(v.find('origin').get('rpy'))).as_matrix(),
-                               (r0 * r_file).as_matrix(), atol=1e-14)
+    _assert_at_mount_pose(v, f, xyz, rpy)
     if host == 'free_base':   # a floating base's own solid does not depend on what hangs from it
         assert [ET.tostring(x).strip() for x in base if x is not v] == \
                [ET.tostring(x).strip() for x in alone['base_link'].findall('visual')]
